@@ -1,0 +1,1 @@
+"""Garment stage: cloth meshes (generators, sewing patterns, imported meshes) as simulation input."""

@@ -1,0 +1,1 @@
+"""Hull stage: convex hulls per rigid region, inflation, constrained QEM simplification, joint spheres."""

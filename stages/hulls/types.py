@@ -1,0 +1,120 @@
+"""Data contracts of the hull stage: convex hulls per rigid region, spheres per flexible region.
+
+All geometry is in the bone-local frame of the collider's joint (see stages/rig/types.py):
+rigid regions do not deform, so everything built here is valid for the whole animation.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stages.checks import ContractError, check_array, check_index
+
+
+@dataclass(frozen=True)
+class ConvexMesh:
+    """A closed convex triangle mesh.
+
+    vertices: (n, 3) float64, metres, bone-local.
+    faces: (m, 3) int32, counter-clockwise seen from outside (outward normals).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+
+    def __post_init__(self):
+        v = check_array("ConvexMesh", "vertices", self.vertices, (None, 3), np.float64)
+        f = check_array("ConvexMesh", "faces", self.faces, (None, 3), np.int32)
+        check_index("ConvexMesh", "faces", f, v.shape[0])
+        if f.shape[0] < 4:
+            raise ContractError(f"ConvexMesh.faces: a closed convex mesh needs >= 4 faces, got {f.shape[0]}")
+
+    @property
+    def planes(self) -> np.ndarray:
+        """(m, 4) float64: unit outward normal n and offset d per face; inside iff n.x <= d."""
+        a, b, c = (self.vertices[self.faces[:, i]] for i in range(3))
+        n = np.cross(b - a, c - a)
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        return np.column_stack([n, np.einsum("ij,ij->i", n, a)])
+
+
+@dataclass(frozen=True)
+class HullFitReport:
+    """Fit figures of one hull (paper A §2.2). Volumes in m^3, distances in m."""
+
+    faces_raw: int
+    faces_inflated: int
+    faces_simplified: int
+    volume_raw: float
+    volume_simplified: float
+    hausdorff: float          # one-sided, simplified hull surface -> raw hull
+    contains_region: bool     # every region vertex on or inside the simplified hull
+    worst_violation: float    # max signed distance of a region vertex outside it (<= 0 is fine)
+
+    @property
+    def excess_volume(self) -> float:
+        return self.volume_simplified - self.volume_raw
+
+
+@dataclass(frozen=True)
+class HullCollider:
+    """The collider of one rigid region.
+
+    bone: joint index whose bone-local frame the meshes are in; name: that joint's name.
+    region_points: (p, 3) float64, the region's bind-pose vertices in bone-local coordinates.
+    raw / inflated / simplified: the hull at each step; `simplified` is what collides.
+    """
+
+    bone: int
+    name: str
+    region_points: np.ndarray
+    raw: ConvexMesh
+    inflated: ConvexMesh
+    simplified: ConvexMesh
+    report: HullFitReport
+
+    def __post_init__(self):
+        check_array(f"HullCollider[{self.name!r}]", "region_points", self.region_points, (None, 3), np.float64)
+
+
+@dataclass(frozen=True)
+class SphereCollider:
+    """The collider of one flexible region: a sphere at the joint.
+
+    joint: joint index; center: (3,) float64, bone-local frame of `joint` (the joint origin);
+    radius: metres, farthest region vertex + delta. region_points: (p, 3) bone-local.
+    """
+
+    joint: int
+    name: str
+    center: np.ndarray
+    radius: float
+    region_points: np.ndarray
+
+    def __post_init__(self):
+        o = f"SphereCollider[{self.name!r}]"
+        check_array(o, "center", self.center, (3,), np.float64)
+        check_array(o, "region_points", self.region_points, (None, 3), np.float64)
+        if not (np.isfinite(self.radius) and self.radius > 0):
+            raise ContractError(f"{o}.radius: expected a positive radius, got {self.radius}")
+
+
+@dataclass(frozen=True)
+class ColliderSet:
+    """Every collider of a character, plus the parameters they were fitted with."""
+
+    hulls: tuple[HullCollider, ...]
+    spheres: tuple[SphereCollider, ...]
+    delta: float              # inflation thickness, metres
+    min_triangles: int        # simplification floor
+
+    def __post_init__(self):
+        bones = [h.bone for h in self.hulls]
+        if len(set(bones)) != len(bones):
+            raise ContractError("ColliderSet.hulls: at most one hull per bone")
+        joints = [s.joint for s in self.spheres]
+        if len(set(joints)) != len(joints):
+            raise ContractError("ColliderSet.spheres: at most one sphere per joint")
+        if not (np.isfinite(self.delta) and self.delta >= 0):
+            raise ContractError(f"ColliderSet.delta: expected a non-negative thickness, got {self.delta}")

@@ -1,0 +1,1 @@
+"""Obstacle stage: environment meshes, k-DOP trees, continuous point-triangle contacts (paper B)."""

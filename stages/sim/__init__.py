@@ -1,0 +1,1 @@
+"""Simulation stage: Verlet mass-spring cloth, position correction, collisions, attachments."""
