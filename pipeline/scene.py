@@ -1,0 +1,239 @@
+"""Scene files: the YAML schema, loading with line/column marks, and path resolution.
+
+`load_scene(path)` returns a `Scene`: the validated, default-filled settings plus where they came
+from. Relative paths inside the file resolve against the scene file's folder.
+"""
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from pipeline.schema import REQUIRED, Field, SceneError, validate
+
+V3 = Field("vec3")
+
+
+def _pin_fields():
+    return {
+        "indices": Field("list", None, "particle indices to pin", item=Field("int", lo=0)),
+        "collider": Field("str", None, "joint name: pin particles near this joint's collider (bind pose)"),
+        "within": Field("float", 0.03, "distance (m) to the collider surface / joint for `collider`", lo=0.0),
+        "boundary": Field("str", None, "pin a whole boundary loop", choices=("top", "bottom")),
+    }
+
+
+def _check_pin(p):
+    if p is None:
+        return None
+    if p["indices"] is None and p["collider"] is None and p["boundary"] is None:
+        return "expected at least one of 'indices', 'collider' or 'boundary'"
+    return None
+
+
+PIN = Field("section", None, "particles with inverse mass 0, attached to a bone", fields=_pin_fields(), check=_check_pin)
+
+_GARMENT_COMMON = {
+    "name": Field("str", REQUIRED, "garment name (entity path sim/<name>)"),
+    "density": Field("float", 0.2, "area density, kg/m^2", lo=0.0, lo_open=True),
+    "pin": PIN,
+}
+
+GARMENT = Field("union", REQUIRED, "a garment", variants={
+    "rectangle": {
+        **_GARMENT_COMMON,
+        "width": Field("float", 1.0, "size along the cloth's first axis, m", lo=0.0, lo_open=True),
+        "height": Field("float", 1.0, "size along the cloth's second axis, m", lo=0.0, lo_open=True),
+        "resolution": Field("list", [50, 50], "particles along each axis [nx, ny]", item=Field("int", lo=2, hi=1000), length=2),
+        "center": Field("vec3", [0.0, 1.0, 0.0], "centre, m, relative frame at frame 0"),
+        "normal": Field("str", "y", "axis the cloth faces", choices=("x", "y", "z")),
+    },
+    "tube": {
+        **_GARMENT_COMMON,
+        "radius_top": Field("float", 0.18, "m", lo=0.0, lo_open=True),
+        "radius_bottom": Field("float", 0.30, "m", lo=0.0, lo_open=True),
+        "length": Field("float", 0.45, "m", lo=0.0, lo_open=True),
+        "n_around": Field("int", 48, "particles around", lo=6, hi=2000),
+        "n_down": Field("int", 24, "particle rings top to bottom", lo=2, hi=2000),
+        "at_joint": Field("str", None, "centre the tube top at this joint (bind pose)"),
+        "center": Field("vec3", None, "top centre, m (instead of at_joint)"),
+        "offset": Field("vec3", [0.0, 0.0, 0.0], "added to the top centre, m"),
+    },
+})
+
+_OBSTACLE_COMMON = {
+    "name": Field("str", REQUIRED, "obstacle name (entity path obstacles/<name>)"),
+    "thickness": Field("float", 0.005, "contact thickness, m", lo=0.0),
+    "friction": Field("float", 0.3, "tangential friction coefficient", lo=0.0, hi=1.0),
+    "restitution": Field("float", 0.0, "normal restitution", lo=0.0, hi=1.0),
+    "velocity": Field("vec3", [0.0, 0.0, 0.0], "rigid linear velocity, m/s"),
+    "angular_velocity": Field("vec3", [0.0, 0.0, 0.0], "rigid angular velocity about the centre, rad/s"),
+}
+
+OBSTACLE = Field("union", REQUIRED, "an obstacle", variants={
+    "box": {**_OBSTACLE_COMMON, "center": V3, "size": Field("vec3", REQUIRED, "edge lengths, m")},
+    "table": {**_OBSTACLE_COMMON, "center": Field("vec3", [0.0, 0.0, 0.0], "floor point under the table centre"),
+              "top_size": Field("list", [1.0, 0.6], "table top [x, z] size, m", item=Field("float", lo=0.0, lo_open=True), length=2),
+              "height": Field("float", 0.75, "m", lo=0.0, lo_open=True),
+              "top_thickness": Field("float", 0.03, "m", lo=0.0, lo_open=True)},
+    "sphere": {**_OBSTACLE_COMMON, "center": V3, "radius": Field("float", REQUIRED, "m", lo=0.0, lo_open=True),
+               "subdivisions": Field("int", 3, "icosphere subdivisions", lo=0, hi=6)},
+    "plane": {**_OBSTACLE_COMMON, "point": Field("vec3", [0.0, 0.0, 0.0]), "normal": Field("vec3", [0.0, 1.0, 0.0]),
+              "size": Field("float", 10.0, "finite extent, m", lo=0.0, lo_open=True)},
+    "cylinder": {**_OBSTACLE_COMMON, "center": V3, "radius": Field("float", REQUIRED, "m", lo=0.0, lo_open=True),
+                 "height": Field("float", REQUIRED, "m", lo=0.0, lo_open=True),
+                 "sections": Field("int", 32, "facets around", lo=3, hi=512)},
+    "mesh": {**_OBSTACLE_COMMON, "path": Field("path", REQUIRED, "OBJ / PLY / STL / GLB file"),
+             "scale": Field("float", 1.0, lo=0.0, lo_open=True), "translate": Field("vec3", [0.0, 0.0, 0.0]),
+             "rotate_deg": Field("vec3", [0.0, 0.0, 0.0], "XYZ Euler angles, degrees")},
+})
+
+
+def _check_character(c):
+    if c["source"] in ("gltf", "bvh") and not c["path"]:
+        return f"source {c['source']!r} needs a 'path'"
+    if c["source"] == "procedural" and c["path"]:
+        return "source 'procedural' takes no 'path' (did you mean source: gltf or bvh?)"
+    return None
+
+
+SCENE_SPEC = {
+    "name": Field("str", None, "scene name; default: the file name without .yaml"),
+    "seed": Field("int", 0, "seed for every random choice", lo=0),
+    "character": Field("section", {}, "the skinned character", check=_check_character, fields={
+        "source": Field("str", "procedural", "procedural | gltf | bvh", choices=("procedural", "gltf", "bvh")),
+        "path": Field("path", None, ".glb/.gltf or .bvh file, relative to the scene file"),
+        "clip": Field("any", 0, "clip name or index ('rest' = no motion)"),
+        "scale": Field("float", 1.0, "length scale applied to the asset", lo=0.0, lo_open=True),
+        "up_axis": Field("str", "y", "up axis of the asset", choices=("y", "z")),
+        "body": Field("section", {}, "built-in character / generated BVH skin sizes", fields={
+            "height": Field("float", 1.75, "m", lo=0.5, hi=3.0),
+            "chest": Field("float", 1.0, "girth scale", lo=0.3, hi=3.0),
+            "waist": Field("float", 1.0, "girth scale", lo=0.3, hi=3.0),
+            "hips": Field("float", 1.0, "girth scale", lo=0.3, hi=3.0),
+            "arms": Field("float", 1.0, "girth scale", lo=0.3, hi=3.0),
+            "legs": Field("float", 1.0, "girth scale", lo=0.3, hi=3.0),
+        }),
+    }),
+    "frames": Field("section", {}, "which part of the clip to run", fields={
+        "start": Field("float", 0.0, "clip time of the first frame, s", lo=0.0),
+        "count": Field("int", 60, "number of frames", lo=1, hi=100000),
+    }),
+    "colliders": Field("section", {}, "collider fitting (paper A §2)", fields={
+        "delta": Field("float", 0.01, "inflation thickness, m", lo=0.0, hi=0.5),
+        "rigid_threshold": Field("float", 0.9, "dominant skin weight that makes a vertex rigid", lo=0.0, lo_open=True, hi=1.0),
+        "min_triangles": Field("int", 40, "simplification stops at this many hull faces", lo=4),
+        "map": Field("section", {}, "map volume per hull", fields={
+            "type": Field("str", "auto", "auto | sphere | cylinder", choices=("auto", "sphere", "cylinder")),
+            "n_theta": Field("int", 12, "cells around", lo=3, hi=720),
+            "n_phi": Field("int", 6, "map sphere: cells from pole to pole", lo=2, hi=360),
+            "n_axial": Field("int", 8, "map cylinder: cells along the axis", lo=1, hi=1000),
+        }),
+        "response": Field("str", "ray", "ray (paper) | nearest_plane (baseline)", choices=("ray", "nearest_plane")),
+    }),
+    "garments": Field("list", [], "garments to simulate", item=GARMENT),
+    "obstacles": Field("list", [], "environment obstacles (paper B)", item=OBSTACLE),
+    "simulation": Field("section", {}, "cloth simulation", fields={
+        "dt": Field("float", 1.0 / 30.0, "frame time, s", lo=0.0, lo_open=True, hi=1.0),
+        "substeps": Field("int", 1, "steps per frame", lo=1, hi=1000),
+        "iterations": Field("int", 3, "rounds of spring position correction", lo=1, hi=1000),
+        "gravity": Field("vec3", [0.0, -9.81, 0.0], "m/s^2"),
+        "damping": Field("float", 0.01, "fraction of velocity lost per step", lo=0.0, hi=1.0),
+        "wind": Field("vec3", [0.0, 0.0, 0.0], "air velocity, m/s"),
+        "drag": Field("float", 0.5, "aerodynamic drag coefficient", lo=0.0),
+        "lift": Field("float", 0.1, "aerodynamic lift coefficient", lo=0.0),
+        "friction": Field("float", 0.5, "contact friction with colliders", lo=0.0, hi=1.0),
+        "inertia_scale": Field("float", 0.0, "0 = relative simulation (paper), 1 = world space", lo=0.0, hi=1.0),
+        "stretch_stiffness": Field("float", 1.0, "share of a stretch correction applied", lo=0.0, lo_open=True, hi=1.0),
+        "bend_stiffness": Field("float", 1.0, "share of a bend correction applied", lo=0.0, hi=1.0),
+        "body_audit": Field("bool", True, "count particles inside the true skinned mesh per frame"),
+    }),
+    "output": Field("path", None, "recording path; default recordings/<name>.rrd in the working folder"),
+}
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated scene: `settings` is the default-filled dict tree of SCENE_SPEC."""
+
+    path: Path | None
+    name: str
+    text: str
+    settings: dict
+
+    def __getitem__(self, key):
+        return self.settings[key]
+
+    @property
+    def output(self) -> Path:
+        out = self.settings["output"]
+        return Path(out) if out else Path("recordings") / f"{self.name}.rrd"
+
+
+def _marks(node, path: str, out: dict):
+    """Record (line, column), 1-based, of every key path in a composed YAML node tree."""
+    out[path] = (node.start_mark.line + 1, node.start_mark.column + 1)
+    if isinstance(node, yaml.MappingNode):
+        for k, v in node.value:
+            key = k.value if isinstance(k, yaml.ScalarNode) else str(k.value)
+            sub = f"{path}.{key}" if path else key
+            out["@" + sub] = (k.start_mark.line + 1, k.start_mark.column + 1)  # the key itself
+            _marks(v, sub, out)
+    elif isinstance(node, yaml.SequenceNode):
+        for i, v in enumerate(node.value):
+            _marks(v, f"{path}[{i}]", out)
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """SafeLoader that refuses duplicate keys (YAML silently keeps the last one)."""
+
+    def construct_mapping(self, node, deep=False):
+        seen = set()
+        for k, _ in node.value:
+            key = self.construct_object(k, deep=deep)
+            if key in seen:
+                raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", k.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
+def parse_scene_text(text: str, *, source: str = "<scene>", base_dir: Path | None = None,
+                     default_name: str = "scene") -> Scene:
+    """Parse and validate scene YAML text."""
+    try:
+        data = yaml.load(text, Loader=_UniqueKeyLoader)
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.MarkedYAMLError as e:
+        m = e.problem_mark or e.context_mark
+        at = f"{source}:{m.line + 1}:{m.column + 1}" if m else source
+        raise SceneError(f"{at}: YAML syntax error: {e.problem or e}") from None
+    except yaml.YAMLError as e:
+        raise SceneError(f"{source}: YAML error: {e}") from None
+    marks: dict = {}
+    if node is not None:
+        _marks(node, "", marks)
+    if data is None:
+        data = {}
+    settings = validate(SCENE_SPEC, data, source=source, marks=marks, base_dir=base_dir)
+    name = settings["name"] or default_name
+    if not re.fullmatch(r"[A-Za-z0-9_.-]+", name):
+        raise SceneError(f"{source}: name: {name!r} must use only letters, digits, '_', '-' and '.'")
+    return Scene(path=None, name=name, text=text, settings=settings)
+
+
+def load_scene(path: str | os.PathLike) -> Scene:
+    """Read, parse and validate a scene file; every problem is a `SceneError` naming the file."""
+    p = Path(path)
+    if not p.exists():
+        raise SceneError(f"{p}: scene file not found")
+    if p.is_dir():
+        raise SceneError(f"{p}: is a folder, expected a .yaml scene file")
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise SceneError(f"{p}: cannot read scene file ({e.__class__.__name__}: {e})") from None
+    scene = parse_scene_text(text, source=str(p), base_dir=p.resolve().parent, default_name=p.stem)
+    return Scene(path=p, name=scene.name, text=text, settings=scene.settings)

@@ -1,0 +1,174 @@
+"""A small declarative schema for scene files, with messages that name the key path.
+
+A schema is a tree of `Field`s. `validate(spec, data)` walks the parsed YAML, fills defaults and
+returns plain dicts / lists; the first problem raises `SceneError` with the key path
+(`garments[1].pin.collider`), the bad value, what was expected and, where the YAML was parsed with
+marks, the line and column.
+"""
+from __future__ import annotations
+
+import difflib
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+REQUIRED = object()
+
+
+class SceneError(ValueError):
+    """A scene file problem: one line naming file, key path, bad value and what was expected."""
+
+
+@dataclass(frozen=True)
+class Field:
+    """One scene key.
+
+    kind: 'float' | 'int' | 'bool' | 'str' | 'vec3' | 'path' | 'section' | 'list' | 'union' | 'any'
+      'union' picks the sub-schema in `variants` named by the value of `tag` (e.g. `type`).
+    lo/hi: inclusive bounds for numbers (and list lengths for 'list'). lo_open: lower bound exclusive.
+    """
+
+    kind: str
+    default: Any = REQUIRED
+    doc: str = ""
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    choices: tuple = ()
+    fields: dict = field(default_factory=dict)        # section
+    item: "Field | None" = None                        # list
+    tag: str = "type"                                  # union
+    variants: dict = field(default_factory=dict)      # union: tag value -> fields dict
+    length: int | None = None                          # fixed-length number lists ('vec3' is 3)
+    check: Callable[[Any], str | None] | None = None   # extra check: returns a problem or None
+
+
+def _where(path: str) -> str:
+    return path or "<top level>"
+
+
+def _describe(v) -> str:
+    s = repr(v)
+    return s if len(s) <= 60 else s[:57] + "..."
+
+
+class _Ctx:
+    def __init__(self, source: str, marks: dict, base_dir: Path | None):
+        self.source, self.marks, self.base_dir = source, marks, base_dir
+
+    def fail(self, path: str, problem: str, *, at_key: bool = False):
+        mark = (self.marks.get("@" + path) if at_key else None) or self.marks.get(path)
+        at = f"{self.source}:{mark[0]}:{mark[1]}" if mark else self.source
+        raise SceneError(f"{at}: {_where(path)}: {problem}")
+
+
+def validate(spec: dict, data, *, source: str = "<scene>", marks: dict | None = None,
+             base_dir: Path | None = None) -> dict:
+    """Validate `data` against the top-level fields `spec`; return the filled-in dict."""
+    return _section(spec, data, "", _Ctx(source, marks or {}, base_dir))
+
+
+def _section(fields: dict, data, path: str, ctx: _Ctx, skip: tuple = ()) -> dict:
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        ctx.fail(path, f"expected a mapping of keys, got {_describe(data)}")
+    out = {}
+    for key in data:
+        if not isinstance(key, str):
+            ctx.fail(path, f"keys must be strings, got {_describe(key)}")
+        if key not in fields and key not in skip:
+            near = difflib.get_close_matches(key, list(fields), n=1, cutoff=0.5)
+            hint = f"; did you mean {near[0]!r}?" if near else f"; valid keys: {', '.join(fields)}"
+            ctx.fail(_join(path, key), f"unknown key {key!r}{hint}", at_key=True)
+    for key, f in fields.items():
+        sub = _join(path, key)
+        if key in data:
+            out[key] = _value(f, data[key], sub, ctx)
+        elif f.default is REQUIRED:
+            ctx.fail(sub, f"missing required key ({f.doc or f.kind})")
+        else:
+            out[key] = _value(f, f.default, sub, ctx) if f.kind in ("section", "list") and f.default is not None else f.default
+    return out
+
+
+def _join(path: str, key: str) -> str:
+    return f"{path}.{key}" if path else key
+
+
+def _number(f: Field, v, path: str, ctx: _Ctx, kind: str):
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        ctx.fail(path, f"expected {'an integer' if kind == 'int' else 'a number'}, got {_describe(v)}")
+    if kind == "int" and not float(v).is_integer():
+        ctx.fail(path, f"expected an integer, got {_describe(v)}")
+    if not math.isfinite(v):
+        ctx.fail(path, f"expected a finite number, got {_describe(v)}")
+    v = int(v) if kind == "int" else float(v)
+    if f.lo is not None and (v <= f.lo if f.lo_open else v < f.lo):
+        ctx.fail(path, f"{_describe(v)} is out of range: expected {'>' if f.lo_open else '>='} {f.lo}"
+                 + (f" and <= {f.hi}" if f.hi is not None else ""))
+    if f.hi is not None and v > f.hi:
+        ctx.fail(path, f"{_describe(v)} is out of range: expected <= {f.hi}"
+                 + (f" and {'>' if f.lo_open else '>='} {f.lo}" if f.lo is not None else ""))
+    return v
+
+
+def _value(f: Field, v, path: str, ctx: _Ctx):
+    if v is None and f.default is None:
+        return None
+    k = f.kind
+    if k in ("float", "int"):
+        out = _number(f, v, path, ctx, k)
+    elif k == "bool":
+        if not isinstance(v, bool):
+            ctx.fail(path, f"expected true or false, got {_describe(v)}")
+        out = v
+    elif k in ("str", "path"):
+        if not isinstance(v, str) or not v:
+            ctx.fail(path, f"expected a{' file path' if k == 'path' else ' string'}, got {_describe(v)}")
+        if f.choices and v not in f.choices:
+            near = difflib.get_close_matches(v, [str(c) for c in f.choices], n=1, cutoff=0.5)
+            hint = f" (did you mean {near[0]!r}?)" if near else ""
+            ctx.fail(path, f"{_describe(v)} is not one of {', '.join(map(str, f.choices))}{hint}")
+        out = v
+        if k == "path":
+            p = Path(v).expanduser()
+            out = str(p if p.is_absolute() or ctx.base_dir is None else (ctx.base_dir / p))
+    elif k == "vec3" or (k == "list" and f.item is not None and f.item.kind in ("float", "int") and f.length):
+        n = 3 if k == "vec3" else f.length
+        if not isinstance(v, (list, tuple)) or len(v) != n:
+            ctx.fail(path, f"expected a list of {n} numbers, got {_describe(v)}")
+        item = f.item or Field("float")
+        out = [_number(item, x, f"{path}[{i}]", ctx, item.kind) for i, x in enumerate(v)]
+    elif k == "section":
+        out = _section(f.fields, v, path, ctx)
+    elif k == "list":
+        if not isinstance(v, list):
+            ctx.fail(path, f"expected a list, got {_describe(v)}")
+        if f.lo is not None and len(v) < f.lo:
+            ctx.fail(path, f"expected at least {int(f.lo)} items, got {len(v)}")
+        if f.hi is not None and len(v) > f.hi:
+            ctx.fail(path, f"expected at most {int(f.hi)} items, got {len(v)}")
+        out = [_value(f.item, x, f"{path}[{i}]", ctx) for i, x in enumerate(v)]
+    elif k == "union":
+        if not isinstance(v, dict):
+            ctx.fail(path, f"expected a mapping with a {f.tag!r} key, got {_describe(v)}")
+        if f.tag not in v:
+            ctx.fail(_join(path, f.tag), f"missing required key (one of {', '.join(f.variants)})")
+        tag = v[f.tag]
+        if tag not in f.variants:
+            near = difflib.get_close_matches(str(tag), list(f.variants), n=1, cutoff=0.5)
+            hint = f" (did you mean {near[0]!r}?)" if near else ""
+            ctx.fail(_join(path, f.tag), f"{_describe(tag)} is not one of {', '.join(f.variants)}{hint}")
+        out = _section(f.variants[tag], v, path, ctx, skip=(f.tag,))
+        out[f.tag] = tag
+    elif k == "any":
+        out = v
+    else:  # pragma: no cover - a schema bug, not user input
+        raise AssertionError(f"unknown field kind {k!r}")
+    if f.check is not None:
+        problem = f.check(out)
+        if problem:
+            ctx.fail(path, problem)
+    return out
