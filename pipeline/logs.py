@@ -1,0 +1,120 @@
+"""What each stage puts in the recording. Stages stay unaware of Rerun; these functions read
+their output dataclasses and log them.
+
+Conventions: timelines `frame` (sequence) and `sim_time` (duration, s); static data static;
+per-frame meshes send only positions and normals as columns against static triangles and colours.
+Everything is shown in the world frame: relative-frame data gets `Motion.root_translation` added.
+"""
+from __future__ import annotations
+
+import numpy as np
+import rerun as rr
+import scipy.sparse
+
+from stages.rig.types import Character, Motion, RegionSplit
+
+
+def palette(n: int, seed: int = 7) -> np.ndarray:
+    """(n, 4) uint8 distinct, deterministic colours (golden-ratio hues)."""
+    h = (np.arange(n) * 0.618033988749895 + seed * 0.1) % 1.0
+    s, v = 0.65, 0.92
+    i = np.floor(h * 6).astype(int) % 6
+    f = h * 6 - np.floor(h * 6)
+    p, q, t = v * (1 - s), v * (1 - f * s), v * (1 - (1 - f) * s)
+    r = np.choose(i, [v, q, p, p, t, v])
+    g = np.choose(i, [t, v, v, q, p, p])
+    b = np.choose(i, [p, p, t, v, v, q])
+    rgb = (np.stack([r, g, b], 1) * 255).astype(np.uint8)
+    return np.column_stack([rgb, np.full(n, 255, np.uint8)])
+
+
+def vertex_normals(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals for one (V, 3) or a stack (F, V, 3) of positions."""
+    p = positions if positions.ndim == 3 else positions[None]
+    f, v = p.shape[:2]
+    a, b, c = (p[:, triangles[:, k]] for k in range(3))
+    fn = np.cross(b - a, c - a)                                   # (F, T, 3), |fn| = 2 * area
+    t = triangles.shape[0]
+    incidence = scipy.sparse.csr_matrix(
+        (np.ones(3 * t), (triangles.T.ravel(), np.tile(np.arange(t), 3))), shape=(v, t))
+    n = (incidence @ fn.transpose(1, 0, 2).reshape(t, -1)).reshape(v, f, 3).transpose(1, 0, 2)
+    norm = np.linalg.norm(n, axis=-1, keepdims=True)
+    n = n / np.where(norm > 0, norm, 1.0)
+    return n if positions.ndim == 3 else n[0]
+
+
+def time_columns(times: np.ndarray, first_frame: int = 0) -> list:
+    return [rr.TimeColumn("frame", sequence=np.arange(first_frame, first_frame + len(times))),
+            rr.TimeColumn("sim_time", duration=np.asarray(times, dtype=np.float64))]
+
+
+def log_mesh_series(rec: rr.RecordingStream, entity: str, triangles: np.ndarray, positions: np.ndarray,
+                    times: np.ndarray, *, colors: np.ndarray | None = None,
+                    albedo: tuple | None = None) -> None:
+    """Static triangles (+ colours), then per-frame positions and normals in one columnar send.
+
+    positions: (F, V, 3) world metres; times: (F,) s.
+    """
+    static = {"triangle_indices": triangles.astype(np.uint32)}
+    if colors is not None:
+        static["vertex_colors"] = colors
+    if albedo is not None:
+        static["albedo_factor"] = albedo
+    rec.log(entity, rr.Mesh3D.from_fields(**static), static=True)
+    f, v = positions.shape[:2]
+    normals = vertex_normals(positions.astype(np.float64), triangles)
+    rec.send_columns(entity, indexes=time_columns(times), columns=rr.Mesh3D.columns(
+        vertex_positions=positions.reshape(-1, 3).astype(np.float32),
+        vertex_normals=normals.reshape(-1, 3).astype(np.float32),
+    ).partition(np.full(f, v)))
+
+
+def log_transform_series(rec: rr.RecordingStream, entity: str, matrices: np.ndarray, times: np.ndarray) -> None:
+    """Per-frame (F, 4, 4) transforms (rotation part must be orthonormal for the viewer)."""
+    rec.send_columns(entity, indexes=time_columns(times), columns=rr.Transform3D.columns(
+        translation=matrices[:, :3, 3].astype(np.float32),
+        mat3x3=matrices[:, :3, :3].astype(np.float32),
+    ))
+
+
+def log_scalar_series(rec: rr.RecordingStream, entity: str, values: np.ndarray, times: np.ndarray,
+                      *, name: str, color=(230, 80, 60)) -> None:
+    rec.log(entity, rr.SeriesLines(names=name, colors=[color]), static=True)
+    rec.send_columns(entity, indexes=time_columns(times),
+                     columns=rr.Scalars.columns(scalars=np.asarray(values, dtype=np.float64)))
+
+
+def world_joint_matrices(character: Character, motion: Motion) -> np.ndarray:
+    """(F, J, 4, 4) world transforms of the bone-local frames (skinning matrices + root translation)."""
+    m = motion.joint_world.copy()
+    m[:, :, :3, 3] += motion.root_translation[:, None, :]
+    return m
+
+
+def log_rig(rec: rr.RecordingStream, character: Character, split: RegionSplit, motion: Motion,
+            skinned: np.ndarray) -> None:
+    """rig/mesh (per frame, coloured by region), rig/regions (bind pose, static), rig/skeleton."""
+    n_j = character.n_joints
+    colors = palette(n_j)
+    region_color = colors[split.region_joint].copy()
+    # flexible regions: the joint colour washed towards white, so joints read as bands
+    region_color[~split.rigid, :3] = (0.45 * region_color[~split.rigid, :3] + 0.55 * 255).astype(np.uint8)
+    world = skinned + motion.root_translation[:, None, :]
+    log_mesh_series(rec, "rig/mesh", character.triangles, world, motion.times, colors=region_color)
+    rec.log("rig/regions", rr.Mesh3D(
+        vertex_positions=character.vertices.astype(np.float32),
+        vertex_normals=vertex_normals(character.vertices, character.triangles).astype(np.float32),
+        triangle_indices=character.triangles.astype(np.uint32), vertex_colors=region_color), static=True)
+    # skeleton: one segment per parent-child pair; joint world position = (M @ inv(IBM)) origin
+    bind_world = np.linalg.inv(character.inverse_bind)
+    joints = np.einsum("fjab,jbc->fjac", world_joint_matrices(character, motion), bind_world)[:, :, :3, 3]
+    kids = np.flatnonzero(character.parents >= 0)
+    segs = np.stack([joints[:, character.parents[kids]], joints[:, kids]], axis=2)  # (F, S, 2, 3)
+    f, s = segs.shape[:2]
+    rec.log("rig/skeleton", rr.LineStrips3D.from_fields(colors=[(250, 210, 60, 255)], radii=[0.006]), static=True)
+    rec.send_columns("rig/skeleton", indexes=time_columns(motion.times),
+                     columns=rr.LineStrips3D.columns(strips=list(segs.reshape(-1, 2, 3).astype(np.float32))).partition(np.full(f, s)))
+    rec.log("rig/joints", rr.Points3D.from_fields(colors=colors, radii=[0.012], labels=list(character.joint_names),
+                                                  show_labels=False), static=True)
+    rec.send_columns("rig/joints", indexes=time_columns(motion.times),
+                     columns=rr.Points3D.columns(positions=joints.reshape(-1, 3).astype(np.float32)).partition(np.full(f, n_j)))
