@@ -1,1 +1,1 @@
-
+"""Pipeline: scene loading and validation, stage orchestration, Rerun recording, CLI."""
