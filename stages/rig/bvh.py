@@ -209,7 +209,7 @@ class _HierarchyParser:
             c = _CANONICAL.get(tok.lower())
             if c is None:
                 if tok == "}" or tok.upper() in ("JOINT", "OFFSET", "CHANNELS", "END"):
-                    self.fail(ln, f"CHANNELS {n} lists only {len(names)} channel names")
+                    self.fail(line, f"CHANNELS {n} lists only {len(names)} channel names")
                 self.fail(ln, f"unknown channel {tok!r} (expected one of {', '.join(CHANNEL_NAMES)})")
             if c in names:
                 self.fail(ln, f"channel {c} listed twice for joint {self.names[j]!r}")
@@ -221,7 +221,9 @@ class _HierarchyParser:
         j = self.add(name, parent, False)
         self.expect_open(f"{keyword} {name}", line)
         while True:
-            tok, ln = self.take(f"'}}' closing {keyword} {name} (opened at line {line})")
+            if self.peek() is None:
+                self.fail(self.end_line, f"unbalanced braces: {keyword} {name} opened at line {line} is not closed")
+            tok, ln = self.take("")
             key = tok.upper()
             if tok == "}":
                 break
@@ -247,7 +249,9 @@ class _HierarchyParser:
         j = self.add(f"{self.names[parent]}_end", parent, True)
         self.expect_open("End Site", line)
         while True:
-            tok, ln = self.take(f"'}}' closing End Site (opened at line {line})")
+            if self.peek() is None:
+                self.fail(self.end_line, f"unbalanced braces: End Site opened at line {line} is not closed")
+            tok, ln = self.take("")
             if tok == "}":
                 break
             if tok.upper() == "OFFSET":
