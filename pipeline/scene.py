@@ -14,7 +14,7 @@ import yaml
 
 from pipeline.schema import REQUIRED, Field, SceneError, validate
 
-V3 = Field("vec3")
+V3 = Field("vec3", [0.0, 0.0, 0.0], "centre, m")
 
 
 def _pin_fields():

@@ -1,0 +1,99 @@
+"""Scene files: every kind of bad input gets one message naming file, key path, value, expectation."""
+from __future__ import annotations
+
+import pytest
+
+from pipeline.scene import SCENE_SPEC, load_scene, parse_scene_text
+from pipeline.schema import SceneError
+
+
+def error_of(text: str) -> str:
+    with pytest.raises(SceneError) as e:
+        parse_scene_text(text, source="s.yaml")
+    return str(e.value)
+
+
+def test_defaults_fill_every_section():
+    s = parse_scene_text("", source="s.yaml", default_name="empty")
+    assert s.name == "empty"
+    assert s["character"]["source"] == "procedural"
+    assert s["simulation"]["iterations"] == 3
+    assert s["colliders"]["map"]["n_theta"] == 12
+    assert s.output.as_posix() == "recordings/empty.rrd"
+    assert set(s.settings) == set(SCENE_SPEC)
+
+
+def test_yaml_syntax_error_has_line_and_column():
+    msg = error_of("simulation:\n  dt: [1, 2\n")
+    assert msg.startswith("s.yaml:") and "YAML syntax error" in msg
+    line = int(msg.split(":")[1])
+    assert line >= 2
+
+
+def test_unknown_key_suggests_nearest_and_points_at_the_key():
+    msg = error_of("simulation:\n  itrations: 3\n")
+    assert msg.startswith("s.yaml:2:3:")
+    assert "simulation.itrations" in msg and "did you mean 'iterations'" in msg
+
+
+def test_nested_key_path_in_list():
+    msg = error_of("garments:\n  - {type: tube, name: a}\n  - type: rectangle\n    name: b\n    pin: {collider: 3}\n")
+    assert "garments[1].pin.collider" in msg and "expected a string" in msg and "3" in msg
+
+
+@pytest.mark.parametrize("text, key, expect", [
+    ("simulation: {dt: -0.1}", "simulation.dt", "out of range"),
+    ("simulation: {iterations: 2.5}", "simulation.iterations", "expected an integer"),
+    ("simulation: {gravity: [0, -9.8]}", "simulation.gravity", "list of 3 numbers"),
+    ("simulation: {damping: .nan}", "simulation.damping", "finite"),
+    ("simulation: {body_audit: 3}", "simulation.body_audit", "true or false"),
+    ("colliders: {map: {type: cone}}", "colliders.map.type", "not one of auto, sphere, cylinder"),
+    ("character: {source: fbx}", "character.source", "not one of"),
+    ("character: {source: gltf}", "character", "needs a 'path'"),
+    ("garments: [{name: x}]", "garments[0].type", "missing required key"),
+    ("garments: [{type: tubr, name: x}]", "garments[0].type", "did you mean 'tube'"),
+    ("garments: [{type: tube, name: x, pin: {}}]", "garments[0].pin", "at least one of"),
+    ("obstacles: [{type: sphere, name: s}]", "obstacles[0].radius", "missing required key"),
+    ("frames: 12", "frames", "expected a mapping"),
+    ("garments: {type: tube}", "garments", "expected a list"),
+])
+def test_wrong_types_and_ranges(text, key, expect):
+    msg = error_of(text)
+    assert f": {key}:" in msg, msg
+    assert expect in msg, msg
+
+
+def test_duplicate_keys_are_refused():
+    assert "duplicate key 'seed'" in error_of("seed: 1\nseed: 2\n")
+
+
+def test_relative_paths_resolve_against_the_scene_folder(tmp_path):
+    (tmp_path / "sub").mkdir()
+    f = tmp_path / "sub" / "x.yaml"
+    f.write_text("character: {source: bvh, path: ../walk.bvh}\noutput: out/x.rrd\n")
+    s = load_scene(f)
+    assert s["character"]["path"] == str(tmp_path / "sub" / ".." / "walk.bvh")
+    assert s.output == tmp_path / "sub" / "out" / "x.rrd"
+
+
+def test_missing_unreadable_and_folder_scene_files(tmp_path):
+    with pytest.raises(SceneError, match="scene file not found"):
+        load_scene(tmp_path / "nope.yaml")
+    with pytest.raises(SceneError, match="is a folder"):
+        load_scene(tmp_path)
+    bad = tmp_path / "bin.yaml"
+    bad.write_bytes(b"\xff\xfe\x00garbage")
+    with pytest.raises(SceneError, match="cannot read scene file"):
+        load_scene(bad)
+
+
+def test_bad_scene_name():
+    assert "name" in error_of("name: 'a b/c'")
+
+
+def test_shipped_scenes_validate_against_the_schema():
+    from pathlib import Path
+    scenes = sorted((Path(__file__).parent.parent / "scenes").glob("*.yaml"))
+    assert scenes, "no scenes shipped"
+    for p in scenes:
+        load_scene(p)
