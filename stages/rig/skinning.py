@@ -1,0 +1,109 @@
+"""Clip sampling, motion (skinning matrices per frame) and linear blend skinning.
+
+Frame conventions are those of `stages.rig.types`: `Motion.joint_world[f, j]` is the skinning
+matrix global_joint(t_f) @ inverse_bind[j] in the relative frame (root translation of frame f
+minus frame 0 removed), so it maps bind-pose model-frame points to relative-frame points and the
+relative frame equals world at frame 0.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from stages.rig.kernels import lbs_kernel
+from stages.rig.transforms import forward_kinematics, slerp, trs_to_matrix
+from stages.rig.types import Character, Clip, Motion
+
+
+def clip_local_time(clip: Clip, times: np.ndarray) -> np.ndarray:
+    """Clip key time for each playback time (seconds from the clip's start): wrap or clamp."""
+    t = np.asarray(times, np.float64)
+    if clip.loop and clip.duration > 0:
+        return clip.times[0] + np.mod(t, clip.duration)
+    return np.clip(clip.times[0] + t, clip.times[0], clip.times[-1])
+
+
+def sample_clip(character: Character, clip: Clip, times) -> np.ndarray:
+    """Local joint transforms (F, J, 4, 4) at playback `times` (F,) seconds from the clip start.
+
+    linear: lerp translation / scale, slerp rotation between the two surrounding keys;
+    step: hold the last key at or before the time. Looping clips wrap, others clamp.
+    """
+    if clip.translations.shape[1] != character.n_joints:
+        raise ValueError(f"clip {clip.name!r} animates {clip.translations.shape[1]} joints, "
+                         f"character {character.name!r} has {character.n_joints}")
+    tl = np.atleast_1d(clip_local_time(clip, times))
+    kt = clip.times
+    if kt.size == 1:
+        i = np.zeros(tl.size, np.int64)
+        return trs_to_matrix(clip.translations[i], clip.rotations[i], clip.scales[i])
+    i = np.clip(np.searchsorted(kt, tl, side="right") - 1, 0, kt.size - 1)
+    if clip.interpolation == "step":
+        return trs_to_matrix(clip.translations[i], clip.rotations[i], clip.scales[i])
+    i = np.minimum(i, kt.size - 2)
+    u = np.clip((tl - kt[i]) / (kt[i + 1] - kt[i]), 0.0, 1.0)[:, None]
+    t = (1 - u)[..., None] * clip.translations[i] + u[..., None] * clip.translations[i + 1]
+    s = (1 - u)[..., None] * clip.scales[i] + u[..., None] * clip.scales[i + 1]
+    r = slerp(clip.rotations[i], clip.rotations[i + 1], u)
+    return trs_to_matrix(t, r, s)
+
+
+def _motion_from_globals(name: str, times: np.ndarray, globals_: np.ndarray, character: Character) -> Motion:
+    root = globals_[:, character.root_joint, :3, 3]
+    root_translation = root - root[0]
+    joint_world = globals_ @ character.inverse_bind
+    joint_world[..., :3, 3] -= root_translation[:, None, :]
+    return Motion(clip_name=name, times=np.asarray(times, np.float64), joint_world=joint_world,
+                  root_translation=root_translation)
+
+
+def sample_motion(character: Character, clip_key, times) -> Motion:
+    """The clip `clip_key` (name or index) sampled at `times` (F,) seconds from the clip start."""
+    clip = character.clip(clip_key)
+    times = np.atleast_1d(np.asarray(times, np.float64))
+    local = sample_clip(character, clip, times)
+    return _motion_from_globals(clip.name, times, forward_kinematics(character.parents, local), character)
+
+
+def rest_motion(character: Character, n_frames: int, dt: float) -> Motion:
+    """The rest pose (`rest_local`) held for n_frames frames dt seconds apart."""
+    if n_frames < 1:
+        raise ValueError(f"rest_motion: n_frames must be >= 1, got {n_frames}")
+    times = np.arange(n_frames, dtype=np.float64) * dt
+    g = forward_kinematics(character.parents, character.rest_local)
+    return _motion_from_globals("rest", times, np.broadcast_to(g, (n_frames,) + g.shape).copy(), character)
+
+
+def skin(character: Character, motion: Motion, frames=None) -> np.ndarray:
+    """Linear-blend-skinned vertices (F, V, 3) float64 in the relative frame.
+
+    frames: indices into the motion's frames (None = all). Add motion.root_translation[f] for world.
+    """
+    m = motion.joint_world if frames is None else motion.joint_world[np.atleast_1d(frames)]
+    if m.shape[1] != character.n_joints:
+        raise ValueError(f"motion {motion.clip_name!r} has {m.shape[1]} joints, character has {character.n_joints}")
+    out = np.empty((m.shape[0], character.vertices.shape[0], 3))
+    lbs_kernel(np.ascontiguousarray(m), character.vertices, character.skin_joints, character.skin_weights, out)
+    return out
+
+
+def skin_numpy(character: Character, motion: Motion, frames=None) -> np.ndarray:
+    """Vectorised numpy LBS (same result as `skin`; kept for the benchmark)."""
+    m = motion.joint_world if frames is None else motion.joint_world[np.atleast_1d(frames)]
+    v_h = np.concatenate([character.vertices, np.ones((character.vertices.shape[0], 1))], axis=1)
+    out = np.empty((m.shape[0], v_h.shape[0], 3))
+    for f in range(m.shape[0]):
+        blend = np.einsum("vk,vkab->vab", character.skin_weights, m[f][character.skin_joints][:, :, :3, :])
+        out[f] = np.einsum("vab,vb->va", blend, v_h)
+    return out
+
+
+def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals (V, 3); vertices in no non-degenerate triangle get 0."""
+    v = np.asarray(vertices, np.float64)
+    tri = np.asarray(triangles, np.int64)
+    fn = np.cross(v[tri[:, 1]] - v[tri[:, 0]], v[tri[:, 2]] - v[tri[:, 0]])  # |fn| = 2 * area
+    n = np.zeros_like(v)
+    for c in range(3):
+        n[:, c] = np.bincount(tri.ravel(), weights=np.repeat(fn[:, c], 3), minlength=v.shape[0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 1e-300)
