@@ -486,3 +486,88 @@ def bvh_world(data: BvhData, frames=None) -> np.ndarray:
     idx = _frame_indices(data, frames)
     trans, rots = _local_trs(data, idx)
     return forward_kinematics(data.parents, trs_to_matrix(trans, rots))
+
+
+# -------------------------------------------------------------------------------------- character
+
+
+def _bind_locals(data: BvhData, clip: Clip, bind_frame: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """Bind-pose local translations (J, 3) and rotations (J, 4), root moved over the origin."""
+    if bind_frame is None:  # BVH rest pose: offsets only, no rotation
+        trans = data.offsets.copy()
+        rots = np.zeros((data.n_joints, 4))
+        rots[:, 3] = 1.0
+    else:
+        if not -data.n_frames <= bind_frame < data.n_frames:
+            raise ValueError(f"bind_frame {bind_frame} out of range [0, {data.n_frames})")
+        trans = clip.translations[bind_frame].copy()
+        rots = clip.rotations[bind_frame].copy()
+    trans[0, [0, 2]] = 0.0  # the root's horizontal position is not part of the pose
+    return trans, rots
+
+
+def _lowest_skinned_point(vertices, skin_joints, skin_weights, joint_matrices) -> float:
+    """Lowest y of the linear-blend-skinned mesh for one frame's skinning matrices (J, 4, 4)."""
+    m = joint_matrices[:, 1, :]  # only the y row is needed
+    y = np.einsum("vki,vi->vk", m[skin_joints][..., :3], vertices) + m[skin_joints][..., 3]
+    return float((skin_weights * y).sum(axis=1).min())
+
+
+def load_bvh_character(path, *, scale: float = 1.0, body=None, bind_frame: int | None = 0,
+                       name: str | None = None) -> Character:
+    """A skinned character from a BVH file: its skeleton, a generated skin and its motion.
+
+    Bind pose: frame `bind_frame`'s joint rotations (default 0) with the root moved over the
+    origin; `bind_frame=None` uses the BVH rest pose (offsets only). For the CMU capture the rest
+    pose is not a natural stance (legs splayed ~20 degrees, feet 0.69 m apart, arms straight down)
+    while frame 0 is the subject standing still, so frame 0 is the default.
+    Skin: `stages.rig.procedural.skin_skeleton` around the bind-pose joint positions (end sites
+    included), with `body` (a `BodyParams`, default when None); weights from that generator.
+    Placement: the bind mesh is shifted to stand on y = 0; the clip's root translation is shifted
+    by one constant so that at the clip's frame 0 the root is over the origin (x = z = 0) and the
+    skinned mesh's lowest point is on y = 0 (with the default bind_frame=0, frame 0 IS the bind
+    pose). Y up, metres after `scale`; the root joint (index 0) is the character's root.
+    """
+    from stages.rig.procedural import BodyParams, skin_skeleton  # the skin generator's own module
+
+    data = parse_bvh(path, scale=scale)
+    stem = Path(path).stem
+    clip = bvh_clip(data, name=stem)
+    bind_t, bind_r = _bind_locals(data, clip, bind_frame)
+    rest_local = trs_to_matrix(bind_t, bind_r)
+    bind_world = forward_kinematics(data.parents, rest_local)
+    vertices, triangles, skin_joints, skin_weights = skin_skeleton(
+        data.joint_names, data.parents, bind_world[:, :3, 3].copy(), body if body is not None else BodyParams())
+    vertices = np.asarray(vertices, dtype=np.float64)
+    skin_joints = np.asarray(skin_joints, dtype=np.int32)
+    skin_weights = np.asarray(skin_weights, dtype=np.float64)
+
+    lift = -float(vertices[:, 1].min())
+    vertices = vertices + [0.0, lift, 0.0]
+    rest_local[0, 1, 3] += lift  # the root has no parent: its local frame is the model frame
+    bind_world[:, 1, 3] += lift
+    inverse_bind = np.linalg.inv(bind_world)
+
+    # Place the clip: frame 0's root over the origin, frame 0's skinned mesh on the floor.
+    trans = clip.translations.copy()
+    trans[:, 0, [0, 2]] -= trans[0, 0, [0, 2]]
+    first = forward_kinematics(data.parents, trs_to_matrix(trans[0], clip.rotations[0]))
+    trans[:, 0, 1] -= _lowest_skinned_point(vertices, skin_joints, skin_weights, first @ inverse_bind)
+    clip = Clip(name=clip.name, times=clip.times, translations=trans, rotations=clip.rotations,
+                scales=clip.scales, interpolation=clip.interpolation, loop=clip.loop)
+
+    return Character(
+        name=name or stem,
+        vertices=vertices,
+        triangles=np.asarray(triangles, dtype=np.int32),
+        primitive_ids=np.zeros(vertices.shape[0], dtype=np.int32),
+        joint_names=data.joint_names,
+        parents=data.parents,
+        rest_local=rest_local,
+        inverse_bind=inverse_bind,
+        skin_joints=skin_joints,
+        skin_weights=skin_weights,
+        clips=(clip,),
+        root_joint=0,
+        source=str(path),
+    )
