@@ -118,3 +118,56 @@ def log_rig(rec: rr.RecordingStream, character: Character, split: RegionSplit, m
                                                   show_labels=False), static=True)
     rec.send_columns("rig/joints", indexes=time_columns(motion.times),
                      columns=rr.Points3D.columns(positions=joints.reshape(-1, 3).astype(np.float32)).partition(np.full(f, n_j)))
+
+
+def log_text(rec: rr.RecordingStream, entity: str, markdown: str) -> None:
+    rec.log(entity, rr.TextDocument(markdown, media_type="text/markdown"), static=True)
+
+
+def _convex_mesh(rec, entity: str, mesh, color) -> None:
+    rec.log(entity, rr.Mesh3D(vertex_positions=mesh.vertices.astype(np.float32),
+                              vertex_normals=vertex_normals(mesh.vertices, mesh.faces).astype(np.float32),
+                              triangle_indices=mesh.faces.astype(np.uint32), albedo_factor=color), static=True)
+
+
+def log_colliders(rec: rr.RecordingStream, character: Character, motion: Motion, colliders) -> str:
+    """Hulls (raw / inflated / simplified) and spheres in bone frames under per-frame transforms.
+
+    Returns the fit report as a markdown table (also logged at colliders/report).
+    """
+    world = world_joint_matrices(character, motion)
+    colors = palette(character.n_joints)
+    rows = ["| collider | faces raw / inflated / simplified | volume raw (cm³) | excess (cm³) | Hausdorff (mm) | contains | worst violation (mm) |",
+            "| --- | --- | ---: | ---: | ---: | --- | ---: |"]
+    for h in colliders.hulls:
+        base = f"colliders/hulls/{h.name}"
+        log_transform_series(rec, base, world[:, h.bone], motion.times)
+        c = tuple(int(x) for x in colors[h.bone][:3])
+        _convex_mesh(rec, f"{base}/raw", h.raw, (*c, 90))
+        _convex_mesh(rec, f"{base}/inflated", h.inflated, (*c, 60))
+        _convex_mesh(rec, f"{base}/simplified", h.simplified, (*c, 200))
+        rec.log(f"{base}/region", rr.Points3D(h.region_points.astype(np.float32), radii=0.003,
+                                              colors=[(40, 40, 40, 255)]), static=True)
+        r = h.report
+        rows.append(f"| {h.name} | {r.faces_raw} / {r.faces_inflated} / {r.faces_simplified} | "
+                    f"{r.volume_raw * 1e6:.1f} | {r.excess_volume * 1e6:.1f} | {r.hausdorff * 1e3:.2f} | "
+                    f"{'yes' if r.contains_region else 'NO'} | {r.worst_violation * 1e3:.3f} |")
+    for sp in colliders.spheres:
+        base = f"colliders/spheres/{sp.name}"
+        log_transform_series(rec, base, world[:, sp.joint], motion.times)
+        c = tuple(int(x) for x in colors[sp.joint][:3])
+        rec.log(base + "/sphere", rr.Ellipsoids3D(centers=[sp.center], half_sizes=[[sp.radius] * 3],
+                                                  colors=[(*c, 120)], fill_mode="solid"), static=True)
+        rec.log(base + "/region", rr.Points3D(sp.region_points.astype(np.float32), radii=0.003,
+                                              colors=[(90, 90, 90, 255)]), static=True)
+    reps = [h.report for h in colliders.hulls]
+    if reps:
+        rows.append(f"| **total ({len(reps)} hulls, {len(colliders.spheres)} spheres)** | "
+                    f"{sum(r.faces_raw for r in reps)} / {sum(r.faces_inflated for r in reps)} / "
+                    f"{sum(r.faces_simplified for r in reps)} | {sum(r.volume_raw for r in reps) * 1e6:.1f} | "
+                    f"{sum(r.excess_volume for r in reps) * 1e6:.1f} | {max(r.hausdorff for r in reps) * 1e3:.2f} | "
+                    f"{'yes' if all(r.contains_region for r in reps) else 'NO'} | "
+                    f"{max(r.worst_violation for r in reps) * 1e3:.3f} |")
+    table = "\n".join(rows)
+    log_text(rec, "colliders/report", table)
+    return table

@@ -130,3 +130,114 @@ def sample_scene_motion(scene: Scene, character, times: np.ndarray):
     if clip == "rest" or not character.clips:
         return rest_motion(character, len(times), scene["simulation"]["dt"])
     return sample_motion(character, clip, times)
+
+
+def build_scene_garments(scene: Scene, character, motion, colliders):
+    """Garments of the scene, placed in the relative frame at frame 0."""
+    from stages.garments.simple import rectangle_cloth, tube_skirt
+    from stages.garments.types import (attach_indices, attach_near, attach_top_loop, bind_pose,
+                                       build_garment)
+    bind = bind_pose(character, motion, colliders)
+    out = []
+    for g in scene["garments"]:
+        if g["type"] == "rectangle":
+            nx, ny = g["resolution"]
+            axis = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}[g["normal"]]
+            x, tri = rectangle_cloth(g["width"], g["height"], nx, ny, center=g["center"], normal=axis)
+        else:  # tube
+            top = np.asarray(g["center"] if g["center"] is not None else
+                             bind.joint_origins[bind.joint_index(g["at_joint"] or character.joint_names[character.root_joint])])
+            x, tri = tube_skirt(g["radius_top"], g["radius_bottom"], g["length"], g["n_around"], g["n_down"],
+                                center=top + np.asarray(g["offset"]))
+        atts = []
+        pin = g["pin"]
+        if pin is not None:
+            if pin["indices"] is not None:
+                atts.append(attach_indices(pin["indices"], pin["collider"]))
+            elif pin["collider"] is not None and pin["boundary"] is None:
+                atts.append(attach_near(pin["collider"], pin["within"]))
+            if pin["boundary"] == "top":
+                atts.append(attach_top_loop(pin["collider"]))
+            elif pin["boundary"] == "bottom":
+                raise SceneError(f"{scene.path}: garment {g['name']!r}: pin.boundary 'bottom' is not supported yet")
+        out.append(build_garment(g["name"], x, tri, density=g["density"], attachments=atts, bind=bind))
+    return out
+
+
+def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = None,
+              progress: bool = True, on_stage=None) -> RunSummary:
+    """Run every stage the scene needs and write the recording atomically."""
+    from pipeline import logs
+    from pipeline.progress import Progress
+    from pipeline.recording import atomic_recording
+    from stages.rig.regions import split_regions
+    from stages.rig.skinning import skin
+
+    out = Path(output) if output is not None else scene.output
+    times = frame_times(scene, frames)
+    summary = RunSummary(scene=scene.name, output=None, frames=len(times))
+    say = on_stage or (lambda name: None)
+    s = scene.settings
+    with atomic_recording(out, scene_name=scene.name, scene_text=scene.text, seed=s["seed"]) as rec:
+        say("rig")
+        with _Timer(summary, "rig") as r:
+            character = load_character(scene)
+            check_references(scene, character)
+            motion = sample_scene_motion(scene, character, times)
+            skinned = skin(character, motion)
+            split = split_regions(character, threshold=s["colliders"]["rigid_threshold"])
+            r.sizes.update(vertices=character.vertices.shape[0], triangles=character.triangles.shape[0],
+                           joints=character.n_joints, hulls=len(split.hull_bones), spheres=len(split.sphere_joints))
+        logs.log_rig(rec, character, split, motion, skinned)
+
+        say("colliders")
+        from stages.hulls import fit_colliders
+        with _Timer(summary, "colliders") as r:
+            colliders = fit_colliders(character, split, delta=s["colliders"]["delta"],
+                                      min_triangles=s["colliders"]["min_triangles"])
+            faces = [h.report.faces_simplified for h in colliders.hulls]
+            r.sizes.update(hulls=len(colliders.hulls), spheres=len(colliders.spheres), faces=int(np.sum(faces)))
+        summary.tables["collider fit"] = logs.log_colliders(rec, character, motion, colliders)
+
+        say("maps")
+        from stages.maps import build_maps
+        m = s["colliders"]["map"]
+        with _Timer(summary, "maps") as r:
+            maps = build_maps(colliders, kind=m["type"], n_theta=m["n_theta"], n_phi=m["n_phi"], n_axial=m["n_axial"])
+            r.sizes.update(maps=len(maps.maps))
+        summary.tables["map cells"] = logs.log_maps(rec, character, motion, maps)
+
+        obstacles = None
+        if s["obstacles"]:
+            say("obstacles")
+            from stages.obstacles import build_obstacles
+            with _Timer(summary, "obstacles") as r:
+                obstacles = build_obstacles(s["obstacles"], dt=s["simulation"]["dt"], n_frames=len(times))
+                r.sizes.update(obstacles=len(obstacles.obstacles))
+            logs.log_obstacles(rec, obstacles, times)
+
+        if s["garments"]:
+            say("garments")
+            with _Timer(summary, "garments") as r:
+                garments = build_scene_garments(scene, character, motion, colliders)
+                r.sizes.update(particles=sum(g.n_particles for g in garments))
+            say("simulation")
+            from stages.sim import SimParams, simulate
+            sp = s["simulation"]
+            params = SimParams(dt=sp["dt"], substeps=sp["substeps"], iterations=sp["iterations"],
+                               gravity=tuple(sp["gravity"]), damping=sp["damping"], wind=tuple(sp["wind"]),
+                               drag=sp["drag"], lift=sp["lift"], friction=sp["friction"],
+                               inertia_scale=sp["inertia_scale"], stretch_stiffness=sp["stretch_stiffness"],
+                               bend_stiffness=sp["bend_stiffness"], hull_response=s["colliders"]["response"],
+                               body_audit=sp["body_audit"])
+            bar = Progress(len(times), "simulation", enabled=progress)
+            with _Timer(summary, "simulation") as r:
+                result = simulate(character, motion, colliders, maps, garments, params, obstacles=obstacles,
+                                  progress=lambda done, total: bar.update(done))
+                bar.close()
+                r.sizes.update(steps=len(times) * sp["substeps"],
+                               steps_per_s=round(len(times) * sp["substeps"] / max(sum(result.step_ms) / 1000, 1e-9)))
+            summary.penetrations = logs.log_sim(rec, motion, garments, result)
+        logs.log_text(rec, "meta/summary", summary.markdown())
+    summary.output = out
+    return summary
