@@ -171,3 +171,93 @@ def log_colliders(rec: rr.RecordingStream, character: Character, motion: Motion,
     table = "\n".join(rows)
     log_text(rec, "colliders/report", table)
     return table
+
+
+def ramp(values: np.ndarray) -> np.ndarray:
+    """(N, 4) uint8 colours from blue (smallest) through green to red (largest)."""
+    v = np.asarray(values, dtype=np.float64)
+    t = (v - v.min()) / max(v.max() - v.min(), 1e-12) if v.size else v
+    r = np.clip(2 * t - 0.5, 0, 1)
+    g = np.clip(1.5 - np.abs(2 * t - 1) * 1.5, 0, 1)
+    b = np.clip(1.2 - 2 * t, 0, 1)
+    return np.column_stack([(np.stack([r, g, b], 1) * 255).astype(np.uint8), np.full(v.size, 255, np.uint8)])
+
+
+def map_cell_outlines(hm, samples: int = 6) -> list[np.ndarray]:
+    """One closed polyline per map cell (bone-local), drawn on a surface just outside the hull."""
+    radius = 1.15 * float(np.linalg.norm(hm.half_extents))
+    th = np.linspace(0, 2 * np.pi, hm.n_theta + 1)
+    sec = np.linspace(hm.second_lo, hm.second_hi, hm.n_second + 1)
+    u = np.linspace(0, 1, samples)
+    strips = []
+    for i in range(hm.n_theta):
+        for k in range(hm.n_second):
+            t = np.concatenate([th[i] + (th[i + 1] - th[i]) * u, np.full(samples, th[i + 1]),
+                                th[i + 1] - (th[i + 1] - th[i]) * u, np.full(samples, th[i])])
+            s = np.concatenate([np.full(samples, sec[k]), sec[k] + (sec[k + 1] - sec[k]) * u,
+                                np.full(samples, sec[k + 1]), sec[k + 1] - (sec[k + 1] - sec[k]) * u])
+            if hm.kind == "cylinder":
+                r = 1.15 * float(np.linalg.norm(hm.half_extents[1:]))
+                q = np.column_stack([s, r * np.cos(t), r * np.sin(t)])
+            else:  # sphere: s is phi from +axis 0
+                q = radius * np.column_stack([np.cos(s), np.sin(s) * np.cos(t), np.sin(s) * np.sin(t)])
+            strips.append(hm.center + q @ hm.axes)
+    return strips
+
+
+def log_maps(rec: rr.RecordingStream, character: Character, motion: Motion, maps) -> str:
+    """OBBs, upper / lower planar meshes and map cells per hull, in bone frames. Returns the
+    cell-statistics table (also logged at maps/report)."""
+    from scipy.spatial.transform import Rotation
+    world = world_joint_matrices(character, motion)
+    rows = ["| hull | map | faces | cells | longest list | mean list |", "| --- | --- | ---: | ---: | ---: | ---: |"]
+    for hm, bone, name in zip(maps.maps, maps.bones, maps.names):
+        base = f"maps/{name}"
+        log_transform_series(rec, base, world[:, bone], motion.times)
+        quat = Rotation.from_matrix(hm.axes.T).as_quat()  # columns = box axes in bone-local coords
+        rec.log(f"{base}/obb", rr.Boxes3D(centers=[hm.center], half_sizes=[hm.half_extents], quaternions=[quat],
+                                          colors=[(255, 200, 0, 255)]), static=True)
+        for side, faces, color in (("upper", hm.upper_faces, (220, 90, 60, 160)), ("lower", hm.lower_faces, (60, 120, 220, 160))):
+            flat = hm.center + np.column_stack([np.zeros(len(hm.planar_vertices)), hm.planar_vertices]) @ hm.axes
+            normal = np.broadcast_to(hm.axes[0] * (1 if side == "upper" else -1), flat.shape)
+            rec.log(f"{base}/{side}", rr.Mesh3D(vertex_positions=flat.astype(np.float32),
+                                                 vertex_normals=normal.astype(np.float32),
+                                                 triangle_indices=faces.astype(np.uint32), albedo_factor=color), static=True)
+        lengths = hm.cell_lengths
+        rec.log(f"{base}/cells", rr.LineStrips3D([s.astype(np.float32) for s in map_cell_outlines(hm)],
+                                                  colors=ramp(lengths), radii=0.0015,
+                                                  labels=[str(int(n)) for n in lengths], show_labels=False), static=True)
+        st = hm.cell_stats
+        rows.append(f"| {name} | {hm.kind} {hm.n_theta}×{hm.n_second} | {hm.mesh.faces.shape[0]} | {st['cells']} | "
+                    f"{int(lengths.max())} | {lengths.mean():.2f} |")
+    table = "\n".join(rows)
+    log_text(rec, "maps/report", table)
+    return table
+
+
+def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result) -> dict:
+    """Cloth meshes, penetration counts, step time and the parameters. Returns the summary figures."""
+    colors = [(70, 130, 230), (230, 120, 60), (90, 190, 110), (200, 80, 160)]
+    for i, track in enumerate(result.garments):
+        c = colors[i % len(colors)]
+        log_mesh_series(rec, f"sim/{track.name}/mesh", track.triangles, track.positions, result.times,
+                        albedo=(*c, 255))
+    log_scalar_series(rec, "sim/penetrations/colliders", result.penetrations_colliders, result.times,
+                      name="inside a collider", color=(230, 80, 60))
+    log_scalar_series(rec, "sim/penetrations/body", result.penetrations_body, result.times,
+                      name="inside the body mesh", color=(150, 60, 200))
+    log_scalar_series(rec, "sim/step_ms", result.step_ms, result.times, name="step (ms)", color=(60, 160, 90))
+    log_scalar_series(rec, "sim/corrected", result.corrected, result.times, name="particles corrected", color=(90, 90, 90))
+    p = result.params
+    log_text(rec, "sim/params", "| parameter | value |\n| --- | --- |\n" + "\n".join(
+        f"| {k} | {v} |" for k, v in p.__dict__.items()))
+    n = sum(t.positions.shape[1] for t in result.garments)
+    body = result.penetrations_body
+    worst = int(np.argmax(body)) if body.size else 0
+    return {
+        "particles": n,
+        "inside colliders (max per frame)": int(result.penetrations_colliders.max(initial=0)),
+        "inside body (max / mean per frame)": f"{int(body.max(initial=0))} / {float(body.mean()) if body.size else 0:.2f}"
+                                              f" ({100 * int(body.max(initial=0)) / max(n, 1):.2f} % of particles, worst frame {worst})",
+        "steps/s (simulation only)": f"{result.steps / max(float(result.step_ms.sum()) / 1000, 1e-9):.0f}",
+    }
