@@ -1,0 +1,365 @@
+"""Numba hull queries over the packed maps (paper A §2.3-2.4), for the simulation's njit loops.
+
+Every kernel takes `m` = `MapSet.arrays` (a `MapArrays` named tuple of flat arrays, documented in
+stages/maps/types.py), the hull index `h` and a bone-local point `p` ((3,) float64 array or row
+view). Points come back as a tuple of three floats (bone-local, metres), which costs no allocation
+inside a hot loop.
+
+Signatures (stable; the simulation codes against them):
+    hull_inside(m, h, p) -> bool                        paper path: OBB, slab point location, 2 planes
+    hull_response(m, h, p) -> (x, y, z)                  paper ray through the cell's triangle list
+    hull_push_nearest_plane(m, h, p) -> (x, y, z)        baseline: out through the least-penetrated plane
+    hull_inside_brute(m, h, p) -> bool                   behind every face plane
+    hull_response_brute(m, h, p) -> (x, y, z)            the paper ray against every face
+    hull_collide(m, h, p, method) -> (inside, x, y, z)   inside test + response (p itself if outside)
+        method: METHOD_PAPER (0, default), METHOD_BRUTE (1), METHOD_NEAREST_PLANE (2)
+Vectorised wrappers (tests, logging, benchmarks): inside_points, response_points, collide_points.
+
+Response ray (paper A §2.4). Source s: the OBB centre (map sphere) or p's projection on the OBB long
+axis (map cylinder); direction d = (p - s)/|p - s|. The response is where the ray LEAVES the hull:
+for a convex hull that is s + t* d with t* = min over faces with n.d > 0 of (off - n.s) / (n.d).
+Only the faces listed in p's cell are scanned: the exit face is hit by a ray of that cell, so it is
+listed, and every other face facing along d gives a larger t, so the minimum is the same as over
+all faces. This needs no barycentric test, so rays through edges and vertices are exact (two faces
+give the same t up to rounding). With the source inside the hull (the usual case) the exit is the
+paper's "nearest hit"; when the source is outside (a cylinder axis leaving a slanted hull end before
+the OBB ends, or an OBB centre outside a very skewed hull) the ray from the source first ENTERS the
+hull behind p; we take the exit beyond p (t* >= |p - s|), i.e. we always push outward along d.
+
+Edge cases (documented behaviour):
+- p at the ray source (|p - s| <= ZERO_DIR * longest half extent: sphere centre, or on the cylinder
+  axis): no direction; fall back to the nearest-plane push.
+- cylinder points whose axis projection is beyond the hull's ends (|q0| > half extent): such points
+  are outside the OBB and so outside the hull; hull_collide returns them unchanged. hull_response
+  clamps the axial cell index and, if no listed face faces along d, falls back to the nearest plane.
+- points on the surface: inside (n.p <= off is inclusive) and their response is p itself (t* = |p - s|).
+- hull_response / hull_push_nearest_plane are meant for points inside the hull (call hull_collide,
+  or test hull_inside first); for outside points they return a finite point but not a meaningful one.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from stages.maps.types import KIND_CYLINDER, HullMap, MapSet
+
+METHOD_PAPER = 0
+METHOD_BRUTE = 1
+METHOD_NEAREST_PLANE = 2
+ZERO_DIR = 1e-12          # relative to the hull's longest half extent
+TWO_PI = 2.0 * math.pi
+
+
+# -- frames -------------------------------------------------------------------------------------
+@njit(cache=True)
+def _to_local(m, h, p):
+    c = m.center[h]
+    r = m.axes[h]
+    dx = p[0] - c[0]
+    dy = p[1] - c[1]
+    dz = p[2] - c[2]
+    return (r[0, 0] * dx + r[0, 1] * dy + r[0, 2] * dz,
+            r[1, 0] * dx + r[1, 1] * dy + r[1, 2] * dz,
+            r[2, 0] * dx + r[2, 1] * dy + r[2, 2] * dz)
+
+
+@njit(cache=True)
+def _to_bone(m, h, q0, q1, q2):
+    c = m.center[h]
+    r = m.axes[h]
+    return (c[0] + r[0, 0] * q0 + r[1, 0] * q1 + r[2, 0] * q2,
+            c[1] + r[0, 1] * q0 + r[1, 1] * q1 + r[2, 1] * q2,
+            c[2] + r[0, 2] * q0 + r[1, 2] * q1 + r[2, 2] * q2)
+
+
+@njit(cache=True)
+def _plane_dist(m, f, q0, q1, q2):
+    pl = m.planes[f]
+    return pl[0] * q0 + pl[1] * q1 + pl[2] * q2 - pl[3]
+
+
+# -- inside ---------------------------------------------------------------------------------------
+@njit(cache=True)
+def _locate(m, k, x, y):
+    """Face of planar mesh k (= 2h + side) containing (x, y); -1 outside the outline, -2 in a gap."""
+    b0 = m.loc_base[k]
+    b1 = m.loc_base[k + 1]
+    xs = m.loc_x
+    if x < xs[b0] or x > xs[b1 - 1]:
+        return -1
+    lo = b0
+    hi = b1 - 2
+    while lo < hi:                       # last slab whose left boundary <= x
+        mid = (lo + hi + 1) // 2
+        if xs[mid] <= x:
+            lo = mid
+        else:
+            hi = mid - 1
+    xl = xs[lo]
+    f = (x - xl) / (xs[lo + 1] - xl)
+    e0 = m.loc_start[lo]
+    e1 = m.loc_start[lo + 1]
+    if e1 <= e0:
+        return -2
+    ys = m.loc_y
+    if ys[e0, 0] + f * (ys[e0, 1] - ys[e0, 0]) > y:
+        return -1
+    lo = e0
+    hi = e1 - 1
+    while lo < hi:                       # last entry whose lower edge is at or below y
+        mid = (lo + hi + 1) // 2
+        if ys[mid, 0] + f * (ys[mid, 1] - ys[mid, 0]) <= y:
+            lo = mid
+        else:
+            hi = mid - 1
+    if y > ys[lo, 2] + f * (ys[lo, 3] - ys[lo, 2]):
+        return -1 if lo == e1 - 1 else -2
+    return m.loc_face[lo]
+
+
+@njit(cache=True)
+def _inside_brute_local(m, h, q0, q1, q2):
+    for f in range(m.face_start[h], m.face_start[h + 1]):
+        if _plane_dist(m, f, q0, q1, q2) > 0.0:
+            return False
+    return True
+
+
+@njit(cache=True)
+def _inside_local(m, h, q0, q1, q2):
+    hx = m.half[h]
+    if abs(q0) > hx[0] or abs(q1) > hx[1] or abs(q2) > hx[2]:
+        return False
+    fu = _locate(m, 2 * h, q1, q2)
+    if fu == -1:
+        return False
+    fl = _locate(m, 2 * h + 1, q1, q2)
+    if fl == -1:
+        return False
+    if fu == -2 or fl == -2:             # a numerical gap in a planar mesh: answer exactly
+        return _inside_brute_local(m, h, q0, q1, q2)
+    return _plane_dist(m, fu, q0, q1, q2) <= 0.0 and _plane_dist(m, fl, q0, q1, q2) <= 0.0
+
+
+@njit(cache=True)
+def hull_inside(m, h, p):
+    """Paper path: OBB rejection, point location in the upper and lower planar meshes, two planes."""
+    q0, q1, q2 = _to_local(m, h, p)
+    return _inside_local(m, h, q0, q1, q2)
+
+
+@njit(cache=True)
+def hull_inside_brute(m, h, p):
+    """Inside iff behind (or on) every face plane."""
+    q0, q1, q2 = _to_local(m, h, p)
+    return _inside_brute_local(m, h, q0, q1, q2)
+
+
+# -- response -------------------------------------------------------------------------------------
+@njit(cache=True)
+def _nearest_plane_local(m, h, q0, q1, q2):
+    best = -np.inf
+    bf = m.face_start[h]
+    for f in range(m.face_start[h], m.face_start[h + 1]):
+        s = _plane_dist(m, f, q0, q1, q2)
+        if s > best:
+            best = s
+            bf = f
+    pl = m.planes[bf]
+    return q0 - best * pl[0], q1 - best * pl[1], q2 - best * pl[2]
+
+
+@njit(cache=True)
+def _cell_of(m, h, q0, d0, d1, d2):
+    """Global cell of a unit ray direction d (and axial coordinate q0 for the cylinder)."""
+    nt = m.n_theta[h]
+    ns = m.n_second[h]
+    th = math.atan2(d2, d1)
+    if th < 0.0:
+        th += TWO_PI
+    it = int(math.floor(th * nt / TWO_PI))
+    if it >= nt:
+        it = nt - 1
+    if m.kind[h] == KIND_CYLINDER:
+        v = q0
+    else:
+        v = math.atan2(math.sqrt(d1 * d1 + d2 * d2), d0)
+    lo = m.second_lo[h]
+    js = int(math.floor((v - lo) / (m.second_hi[h] - lo) * ns))
+    if js < 0:
+        js = 0
+    elif js >= ns:
+        js = ns - 1
+    return m.cell_base[h] + it * ns + js
+
+
+@njit(cache=True)
+def _ray_exit_local(m, h, q0, q1, q2, brute):
+    """Exit point of the map ray through q (OBB-local); ok=False when there is no usable ray."""
+    if m.kind[h] == KIND_CYLINDER:
+        s0 = q0
+        d0 = 0.0
+    else:
+        s0 = 0.0
+        d0 = q0
+    d1 = q1
+    d2 = q2
+    dn = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    if dn <= ZERO_DIR * m.half[h, 0]:
+        return False, q0, q1, q2
+    d0 /= dn
+    d1 /= dn
+    d2 /= dn
+    planes = m.planes
+    tmin = np.inf
+    if brute:
+        for f in range(m.face_start[h], m.face_start[h + 1]):
+            nd = planes[f, 0] * d0 + planes[f, 1] * d1 + planes[f, 2] * d2
+            if nd > 0.0:
+                t = (planes[f, 3] - planes[f, 0] * s0) / nd
+                if t < tmin:
+                    tmin = t
+    else:
+        c = _cell_of(m, h, q0, d0, d1, d2)
+        for i in range(m.cell_start[c], m.cell_start[c + 1]):
+            f = m.cell_tris[i]
+            nd = planes[f, 0] * d0 + planes[f, 1] * d1 + planes[f, 2] * d2
+            if nd > 0.0:
+                t = (planes[f, 3] - planes[f, 0] * s0) / nd
+                if t < tmin:
+                    tmin = t
+    if tmin == np.inf:
+        return False, q0, q1, q2
+    return True, s0 + tmin * d0, tmin * d1, tmin * d2
+
+
+@njit(cache=True)
+def _response_local(m, h, q0, q1, q2, brute):
+    ok, r0, r1, r2 = _ray_exit_local(m, h, q0, q1, q2, brute)
+    if not ok:
+        return _nearest_plane_local(m, h, q0, q1, q2)
+    return r0, r1, r2
+
+
+@njit(cache=True)
+def hull_response(m, h, p):
+    """Paper ray from the map source through p, scanning only p's cell list (see module doc)."""
+    q0, q1, q2 = _to_local(m, h, p)
+    r0, r1, r2 = _response_local(m, h, q0, q1, q2, False)
+    return _to_bone(m, h, r0, r1, r2)
+
+
+@njit(cache=True)
+def hull_response_brute(m, h, p):
+    """The same ray against every face of the hull."""
+    q0, q1, q2 = _to_local(m, h, p)
+    r0, r1, r2 = _response_local(m, h, q0, q1, q2, True)
+    return _to_bone(m, h, r0, r1, r2)
+
+
+@njit(cache=True)
+def hull_push_nearest_plane(m, h, p):
+    """Baseline (NvCloth-style convex response): project p on the plane it penetrates least."""
+    q0, q1, q2 = _to_local(m, h, p)
+    r0, r1, r2 = _nearest_plane_local(m, h, q0, q1, q2)
+    return _to_bone(m, h, r0, r1, r2)
+
+
+@njit(cache=True)
+def hull_collide(m, h, p, method):
+    """(inside, x, y, z): the response point if p is inside the hull, else p itself."""
+    q0, q1, q2 = _to_local(m, h, p)
+    if method == METHOD_NEAREST_PLANE:
+        best = -np.inf
+        bf = m.face_start[h]
+        for f in range(m.face_start[h], m.face_start[h + 1]):
+            s = _plane_dist(m, f, q0, q1, q2)
+            if s > best:
+                best = s
+                bf = f
+        if best > 0.0:
+            return False, p[0], p[1], p[2]
+        pl = m.planes[bf]
+        x, y, z = _to_bone(m, h, q0 - best * pl[0], q1 - best * pl[1], q2 - best * pl[2])
+        return True, x, y, z
+    brute = method == METHOD_BRUTE
+    if brute:
+        inside = _inside_brute_local(m, h, q0, q1, q2)
+    else:
+        inside = _inside_local(m, h, q0, q1, q2)
+    if not inside:
+        return False, p[0], p[1], p[2]
+    r0, r1, r2 = _response_local(m, h, q0, q1, q2, brute)
+    x, y, z = _to_bone(m, h, r0, r1, r2)
+    return True, x, y, z
+
+
+# -- vectorised wrappers ----------------------------------------------------------------------------
+@njit(cache=True)
+def _inside_many(m, h, pts, method, out):
+    for i in range(pts.shape[0]):
+        if method == METHOD_PAPER:
+            out[i] = hull_inside(m, h, pts[i])
+        else:
+            out[i] = hull_inside_brute(m, h, pts[i])
+
+
+@njit(cache=True)
+def _response_many(m, h, pts, method, out):
+    for i in range(pts.shape[0]):
+        if method == METHOD_PAPER:
+            r = hull_response(m, h, pts[i])
+        elif method == METHOD_BRUTE:
+            r = hull_response_brute(m, h, pts[i])
+        else:
+            r = hull_push_nearest_plane(m, h, pts[i])
+        out[i, 0] = r[0]
+        out[i, 1] = r[1]
+        out[i, 2] = r[2]
+
+
+@njit(cache=True)
+def _collide_many(m, h, pts, method, hit, out):
+    for i in range(pts.shape[0]):
+        ins, x, y, z = hull_collide(m, h, pts[i], method)
+        hit[i] = ins
+        out[i, 0] = x
+        out[i, 1] = y
+        out[i, 2] = z
+
+
+def _arrays(maps):
+    if isinstance(maps, HullMap):
+        maps = MapSet.from_maps((maps,))
+    return maps.arrays
+
+
+def _points(pts) -> np.ndarray:
+    return np.ascontiguousarray(np.asarray(pts, dtype=np.float64).reshape(-1, 3))
+
+
+def inside_points(maps, pts, h: int = 0, method: int = METHOD_PAPER) -> np.ndarray:
+    """(N,) bool: which bone-local points are inside hull h. `maps`: MapSet or a single HullMap."""
+    pts = _points(pts)
+    out = np.empty(pts.shape[0], dtype=np.bool_)
+    _inside_many(_arrays(maps), h, pts, method, out)
+    return out
+
+
+def response_points(maps, pts, h: int = 0, method: int = METHOD_PAPER) -> np.ndarray:
+    """(N, 3) response points (bone-local) of hull h; method 2 = the nearest-plane push."""
+    pts = _points(pts)
+    out = np.empty_like(pts)
+    _response_many(_arrays(maps), h, pts, method, out)
+    return out
+
+
+def collide_points(maps, pts, h: int = 0, method: int = METHOD_PAPER):
+    """((N,) bool inside, (N, 3) resolved points): hull_collide on every point."""
+    pts = _points(pts)
+    hit = np.empty(pts.shape[0], dtype=np.bool_)
+    out = np.empty_like(pts)
+    _collide_many(_arrays(maps), h, pts, method, hit, out)
+    return hit, out
