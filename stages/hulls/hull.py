@@ -1,0 +1,153 @@
+"""Convex hulls (Qhull) and their inflation by a thickness delta (paper A §2.1-2.2).
+
+Degenerate input policy (never a raw Qhull traceback):
+- not an (n, 3) finite array, fewer than 4 distinct points, or collinear points -> `InputError`;
+- coplanar points (thickness <= `FLAT_RELATIVE` x extent) -> `InputError`, unless the caller passes
+  `flat_thickness > 0`: then the documented fallback is a thin slab, the points copied to
+  +-flat_thickness along the plane's normal (the hull then has volume; `fit_colliders` uses delta).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import ConvexHull, QhullError
+
+from stages.checks import ContractError
+from stages.errors import InputError
+from stages.hulls.types import ConvexMesh
+
+# Points whose smallest principal extent is below this fraction of the largest are called flat.
+FLAT_RELATIVE = 1e-9
+# Faces with twice-area below this fraction of extent^2 count as degenerate.
+DEGENERATE_AREA = 1e-14
+# Inflation: a vertex whose normal makes a dot product below this with an adjacent face normal is
+# "sharp"; its offset is not scaled up (it would blow up) but split into one point per face.
+SHARP_DOT = 0.25
+
+
+def face_normals(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals (m, 3) and twice-areas (m,) of triangles (zero normal for degenerate ones)."""
+    a, b, c = (vertices[faces[:, i]] for i in range(3))
+    n = np.cross(b - a, c - a)
+    area2 = np.linalg.norm(n, axis=1)
+    safe = np.where(area2 > 0, area2, 1.0)
+    return n / safe[:, None] * (area2 > 0)[:, None], area2
+
+
+def mesh_volume(mesh: ConvexMesh) -> float:
+    """Enclosed volume (m^3) of a closed outward-oriented triangle mesh (divergence theorem)."""
+    v = mesh.vertices - mesh.vertices.mean(axis=0)
+    a, b, c = (v[mesh.faces[:, i]] for i in range(3))
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+
+
+def _check_points(points, source) -> np.ndarray:
+    try:
+        p = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise InputError(source, f"points are not numeric: {err}") from None
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise InputError(source, f"expected (n, 3) points, got shape {p.shape}")
+    if not np.isfinite(p).all():
+        raise InputError(source, f"non-finite coordinate in point {int(np.argwhere(~np.isfinite(p))[0, 0])}")
+    return p
+
+
+def convex_hull(points, *, source="points", flat_thickness: float = 0.0) -> ConvexMesh:
+    """Convex hull of (n, 3) points with Qhull, outward-oriented, only hull vertices kept.
+
+    source: names the point set in error messages (e.g. the bone). flat_thickness: see the module
+    docstring (0 = coplanar input is an error). Vertices keep the input's frame and units.
+    """
+    p = _check_points(points, source)
+    unique = np.unique(p, axis=0)
+    if unique.shape[0] < 4:
+        raise InputError(source, f"a hull needs >= 4 distinct points, got {unique.shape[0]}")
+    centred = unique - unique.mean(axis=0)
+    _, sing, axes = np.linalg.svd(centred, full_matrices=False)
+    extent = np.ptp(centred @ axes.T, axis=0)  # along principal axes, descending spread
+    if extent[1] <= FLAT_RELATIVE * extent[0]:
+        raise InputError(source, f"points are collinear (extent {extent[0]:.3g} x {extent[1]:.3g})")
+    if extent[2] <= FLAT_RELATIVE * extent[0]:
+        if not flat_thickness > 0:
+            raise InputError(source, f"points are coplanar (thickness {extent[2]:.3g} over extent {extent[0]:.3g}); "
+                                     "a hull needs volume")
+        normal = axes[2]
+        unique = np.concatenate([unique + flat_thickness * normal, unique - flat_thickness * normal])
+    try:
+        hull = ConvexHull(unique)
+    except QhullError as err:
+        first = str(err).strip().splitlines()[0] if str(err).strip() else "Qhull failed"
+        raise InputError(source, f"Qhull could not build a hull: {first}") from None
+    mesh = _mesh_from_qhull(unique, hull)
+    _, area2 = face_normals(mesh.vertices, mesh.faces)
+    if (area2 <= DEGENERATE_AREA * extent[0] ** 2).any():
+        # Qt triangulation of a facet with collinear boundary points; joggling avoids it.
+        try:
+            mesh = _mesh_from_qhull(unique, ConvexHull(unique, qhull_options="QJ"))
+        except QhullError as err:
+            raise InputError(source, f"Qhull could not build a hull: {str(err).splitlines()[0]}") from None
+    return mesh
+
+
+def _mesh_from_qhull(points: np.ndarray, hull: ConvexHull) -> ConvexMesh:
+    simplices = hull.simplices.astype(np.int64)
+    tri = points[simplices]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    flip = np.einsum("ij,ij->i", n, hull.equations[:, :3]) < 0
+    simplices[flip] = simplices[flip][:, [0, 2, 1]]
+    return _reindexed(points, simplices)
+
+
+def _reindexed(points: np.ndarray, faces: np.ndarray) -> ConvexMesh:
+    used, inverse = np.unique(faces, return_inverse=True)
+    return ConvexMesh(vertices=np.ascontiguousarray(points[used], dtype=np.float64),
+                      faces=inverse.reshape(-1, 3).astype(np.int32))
+
+
+def vertex_normals(mesh: ConvexMesh) -> np.ndarray:
+    """(n, 3) unit angle-weighted vertex normals (degenerate faces ignored)."""
+    v, f = mesh.vertices, mesh.faces
+    fn, area2 = face_normals(v, f)
+    acc = np.zeros_like(v)
+    for i in range(3):
+        e1 = v[f[:, (i + 1) % 3]] - v[f[:, i]]
+        e2 = v[f[:, (i + 2) % 3]] - v[f[:, i]]
+        cos = np.einsum("ij,ij->i", e1, e2) / np.maximum(np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300)
+        angle = np.arccos(np.clip(cos, -1.0, 1.0))
+        np.add.at(acc, f[:, i], fn * angle[:, None])
+    norm = np.linalg.norm(acc, axis=1, keepdims=True)
+    if (norm <= 0).any():
+        raise ContractError("vertex_normals: a vertex has no non-degenerate face")
+    return acc / norm
+
+
+def inflate_hull(mesh: ConvexMesh, delta: float) -> ConvexMesh:
+    """Hull of the vertices pushed out by delta along their angle-weighted normals, re-hulled.
+
+    Pushing vertex v by delta along its normal n_v moves an adjacent face plane (normal n_f) out by
+    only delta * (n_v . n_f) at v. So the offset is scaled to delta / min_f(n_v . n_f): every face
+    plane adjacent to v then passes at distance >= delta behind the moved point, and the inflated
+    hull reaches at least delta beyond every raw face plane (its support in each raw face normal is
+    >= raw + delta). At a sharp vertex (min dot < SHARP_DOT) the scale would blow up, so instead v
+    contributes v + delta n_f for each adjacent face plus v + delta n_v (a small bevel). In both
+    cases the inflated hull contains the raw hull. delta = 0 returns the mesh unchanged.
+    """
+    if not (np.isfinite(delta) and delta >= 0):
+        raise ContractError(f"inflate_hull: delta must be a non-negative thickness, got {delta}")
+    if delta == 0:
+        return mesh
+    v, f = mesh.vertices, mesh.faces
+    nv = vertex_normals(mesh)
+    fn, area2 = face_normals(v, f)
+    ok = area2 > 0
+    corner_vertex = f[ok].ravel()
+    corner_dot = np.einsum("ij,ij->i", nv[corner_vertex], np.repeat(fn[ok], 3, axis=0))
+    min_dot = np.full(v.shape[0], np.inf)
+    np.minimum.at(min_dot, corner_vertex, corner_dot)
+    sharp = min_dot < SHARP_DOT
+    scale = np.where(sharp, 1.0, 1.0 / np.where(sharp, 1.0, min_dot))
+    moved = [v + (delta * scale)[:, None] * nv]
+    sharp_corner = sharp[corner_vertex]
+    if sharp_corner.any():
+        moved.append(v[corner_vertex[sharp_corner]] + delta * np.repeat(fn[ok], 3, axis=0)[sharp_corner])
+    return convex_hull(np.concatenate(moved), source="inflated hull")

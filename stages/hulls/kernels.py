@@ -1,0 +1,518 @@
+"""Numba kernels of the constrained hull simplification (see simplify.py for the method).
+
+- `seidel_lp3`: minimise c.x subject to A x <= b in R^3 (Seidel's randomised incremental LP),
+  inside the box |x_k| <= box. Rows of A must be unit vectors (b is then a distance).
+- `collapse_rows`: the LP of one triangle collapse (for tests: compared against scipy's HiGHS).
+- `simplify_kernel`: the whole greedy collapse loop over a flat face/vertex array mesh.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+LP_EPS = 1e-10       # feasibility slack of the LP, in the LP's normalised units
+BOX = 8.0            # LP box half-width, in units of the collapse region's radius
+PRIO_QEM = 0
+PRIO_VOLUME = 1
+
+
+@njit(cache=True)
+def _lp1(a2, b2, m, px, py, dx, dy, c1):
+    """Minimise c1*t on the 2D line p + t d subject to rows 0..m-1 of a2 x <= b2."""
+    lo = -1e300
+    hi = 1e300
+    for j in range(m):
+        ad = a2[j, 0] * dx + a2[j, 1] * dy
+        r = b2[j] - (a2[j, 0] * px + a2[j, 1] * py)
+        if abs(ad) < 1e-13:
+            if r < -LP_EPS:
+                return False, 0.0
+            continue
+        t = r / ad
+        if ad > 0:
+            if t < hi:
+                hi = t
+        elif t > lo:
+            lo = t
+    if lo > hi + LP_EPS:
+        return False, 0.0
+    if c1 < 0:
+        return True, hi
+    return True, lo
+
+
+@njit(cache=True)
+def _lp2(a2, b2, m, cx, cy, box2):
+    """2D Seidel. Rows 0..3 of a2/b2 must be the box |u|, |w| <= box2."""
+    u = -box2 if cx > 0 else box2
+    w = -box2 if cy > 0 else box2
+    for j in range(4, m):
+        if a2[j, 0] * u + a2[j, 1] * w <= b2[j] + LP_EPS:
+            continue
+        px = a2[j, 0] * b2[j]
+        py = a2[j, 1] * b2[j]
+        dx = -a2[j, 1]
+        dy = a2[j, 0]
+        ok, t = _lp1(a2, b2, j, px, py, dx, dy, cx * dx + cy * dy)
+        if not ok:
+            return False, 0.0, 0.0
+        u = px + t * dx
+        w = py + t * dy
+    return True, u, w
+
+
+@njit(cache=True)
+def seidel_lp3(a, b, c, box, order):
+    """Minimise c.x s.t. a[i].x <= b[i] (unit rows), |x_k| <= box; rows visited in `order`.
+
+    Returns (feasible, x). Expected O(n) time for a random order.
+    """
+    m = a.shape[0]
+    x = np.empty(3)
+    for k in range(3):
+        x[k] = -box if c[k] > 0 else box
+    a2 = np.empty((m + 10, 2))
+    b2 = np.empty(m + 10)
+    e1 = np.empty(3)
+    e2 = np.empty(3)
+    box2 = 2.0 * box * np.sqrt(3.0)
+    for ii in range(m):
+        i = order[ii]
+        ai = a[i]
+        if ai[0] * x[0] + ai[1] * x[1] + ai[2] * x[2] <= b[i] + LP_EPS:
+            continue
+        # orthonormal basis of the plane ai.x = b[i]
+        if abs(ai[0]) < 0.6:
+            t0, t1, t2 = 0.0, -ai[2], ai[1]      # ai x (1,0,0)
+        else:
+            t0, t1, t2 = ai[2], 0.0, -ai[0]      # ai x (0,1,0)
+        nt = np.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        e1[0], e1[1], e1[2] = t0 / nt, t1 / nt, t2 / nt
+        e2[0] = ai[1] * e1[2] - ai[2] * e1[1]
+        e2[1] = ai[2] * e1[0] - ai[0] * e1[2]
+        e2[2] = ai[0] * e1[1] - ai[1] * e1[0]
+        p0 = ai * b[i]
+        a2[0, 0], a2[0, 1], b2[0] = 1.0, 0.0, box2
+        a2[1, 0], a2[1, 1], b2[1] = -1.0, 0.0, box2
+        a2[2, 0], a2[2, 1], b2[2] = 0.0, 1.0, box2
+        a2[3, 0], a2[3, 1], b2[3] = 0.0, -1.0, box2
+        cnt = 4
+        # the 3D box, then the earlier rows, projected into the plane
+        for jj in range(-6, ii):
+            if jj < 0:
+                k = (jj + 6) // 2
+                s = 1.0 if (jj + 6) % 2 == 0 else -1.0
+                g0, g1 = s * e1[k], s * e2[k]
+                r = box - s * p0[k]
+            else:
+                j = order[jj]
+                aj = a[j]
+                g0 = aj[0] * e1[0] + aj[1] * e1[1] + aj[2] * e1[2]
+                g1 = aj[0] * e2[0] + aj[1] * e2[1] + aj[2] * e2[2]
+                r = b[j] - (aj[0] * p0[0] + aj[1] * p0[1] + aj[2] * p0[2])
+            ng = np.sqrt(g0 * g0 + g1 * g1)
+            if ng < 1e-12:
+                if r < -LP_EPS:
+                    return False, x
+                continue
+            a2[cnt, 0] = g0 / ng
+            a2[cnt, 1] = g1 / ng
+            b2[cnt] = r / ng
+            cnt += 1
+        cu = c[0] * e1[0] + c[1] * e1[1] + c[2] * e1[2]
+        cw = c[0] * e2[0] + c[1] * e2[1] + c[2] * e2[2]
+        ok, u, w = _lp2(a2, b2, cnt, cu, cw, box2)
+        if not ok:
+            return False, x
+        for k in range(3):
+            x[k] = p0[k] + u * e1[k] + w * e2[k]
+    return True, x
+
+
+@njit(cache=True)
+def _shuffled(n, state):
+    """Deterministic Fisher-Yates permutation driven by a 64-bit xorshift state (1-element array)."""
+    order = np.arange(n)
+    s = state[0]
+    for i in range(n - 1, 0, -1):
+        s ^= (s << np.uint64(13))
+        s ^= (s >> np.uint64(7))
+        s ^= (s << np.uint64(17))
+        j = np.int64(s % np.uint64(i + 1))
+        order[i], order[j] = order[j], order[i]
+    state[0] = s
+    return order
+
+
+@njit(cache=True)
+def _face_plane(verts, i0, i1, i2, out):
+    """out[:3] = unit normal of triangle (i0, i1, i2), out[3] = offset; returns twice the area."""
+    ax = verts[i1, 0] - verts[i0, 0]
+    ay = verts[i1, 1] - verts[i0, 1]
+    az = verts[i1, 2] - verts[i0, 2]
+    bx = verts[i2, 0] - verts[i0, 0]
+    by = verts[i2, 1] - verts[i0, 1]
+    bz = verts[i2, 2] - verts[i0, 2]
+    nx = ay * bz - az * by
+    ny = az * bx - ax * bz
+    nz = ax * by - ay * bx
+    area2 = np.sqrt(nx * nx + ny * ny + nz * nz)
+    if area2 > 0:
+        nx /= area2
+        ny /= area2
+        nz /= area2
+    out[0], out[1], out[2] = nx, ny, nz
+    out[3] = nx * verts[i0, 0] + ny * verts[i0, 1] + nz * verts[i0, 2]
+    return area2
+
+
+@njit(cache=True)
+def _region(t, faces, falive, rfaces, ring, es, ee):
+    """Faces touching triangle t's corners (rfaces) and their boundary cycle (ring).
+
+    Returns (n_region, k) with k = n_region - 4 ring vertices, or (-1, -1) if the region is not a
+    disk bounded by a simple cycle (the collapse would make the mesh non-manifold).
+    """
+    a, b, c = faces[t, 0], faces[t, 1], faces[t, 2]
+    nr = 0
+    for f in range(faces.shape[0]):
+        if not falive[f]:
+            continue
+        hit = False
+        for e in range(3):
+            q = faces[f, e]
+            if q == a or q == b or q == c:
+                hit = True
+        if hit:
+            rfaces[nr] = f
+            nr += 1
+    k = 0
+    for ir in range(nr):
+        f = rfaces[ir]
+        for e in range(3):
+            p = faces[f, e]
+            q = faces[f, (e + 1) % 3]
+            if p != a and p != b and p != c and q != a and q != b and q != c:
+                es[k] = p
+                ee[k] = q
+                k += 1
+    if k != nr - 4 or k < 3:
+        return -1, -1
+    # walk the boundary edges into one cycle; every vertex must start exactly one edge
+    ring[0] = es[0]
+    cur = ee[0]
+    for i in range(1, k):
+        found = -1
+        for j in range(k):
+            if es[j] == cur:
+                if found >= 0:
+                    return -1, -1
+                found = j
+        if found < 0:
+            return -1, -1
+        for q in range(i):
+            if ring[q] == cur:
+                return -1, -1
+        ring[i] = cur
+        cur = ee[found]
+    if cur != ring[0]:
+        return -1, -1
+    return nr, k
+
+
+@njit(cache=True)
+def collapse_rows(t, verts, faces, falive, planes, keep, nr, k, rfaces, ring, eps_convex, near):
+    """The LP of collapsing triangle t onto one new vertex v, in normalised coordinates.
+
+    Unknown y = (v - origin) / scale. Rows (unit normals, so b is a distance in scale units):
+    - convexity: v at least eps_convex behind every face outside the region that touches the ring,
+      and every ring vertex w_j at least eps_convex behind each new face (v, w_i, w_i+1);
+    - containment: t's corners and every `keep` point near the region on or behind each new face.
+    "p behind the plane of (v, w_i, w_i+1)" is linear in v: ((w_i - p) x (w_i+1 - p)) . (v - p) >= 0.
+    Objective: the volume of the new faces' cone, sum_i (v - o) . ((w_i - o) x (w_i+1 - o)) / 6.
+    Returns (a, b, c, origin, scale).
+    """
+    a0, b0, c0 = faces[t, 0], faces[t, 1], faces[t, 2]
+    origin = (verts[a0] + verts[b0] + verts[c0]) / 3.0
+    scale = 0.0
+    for q in range(3):
+        d = np.sqrt(np.sum((verts[faces[t, q]] - origin) ** 2))
+        scale = max(scale, d)
+    for i in range(k):
+        d = np.sqrt(np.sum((verts[ring[i]] - origin) ** 2))
+        scale = max(scale, d)
+    # keep points near the region's surface (the far ones cannot be uncovered by this collapse)
+    nkeep_near = 0
+    near_idx = np.empty(keep.shape[0], dtype=np.int64)
+    for p in range(keep.shape[0]):
+        best = -1e300
+        for ir in range(nr):
+            f = rfaces[ir]
+            s = planes[f, 0] * keep[p, 0] + planes[f, 1] * keep[p, 1] + planes[f, 2] * keep[p, 2] - planes[f, 3]
+            if s > best:
+                best = s
+        if best > -near:
+            near_idx[nkeep_near] = p
+            nkeep_near += 1
+    # outside faces touching the ring
+    nfaces = faces.shape[0]
+    outside = np.empty(nfaces, dtype=np.int64)
+    nout = 0
+    for f in range(nfaces):
+        if not falive[f]:
+            continue
+        inreg = False
+        touch = False
+        for e in range(3):
+            q = faces[f, e]
+            if q == a0 or q == b0 or q == c0:
+                inreg = True
+            for i in range(k):
+                if ring[i] == q:
+                    touch = True
+        if touch and not inreg:
+            outside[nout] = f
+            nout += 1
+    nrows = nout + k * (k - 2) + k * (3 + nkeep_near)
+    a = np.empty((nrows, 3))
+    b = np.empty(nrows)
+    m = 0
+    for io in range(nout):
+        f = outside[io]
+        a[m, 0], a[m, 1], a[m, 2] = planes[f, 0], planes[f, 1], planes[f, 2]
+        b[m] = (planes[f, 3] - (planes[f, 0] * origin[0] + planes[f, 1] * origin[1] + planes[f, 2] * origin[2])
+                - eps_convex) / scale
+        m += 1
+    pt = np.empty(3)
+    for i in range(k):
+        wi = verts[ring[i]]
+        wj = verts[ring[(i + 1) % k]]
+        for kind in range(3):
+            if kind == 0:
+                count = k
+            elif kind == 1:
+                count = 3
+            else:
+                count = nkeep_near
+            for q in range(count):
+                margin = 0.0
+                if kind == 0:
+                    if q == i or q == (i + 1) % k:
+                        continue
+                    pt[:] = verts[ring[q]]
+                    margin = eps_convex
+                elif kind == 1:
+                    pt[:] = verts[faces[t, q]]
+                else:
+                    pt[:] = keep[near_idx[q]]
+                ux, uy, uz = wi[0] - pt[0], wi[1] - pt[1], wi[2] - pt[2]
+                vx, vy, vz = wj[0] - pt[0], wj[1] - pt[1], wj[2] - pt[2]
+                gx = uy * vz - uz * vy
+                gy = uz * vx - ux * vz
+                gz = ux * vy - uy * vx
+                ng = np.sqrt(gx * gx + gy * gy + gz * gz)
+                if ng < 1e-30:
+                    continue  # p on the ring edge's line: on the new plane whatever v is
+                gx /= ng
+                gy /= ng
+                gz /= ng
+                # g.(o + s y - p) >= margin  <=>  -g.y <= (g.(o - p) - margin) / s
+                a[m, 0], a[m, 1], a[m, 2] = -gx, -gy, -gz
+                b[m] = (gx * (origin[0] - pt[0]) + gy * (origin[1] - pt[1]) + gz * (origin[2] - pt[2]) - margin) / scale
+                m += 1
+    c = np.zeros(3)
+    for i in range(k):
+        u = (verts[ring[i]] - origin) / scale
+        w = (verts[ring[(i + 1) % k]] - origin) / scale
+        c[0] += u[1] * w[2] - u[2] * w[1]
+        c[1] += u[2] * w[0] - u[0] * w[2]
+        c[2] += u[0] * w[1] - u[1] * w[0]
+    return a[:m], b[:m], c, origin, scale
+
+
+@njit(cache=True)
+def _evaluate(t, verts, valive, nv, faces, falive, planes, quad, keep, tol, eps_convex, near,
+              min_height, prio, rfaces, ring, es, ee, newplanes, vout, rng):
+    """Best legal collapse of triangle t: returns (ok, cost, n_region, k); v in vout."""
+    nr, k = _region(t, faces, falive, rfaces, ring, es, ee)
+    if nr < 0:
+        return False, np.inf, nr, k
+    a, b, c, origin, scale = collapse_rows(t, verts, faces, falive, planes, keep, nr, k, rfaces, ring,
+                                           eps_convex, near)
+    # a tiny fixed tilt breaks ties between equal-volume optima deterministically
+    cn = np.sqrt(np.sum(c * c)) + 1e-300
+    c[0] += 1e-9 * cn
+    c[1] += 2e-9 * cn
+    c[2] += 3e-9 * cn
+    order = _shuffled(a.shape[0], rng)
+    ok, y = seidel_lp3(a, b, c, BOX, order)
+    if not ok:
+        return False, np.inf, nr, k
+    for q in range(3):
+        if abs(y[q]) > BOX * (1 - 1e-9):
+            return False, np.inf, nr, k
+    v = origin + scale * y
+    vout[:] = v
+    # exact checks: new faces non-degenerate; every vertex behind every new plane; v behind every
+    # other face; every keep point behind every new plane
+    a0, b0, c0 = faces[t, 0], faces[t, 1], faces[t, 2]
+    tmpv = np.empty((3, 3))
+    for i in range(k):
+        tmpv[0] = v
+        tmpv[1] = verts[ring[i]]
+        tmpv[2] = verts[ring[(i + 1) % k]]
+        area2 = _face_plane(tmpv, 0, 1, 2, newplanes[i])
+        longest = 0.0
+        for e in range(3):
+            d = np.sqrt(np.sum((tmpv[e] - tmpv[(e + 1) % 3]) ** 2))
+            longest = max(longest, d)
+        if area2 <= 0 or area2 / longest < min_height:
+            return False, np.inf, nr, k
+    for q in range(nv):
+        if not valive[q] or q == a0 or q == b0 or q == c0:
+            continue
+        for i in range(k):
+            s = (newplanes[i, 0] * verts[q, 0] + newplanes[i, 1] * verts[q, 1] + newplanes[i, 2] * verts[q, 2]
+                 - newplanes[i, 3])
+            if s > tol:
+                return False, np.inf, nr, k
+    for f in range(faces.shape[0]):
+        if not falive[f]:
+            continue
+        if faces[f, 0] == a0 or faces[f, 0] == b0 or faces[f, 0] == c0 or faces[f, 1] == a0 or faces[f, 1] == b0 \
+                or faces[f, 1] == c0 or faces[f, 2] == a0 or faces[f, 2] == b0 or faces[f, 2] == c0:
+            continue
+        if planes[f, 0] * v[0] + planes[f, 1] * v[1] + planes[f, 2] * v[2] - planes[f, 3] > tol:
+            return False, np.inf, nr, k
+    for p in range(keep.shape[0]):
+        for i in range(k):
+            s = (newplanes[i, 0] * keep[p, 0] + newplanes[i, 1] * keep[p, 1] + newplanes[i, 2] * keep[p, 2]
+                 - newplanes[i, 3])
+            if s > tol:
+                return False, np.inf, nr, k
+    if prio == PRIO_QEM:
+        h = np.array([v[0], v[1], v[2], 1.0])
+        q4 = quad[a0] + quad[b0] + quad[c0]
+        cost = 0.0
+        for r in range(4):
+            for s2 in range(4):
+                cost += h[r] * q4[r, s2] * h[s2]
+    else:
+        # added volume = new cone volume - removed region volume (both about `origin`)
+        cost = 0.0
+        for i in range(k):
+            u = verts[ring[i]] - origin
+            w = verts[ring[(i + 1) % k]] - origin
+            z = v - origin
+            cost += (z[0] * (u[1] * w[2] - u[2] * w[1]) + z[1] * (u[2] * w[0] - u[0] * w[2])
+                     + z[2] * (u[0] * w[1] - u[1] * w[0])) / 6.0
+        for ir in range(nr):
+            f = rfaces[ir]
+            u = verts[faces[f, 0]] - origin
+            w = verts[faces[f, 1]] - origin
+            z = verts[faces[f, 2]] - origin
+            cost -= (u[0] * (w[1] * z[2] - w[2] * z[1]) + u[1] * (w[2] * z[0] - w[0] * z[2])
+                     + u[2] * (w[0] * z[1] - w[1] * z[0])) / 6.0
+    return True, max(cost, 0.0), nr, k
+
+
+@njit(cache=True)
+def simplify_kernel(verts0, faces0, keep, min_faces, tol, eps_convex, near, min_height, prio):
+    """Greedy constrained triangle collapses, cheapest first, until min_faces or none is legal.
+
+    Returns (verts, valive, faces, falive, n_collapses). Dead slots are flagged, not removed.
+    """
+    nv0 = verts0.shape[0]
+    nf = faces0.shape[0]
+    cap = nv0 + nf // 4 + 1
+    verts = np.zeros((cap, 3))
+    verts[:nv0] = verts0
+    valive = np.zeros(cap, dtype=np.bool_)
+    valive[:nv0] = True
+    nv = nv0
+    faces = faces0.copy()
+    falive = np.ones(nf, dtype=np.bool_)
+    planes = np.empty((nf, 4))
+    quad = np.zeros((cap, 4, 4))
+    for f in range(nf):
+        area2 = _face_plane(verts, faces[f, 0], faces[f, 1], faces[f, 2], planes[f])
+        h = np.array([planes[f, 0], planes[f, 1], planes[f, 2], -planes[f, 3]])
+        for e in range(3):
+            q = faces[f, e]
+            for r in range(4):
+                for s in range(4):
+                    quad[q, r, s] += 0.5 * area2 * h[r] * h[s]
+    rfaces = np.empty(nf, dtype=np.int64)
+    ring = np.empty(nf, dtype=np.int64)
+    es = np.empty(nf, dtype=np.int64)
+    ee = np.empty(nf, dtype=np.int64)
+    newplanes = np.empty((nf, 4))
+    vout = np.empty(3)
+    rng = np.array([np.uint64(0x9E3779B97F4A7C15)])
+    cost = np.full(nf, np.inf)
+    for f in range(nf):
+        ok, cst, nr, k = _evaluate(f, verts, valive, nv, faces, falive, planes, quad, keep, tol, eps_convex,
+                                   near, min_height, prio, rfaces, ring, es, ee, newplanes, vout, rng)
+        cost[f] = cst
+    nalive = nf
+    ncollapse = 0
+    vmark = np.zeros(cap, dtype=np.int64)
+    stamp = 0
+    while nalive - 4 >= min_faces:
+        best = -1
+        bc = np.inf
+        for f in range(nf):
+            if falive[f] and cost[f] < bc:
+                bc = cost[f]
+                best = f
+        if best < 0:
+            break
+        ok, cst, nr, k = _evaluate(best, verts, valive, nv, faces, falive, planes, quad, keep, tol, eps_convex,
+                                   near, min_height, prio, rfaces, ring, es, ee, newplanes, vout, rng)
+        if not ok:
+            cost[best] = np.inf
+            continue
+        if cst > bc * (1 + 1e-9) + 1e-300:
+            cost[best] = cst  # stale priority: requeue with the fresh cost
+            continue
+        a0, b0, c0 = faces[best, 0], faces[best, 1], faces[best, 2]
+        verts[nv] = vout
+        valive[nv] = True
+        quad[nv] = quad[a0] + quad[b0] + quad[c0]
+        valive[a0] = False
+        valive[b0] = False
+        valive[c0] = False
+        for i in range(k):
+            f = rfaces[i]
+            faces[f, 0] = nv
+            faces[f, 1] = ring[i]
+            faces[f, 2] = ring[(i + 1) % k]
+            planes[f] = newplanes[i]
+        for i in range(k, nr):
+            falive[rfaces[i]] = False
+            cost[rfaces[i]] = np.inf
+        nalive -= 4
+        ncollapse += 1
+        # re-evaluate every face with a corner in the 2-ring of the new vertex
+        stamp += 1
+        vmark[nv] = stamp
+        for i in range(k):
+            vmark[ring[i]] = stamp
+        stamp += 1
+        for f in range(nf):
+            if not falive[f]:
+                continue
+            if vmark[faces[f, 0]] == stamp - 1 or vmark[faces[f, 1]] == stamp - 1 or vmark[faces[f, 2]] == stamp - 1:
+                for e in range(3):
+                    if vmark[faces[f, e]] != stamp - 1:
+                        vmark[faces[f, e]] = stamp
+        for f in range(nf):
+            if not falive[f]:
+                continue
+            if vmark[faces[f, 0]] >= stamp - 1 or vmark[faces[f, 1]] >= stamp - 1 or vmark[faces[f, 2]] >= stamp - 1:
+                ok, cst, nr2, k2 = _evaluate(f, verts, valive, nv + 1, faces, falive, planes, quad, keep, tol,
+                                             eps_convex, near, min_height, prio, rfaces, ring, es, ee, newplanes,
+                                             vout, rng)
+                cost[f] = cst
+        nv += 1
+    return verts[:nv], valive[:nv], faces, falive, ncollapse
