@@ -716,6 +716,7 @@ def _bake_clips(path, doc, rd, order, index_of, rest_trs, convert_trs, loop, cub
             continue
         all_step = all(c[2] == "STEP" for c in chans)
         keys = [c[3] for c in chans]
+        dense = []
         if not all_step:
             for j, p, interp, kt, vals in chans:
                 if interp == "STEP" and kt.size > 1:
@@ -723,8 +724,13 @@ def _bake_clips(path, doc, rd, order, index_of, rest_trs, convert_trs, loop, cub
                     eps = np.minimum(_STEP_EPS, 0.5 * np.where(gaps > 0, gaps, np.inf))
                     keys.append((kt[1:] - eps)[gaps > 0])
                 elif interp == "CUBICSPLINE" and kt.size > 1:
-                    keys.append(_cubic_bake_times(kt, vals, p, cubic_rate, cubic_tol))
+                    dense.append(_cubic_bake_times(kt, vals, p, cubic_rate, cubic_tol))
         times = np.unique(np.concatenate(keys))
+        if dense:  # dense samples within 0.1 us of a key add nothing but near-duplicate keys
+            extra = np.unique(np.concatenate(dense))
+            i = np.clip(np.searchsorted(times, extra), 1, times.size - 1) if times.size > 1 else np.zeros(extra.size, int)
+            near = np.minimum(np.abs(extra - times[i]), np.abs(extra - times[np.maximum(i - 1, 0)]))
+            times = np.union1d(times, extra[near > 1e-7])
         nk, nj = times.size, len(order)
         tr = np.empty((nk, nj, 3))
         rot = np.empty((nk, nj, 4))
