@@ -1,0 +1,808 @@
+"""The built-in procedural character: a parametric humanoid skeleton, a skin generated around any
+skeleton, linear-blend weights, procedural clips and body measurements.
+
+Conventions (see stages.rig.types): Y up, metres, the character faces +Z, its left side is +X, it
+stands on y = 0 in the bind pose. The procedural skeleton is bound in an A-pose (arms 45 degrees
+below horizontal by default): hanging arms would fuse with the torso under a smooth union, a
+T-pose makes T-shirt sleeves sit unnaturally and skirts want free space beside the hips.
+
+Skin: each bone is a tapered capsule with an elliptic cross-section (semi-axes per joint, linearly
+interpolated along the bone); the body is the polynomial smooth union of those capsules, meshed with
+marching cubes on a grid whose spacing is chosen from the estimated surface area so the triangle
+count lands near `target_triangles` (no decimator is installed), then projected back onto the exact
+implicit surface and relaxed tangentially to even out marching-cubes slivers.
+
+Weights: every vertex belongs (softly, over ~1 cm) to the capsules nearest it in field value; within
+a capsule the weight is rigid (1 to the capsule's bone) except in a band of a few cm across each end
+joint, where a smoothstep over the signed distance to the joint's bisector plane blends the parent
+and child bones. The same function dresses arbitrary (BVH) skeletons, with radii guessed from the
+skeleton's shape when none are given.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from stages.checks import ContractError, check_array, check_positive
+from stages.rig.transforms import forward_kinematics
+from stages.rig.types import Character
+
+INFLUENCES = 4  # K, influences per vertex
+
+
+@dataclass(frozen=True)
+class BodyParams:
+    """Shape and resolution of the procedural humanoid.
+
+    height: metres, floor to top of head (the generated mesh matches it exactly).
+    chest, waist, hips, arms, legs: girth scale factors (1 = average adult), in [0.5, 2].
+    arm_angle_deg: bind-pose arm angle below horizontal (45 = A-pose, 0 = T-pose), in [0, 75].
+    target_triangles: wanted skin triangle count (met within about +-15 %).
+    blend_radius: smooth-union fillet width as a fraction of height (armpits, crotch).
+    keys_per_second: keyframe rate of the procedural clips.
+    walk_speed: m/s, root speed of the walk clip; walk_period: s, one full gait cycle (two steps);
+    walk_cycles: gait cycles in the walk clip (it translates, so it does not loop; see
+        `stages.rig.procedural_motion.walk_clip`).
+    """
+
+    height: float = 1.75
+    chest: float = 1.0
+    waist: float = 1.0
+    hips: float = 1.0
+    arms: float = 1.0
+    legs: float = 1.0
+    arm_angle_deg: float = 45.0
+    target_triangles: int = 4500
+    blend_radius: float = 0.012
+    keys_per_second: float = 30.0
+    walk_speed: float = 1.2
+    walk_period: float = 1.1
+    walk_cycles: int = 4
+
+    def __post_init__(self):
+        o = "BodyParams"
+        if not 0.5 <= self.height <= 2.5:
+            raise ContractError(f"{o}.height: expected metres in [0.5, 2.5], got {self.height}")
+        for name in ("chest", "waist", "hips", "arms", "legs"):
+            v = getattr(self, name)
+            if not 0.5 <= v <= 2.0:
+                raise ContractError(f"{o}.{name}: expected a girth factor in [0.5, 2], got {v}")
+        if not 0.0 <= self.arm_angle_deg <= 75.0:
+            raise ContractError(f"{o}.arm_angle_deg: expected degrees in [0, 75], got {self.arm_angle_deg}")
+        if not 500 <= self.target_triangles <= 200_000:
+            raise ContractError(f"{o}.target_triangles: expected 500..200000, got {self.target_triangles}")
+        if not 0.0 <= self.blend_radius <= 0.05:
+            raise ContractError(f"{o}.blend_radius: expected a fraction of height in [0, 0.05], got {self.blend_radius}")
+        for name in ("keys_per_second", "walk_period"):
+            check_positive(o, name, getattr(self, name))
+        check_positive(o, "walk_speed", self.walk_speed, strict=False)
+        if int(self.walk_cycles) != self.walk_cycles or self.walk_cycles < 1:
+            raise ContractError(f"{o}.walk_cycles: expected a positive integer, got {self.walk_cycles}")
+
+
+# ---------------------------------------------------------------------------------------------
+# Skeleton
+
+# name, parent, position as a fraction of height (left side; right mirrors x), semi-axes
+# (width, depth) as a fraction of height, girth factor that scales it.
+_TORSO = (
+    ("pelvis", None, (0.0, 0.545, 0.0), (0.094, 0.068), "hips"),
+    ("spine", "pelvis", (0.0, 0.625, -0.004), (0.080, 0.058), "waist"),
+    ("chest", "spine", (0.0, 0.715, 0.0), (0.092, 0.064), "chest"),
+    ("neck", "chest", (0.0, 0.818, -0.006), (0.033, 0.035), None),
+    ("head", "neck", (0.0, 0.900, 0.004), (0.048, 0.056), None),
+)
+_LIMB_RADII = {  # (width, depth) fraction of height; factor
+    "clavicle": ((0.036, 0.030), "chest"),
+    "upperarm": ((0.033, 0.033), "arms"),
+    "forearm": ((0.025, 0.024), "arms"),
+    "hand": ((0.022, 0.014), "arms"),
+    "thigh": ((0.052, 0.052), "legs"),
+    "shin": ((0.031, 0.031), "legs"),
+    "foot": ((0.022, 0.022), "legs"),
+    "toes": ((0.028, 0.012), "legs"),
+}
+# Limb segment lengths as fractions of height (Drillis & Contini style proportions).
+_UPPERARM, _FOREARM, _HAND = 0.186, 0.146, 0.100
+
+
+def humanoid_skeleton(params: BodyParams = BodyParams()):
+    """The procedural humanoid skeleton in its bind pose.
+
+    Returns (joint_names: tuple[str, ...] (21 joints), parents: (J,) int32 (parents[j] < j, root
+    'pelvis' = 0), rest_local: (J, 4, 4) float64 parent-frame rest transforms). Every joint's bind
+    rotation is the identity, so local rotations in clips are expressed in world-aligned axes.
+    Left limbs are at +X. Positions come from proportions of `params.height`; the skin generator
+    then rescales skeleton and mesh together so the mesh spans exactly y in [0, height].
+    """
+    names, parents, pos, _ = _skeleton_table(params)
+    local = np.tile(np.eye(4), (len(names), 1, 1))
+    for j, p in enumerate(parents):
+        local[j, :3, 3] = pos[j] - (pos[p] if p >= 0 else 0.0)
+    return names, parents, local
+
+
+def _skeleton_table(params: BodyParams):
+    """(names, parents, bind positions (J,3), radii (J,2)) plus end sites, internal."""
+    h = params.height
+    names: list[str] = []
+    parents: list[int] = []
+    pos: list[np.ndarray] = []
+    radii: list[np.ndarray] = []
+
+    def add(name, parent, p, r):
+        names.append(name)
+        parents.append(-1 if parent is None else names.index(parent))
+        pos.append(np.asarray(p, dtype=np.float64) * h)
+        radii.append(np.asarray(r, dtype=np.float64) * h)
+
+    for name, parent, p, r, factor in _TORSO:
+        add(name, parent, p, np.asarray(r) * (getattr(params, factor) if factor else 1.0))
+    a = np.radians(params.arm_angle_deg)
+    arm_dir = np.array([np.cos(a), -np.sin(a), 0.0])
+    for side, sx in (("l", 1.0), ("r", -1.0)):
+        m = np.array([sx, 1.0, 1.0])
+        shoulder = np.array([0.105, 0.812, -0.004])
+        elbow = shoulder + _UPPERARM * arm_dir
+        wrist = elbow + _FOREARM * arm_dir
+        for name, parent, p in (
+            ("clavicle", "chest", (0.018, 0.795, 0.012)),
+            ("upperarm", "clavicle", shoulder),
+            ("forearm", "upperarm", elbow),
+            ("hand", "forearm", wrist),
+        ):
+            r, factor = _LIMB_RADII[name]
+            add(f"{name}_{side}", f"{parent}_{side}" if parent != "chest" else parent,
+                np.asarray(p) * m, np.asarray(r) * getattr(params, factor))
+    for side, sx in (("l", 1.0), ("r", -1.0)):
+        m = np.array([sx, 1.0, 1.0])
+        for name, parent, p in (
+            ("thigh", "pelvis", (0.054, 0.525, 0.0)),
+            ("shin", "thigh", (0.052, 0.285, 0.002)),
+            ("foot", "shin", (0.050, 0.042, -0.006)),
+            ("toes", "foot", (0.052, 0.013, 0.078)),
+        ):
+            r, factor = _LIMB_RADII[name]
+            add(f"{name}_{side}", f"{parent}_{side}" if parent != "pelvis" else parent,
+                np.asarray(p) * m, np.asarray(r) * getattr(params, factor))
+    names_t = tuple(names)
+    positions = np.array(pos)
+    ends = {names_t.index("head"): np.array([0.0, 1.0, 0.004]) * h}
+    for side, sx in (("l", 1.0), ("r", -1.0)):
+        ends[names_t.index(f"hand_{side}")] = positions[names_t.index(f"hand_{side}")] + _HAND * h * arm_dir * [sx, 1, 1]
+        ends[names_t.index(f"toes_{side}")] = np.array([0.052 * sx, 0.010, 0.118]) * h
+    table_radii = np.array(radii)
+    return names_t, np.array(parents, dtype=np.int32), positions, (table_radii, ends)
+
+
+# ---------------------------------------------------------------------------------------------
+# Implicit body: tapered elliptic capsules, smooth union
+
+
+@dataclass(frozen=True)
+class _Capsules:
+    """Flat arrays describing S capsules (internal).
+
+    start, end: (S,3) axis endpoints (world); axis: (S,3) unit; length: (S,);
+    width_axis, depth_axis: (S,3) unit, perpendicular to axis;
+    r0, r1: (S,2) (width, depth) semi-axes at start / end;
+    bone: (S,) joint owning the capsule; child: (S,) joint at the end, -1 for a tip.
+    """
+
+    start: np.ndarray
+    end: np.ndarray
+    axis: np.ndarray
+    length: np.ndarray
+    width_axis: np.ndarray
+    depth_axis: np.ndarray
+    r0: np.ndarray
+    r1: np.ndarray
+    bone: np.ndarray
+    child: np.ndarray
+
+
+def _cross_section_axes(axis: np.ndarray):
+    """Width axis: world X projected off the bone, or world Z for bones running along X (arms,
+    so hands are wide front-to-back with palms facing the body); depth = axis x width."""
+    x = np.array([1.0, 0.0, 0.0])
+    z = np.array([0.0, 0.0, 1.0])
+    ref = z if abs(axis[0]) > abs(axis[2]) + 0.2 else x
+    w = ref - np.dot(ref, axis) * axis
+    n = np.linalg.norm(w)
+    if n < 1e-6:  # only if the bone runs exactly along ref
+        w = np.array([0.0, 1.0, 0.0]) - axis[1] * axis
+        n = np.linalg.norm(w)
+    w = w / n
+    return w, np.cross(axis, w)
+
+
+def _build_capsules(parents, positions, radii, ends, min_length):
+    rows = []
+    children = [[] for _ in parents]
+    for j, p in enumerate(parents):
+        if p >= 0:
+            children[p].append(j)
+    for b in range(len(parents)):
+        main = _main_child(b, parents, positions, children)
+        # side branches (pelvis -> thighs, chest -> clavicles) keep the child's size throughout,
+        # so the torso's wide section does not spread sideways along them
+        targets = [(c, positions[c], radii[c]) for c in children[b]]
+        if not children[b]:
+            tip = ends.get(b)
+            if tip is None:
+                tip = _guess_tip(b, parents, positions, radii)
+            r_tip = 0.8 * radii[b]
+            d = tip - positions[b]
+            n = np.linalg.norm(d)
+            # pull the capsule's end back by the cap's axial radius so the surface reaches the tip
+            cap = 0.5 * (r_tip[0] + r_tip[1])
+            end = positions[b] + d / n * max(n - cap, 0.0) if n > 1e-9 else positions[b].copy()
+            targets.append((-1, end, r_tip))
+        for c, e, re in targets:
+            d = e - positions[b]
+            n = float(np.linalg.norm(d))
+            if n < min_length and c >= 0:
+                continue  # zero-length bone (BVH 'HipJoint', 'lowerneck'): no capsule of its own
+            axis = d / n if n >= 1e-9 else np.array([0.0, 1.0, 0.0])
+            w, dp = _cross_section_axes(axis)
+            r0 = radii[b] if (c < 0 or c == main) else np.minimum(radii[b], re)
+            rows.append((positions[b], e, axis, n, w, dp, r0, re, b, c))
+    if not rows:
+        raise ContractError("skin_skeleton: the skeleton has no bone of positive length")
+    cols = list(zip(*rows))
+    f = lambda i: np.array(cols[i], dtype=np.float64)  # noqa: E731
+    return _Capsules(f(0), f(1), f(2), f(3), f(4), f(5), f(6), f(7),
+                     np.array(cols[8], dtype=np.int32), np.array(cols[9], dtype=np.int32))
+
+
+def _main_child(b, parents, positions, children):
+    """The child continuing the incoming direction (or +Y at the root), -1 if none."""
+    if not children[b]:
+        return -1
+    p = parents[b]
+    incoming = positions[b] - positions[p] if p >= 0 else np.zeros(3)
+    if np.linalg.norm(incoming) < 1e-9:
+        incoming = np.array([0.0, 1.0, 0.0])
+    best, score = children[b][0], -np.inf
+    for c in children[b]:
+        d = positions[c] - positions[b]
+        n = np.linalg.norm(d)
+        sc = np.dot(d, incoming) / (n * np.linalg.norm(incoming)) if n > 1e-9 else -2.0
+        if sc > score:
+            best, score = c, sc
+    return best
+
+
+def _guess_tip(b, parents, positions, radii):
+    """A leaf without an end site: extend along the parent bone by max(half its length, 2 radii)."""
+    p = parents[b]
+    r = float(np.mean(radii[b]))
+    if p < 0:
+        return positions[b] + np.array([0.0, 2.0 * r, 0.0])
+    d = positions[b] - positions[p]
+    n = np.linalg.norm(d)
+    q = p
+    while n < 1e-9 and parents[q] >= 0:  # zero-length parent bone: look further up
+        q = parents[q]
+        d = positions[b] - positions[q]
+        n = np.linalg.norm(d)
+    if n < 1e-9:
+        return positions[b] + np.array([0.0, 2.0 * r, 0.0])
+    return positions[b] + d / n * max(0.5 * n, 2.0 * r)
+
+
+def _capsule_fields(caps: _Capsules, points: np.ndarray) -> np.ndarray:
+    """(N, S) distance-like field of each capsule: negative inside, ~metres near the surface."""
+    v = points[:, None, :] - caps.start[None, :, :]
+    s = np.einsum("nsk,sk->ns", v, caps.axis)
+    length = np.maximum(caps.length, 1e-12)
+    t = np.clip(s / length, 0.0, 1.0)
+    q = v - (t * caps.length)[..., None] * caps.axis[None]
+    rw = caps.r0[:, 0] + t * (caps.r1[:, 0] - caps.r0[:, 0])
+    rd = caps.r0[:, 1] + t * (caps.r1[:, 1] - caps.r0[:, 1])
+    ra = 0.5 * (rw + rd)
+    qw = np.einsum("nsk,sk->ns", q, caps.width_axis)
+    qd = np.einsum("nsk,sk->ns", q, caps.depth_axis)
+    qa = np.einsum("nsk,sk->ns", q, caps.axis)
+    rho = np.sqrt((qw / rw) ** 2 + (qd / rd) ** 2 + (qa / ra) ** 2)
+    return (rho - 1.0) * np.minimum(rw, rd)
+
+
+def _smooth_union(fields: np.ndarray, k: float) -> np.ndarray:
+    """Polynomial smooth minimum over axis 1, folded in capsule order (deterministic)."""
+    f = fields[:, 0].copy()
+    if k <= 0:
+        return fields.min(axis=1)
+    for s in range(1, fields.shape[1]):
+        g = fields[:, s]
+        hh = np.maximum(k - np.abs(f - g), 0.0) / k
+        f = np.minimum(f, g) - hh * hh * k * 0.25
+    return f
+
+
+def _field(caps, k, points):
+    return _smooth_union(_capsule_fields(caps, points), k)
+
+
+def _field_gradient(caps, k, points, eps):
+    g = np.empty_like(points)
+    for a in range(3):
+        d = np.zeros(3)
+        d[a] = eps
+        g[:, a] = (_field(caps, k, points + d) - _field(caps, k, points - d)) / (2 * eps)
+    return g
+
+
+# ---------------------------------------------------------------------------------------------
+# Meshing
+
+
+def _marching_cubes(caps, k, spacing):
+    from skimage.measure import marching_cubes
+
+    rmax = np.maximum(caps.r0.max(axis=1), caps.r1.max(axis=1))[:, None]
+    lo = np.minimum(caps.start - rmax, caps.end - rmax).min(axis=0) - 2 * spacing
+    hi = np.maximum(caps.start + rmax, caps.end + rmax).max(axis=0) + 2 * spacing
+    n = np.ceil((hi - lo) / spacing).astype(int) + 1
+    axes = [lo[a] + spacing * np.arange(n[a]) for a in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    vol = _field(caps, k, grid).reshape(tuple(n))
+    # keep samples off the iso level exactly, which makes zero-area triangles
+    vol = np.where(np.abs(vol) < 1e-9, 1e-9, vol)
+    verts, faces, _, _ = marching_cubes(vol, 0.0, spacing=(spacing,) * 3, allow_degenerate=False)
+    return verts.astype(np.float64) + lo, faces.astype(np.int64)
+
+
+def _largest_component(verts, faces):
+    nv = len(verts)
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]]])
+    adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(nv, nv))
+    ncomp, label = connected_components(adj, directed=False)
+    if ncomp == 1:
+        return verts, faces, 1
+    used = np.zeros(nv, bool)
+    used[faces.ravel()] = True
+    counts = np.bincount(label[used], minlength=ncomp)
+    keep_label = int(np.argmax(counts))
+    keep_v = label == keep_label
+    remap = -np.ones(nv, np.int64)
+    remap[keep_v] = np.arange(keep_v.sum())
+    keep_f = keep_v[faces[:, 0]]
+    return verts[keep_v], remap[faces[keep_f]], ncomp
+
+
+def _relax(verts, faces, caps, k, spacing, iterations=4):
+    """Project onto the implicit surface, then alternate tangential Laplacian smoothing with
+    re-projection: evens out marching-cubes slivers without changing topology."""
+    eps = 1e-4 * spacing / 0.01
+    nv = len(verts)
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    e = np.concatenate([e, e[:, ::-1]])
+    adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(nv, nv)).tocsr()
+    adj.data[:] = 1.0  # duplicate edges summed: back to 0/1
+    deg = np.asarray(adj.sum(axis=1)).ravel()
+
+    def project(x, steps=3):
+        for _ in range(steps):
+            f = _field(caps, k, x)
+            g = _field_gradient(caps, k, x, eps)
+            gg = np.maximum(np.einsum("ij,ij->i", g, g), 1e-12)
+            step = (f / gg)[:, None] * g
+            # limit each step to a fraction of the grid so a bad gradient cannot fling a vertex
+            n = np.linalg.norm(step, axis=1, keepdims=True)
+            x = x - step * np.minimum(1.0, 0.5 * spacing / np.maximum(n, 1e-12))
+        return x
+
+    x = project(verts)
+    x0 = x.copy()
+    for _ in range(iterations):
+        g = _field_gradient(caps, k, x, eps)
+        nrm = g / np.maximum(np.linalg.norm(g, axis=1, keepdims=True), 1e-12)
+        lap = adj @ x / deg[:, None] - x
+        lap -= np.einsum("ij,ij->i", lap, nrm)[:, None] * nrm
+        x = project(x + 0.5 * lap, steps=2)
+    # where smoothing folded a face against the surface normal (thin hands), undo it locally
+    for _ in range(3):
+        bad = _flipped_faces(x, faces, caps, k, eps)
+        if not bad.any():
+            break
+        v = np.unique(faces[bad])
+        x[v] = x0[v]
+    return x
+
+
+def _flipped_faces(x, faces, caps, k, eps):
+    """Faces whose normal points against the field gradient at their centroid."""
+    tri = x[faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    g = _field_gradient(caps, k, tri.mean(axis=1), eps)
+    sign = np.sign(np.einsum("ij,ij->i", n, g).sum())  # orientation of the whole mesh
+    return np.einsum("ij,ij->i", n, g) * sign <= 0
+
+
+# ---------------------------------------------------------------------------------------------
+# Skin weights
+
+
+def _smoothstep(lo, hi, x):
+    u = np.clip((x - lo) / np.maximum(hi - lo, 1e-12), 0.0, 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
+def _joint_bands(parents, positions, caps: _Capsules, band_scale):
+    """Per joint: blend plane normal (bisector of the parent bone and the joint's own bone) and
+    half-width of the blend band (half the joint's mean radius, at most a quarter of the shorter
+    adjacent bone, so short bones keep a rigid middle)."""
+    nj = len(parents)
+    normal = np.zeros((nj, 3))
+    half = np.zeros(nj)
+    own_len = np.full(nj, np.inf)
+    own_dir = np.zeros((nj, 3))
+    for s in range(len(caps.bone)):
+        b = caps.bone[s]
+        if caps.length[s] > 1e-9 and caps.length[s] < own_len[b]:
+            own_len[b] = caps.length[s]
+        if caps.length[s] > 1e-9 and not own_dir[b].any():
+            own_dir[b] = caps.axis[s]
+    for j in range(nj):
+        p = parents[j]
+        if p < 0:
+            continue
+        into = positions[j] - positions[p]
+        n_into = np.linalg.norm(into)
+        d = own_dir[j].copy()
+        if n_into > 1e-9:
+            d = d + into / n_into
+        if np.linalg.norm(d) < 1e-9:
+            d = into / n_into if n_into > 1e-9 else np.array([0.0, 1.0, 0.0])
+        normal[j] = d / np.linalg.norm(d)
+        limit = min([x for x in (n_into, own_len[j]) if 1e-9 < x < np.inf], default=0.02)
+        half[j] = max(min(band_scale * 0.5 * float(np.mean(caps_radius_at(caps, j))), 0.25 * limit), 0.004)
+    return normal, half
+
+
+def caps_radius_at(caps: _Capsules, j):
+    s = np.flatnonzero(caps.bone == j)
+    if s.size:
+        return caps.r0[s[0]]
+    s = np.flatnonzero(caps.child == j)
+    if s.size:
+        return caps.r1[s[0]]
+    return np.array([0.02, 0.02])
+
+
+def _skin_weights(verts, parents, positions, caps: _Capsules, softness, band_scale=1.0):
+    nv, nj = len(verts), len(parents)
+    fields = _capsule_fields(caps, verts)  # (N, S)
+    excess = fields - fields.min(axis=1, keepdims=True)
+    member = np.exp(-excess / softness) * (excess < 6 * softness)
+    member /= member.sum(axis=1, keepdims=True)
+    normal, half = _joint_bands(parents, positions, caps, band_scale)
+    w = np.zeros((nv, nj))
+    rows = np.arange(nv)
+    for s in range(len(caps.bone)):
+        a = member[:, s]
+        live = a > 0
+        if not live.any():
+            continue
+        b = int(caps.bone[s])
+        c = int(caps.child[s])
+        x = verts[live]
+        rest = np.ones(len(x))
+        if c >= 0:
+            v = _smoothstep(-half[c], half[c], (x - positions[c]) @ normal[c])
+            w[rows[live], c] += a[live] * v
+            rest = 1.0 - v
+        p = parents[b]
+        if p >= 0:
+            u = _smoothstep(-half[b], half[b], (x - positions[b]) @ normal[b])
+            w[rows[live], b] += a[live] * rest * u
+            w[rows[live], p] += a[live] * rest * (1.0 - u)
+        else:
+            w[rows[live], b] += a[live] * rest
+    order = np.argsort(-w, axis=1, kind="stable")[:, :INFLUENCES]
+    top = np.take_along_axis(w, order, axis=1)
+    top /= top.sum(axis=1, keepdims=True)
+    # unused slots: weight 0, index of the dominant joint (a valid index)
+    order = np.where(top > 0, order, order[:, :1])
+    return order.astype(np.int32), top
+
+
+# ---------------------------------------------------------------------------------------------
+# Radii guessed from an arbitrary skeleton
+
+
+def guess_radii(parents, positions) -> np.ndarray:
+    """(J, 2) (width, depth) semi-axes guessed from the skeleton's shape, metres.
+
+    Humanoid-looking skeletons (a spine chain from the root to the highest joint with at least
+    two limbs hanging below the root and two more branching off above it) get a body template:
+    torso sizes by height fraction, limb sizes by normalised arc length along each limb. Anything
+    else gets round capsules of 15 % of the adjacent bone length.
+    """
+    parents = np.asarray(parents)
+    positions = np.asarray(positions, dtype=np.float64)
+    nj = len(parents)
+    children = [[] for _ in range(nj)]
+    for j, p in enumerate(parents):
+        if p >= 0:
+            children[p].append(j)
+    bone_len = np.zeros(nj)
+    for j, p in enumerate(parents):
+        if p >= 0:
+            d = np.linalg.norm(positions[j] - positions[p])
+            bone_len[p] = max(bone_len[p], d)
+            bone_len[j] = max(bone_len[j], d) if bone_len[j] == 0 else bone_len[j]
+    fallback = np.repeat(np.maximum(0.15 * bone_len, 1e-3)[:, None], 2, axis=1)
+    if fallback.max() <= 1e-3:
+        fallback[:] = 0.05
+
+    ylo, yhi = positions[:, 1].min(), positions[:, 1].max()
+    extent = yhi - ylo
+    if nj < 8 or extent <= 1e-6:
+        return fallback
+    # spine: root to the highest joint
+    top = int(np.argmax(positions[:, 1]))
+    spine = []
+    j = top
+    while j >= 0:
+        spine.append(j)
+        j = parents[j]
+    spine = spine[::-1]
+    on_spine = np.zeros(nj, bool)
+    on_spine[spine] = True
+    limbs = []  # (first joint, kind)
+    root_y = positions[spine[0], 1]
+    for s in spine:
+        for c in children[s]:
+            if on_spine[c]:
+                continue
+            sub = _subtree(c, children)
+            low = positions[sub, 1].min()
+            if len(sub) < 2:
+                continue
+            kind = "leg" if low < root_y - 0.25 * extent else "arm"
+            limbs.append((c, kind, sub))
+    if sum(k == "leg" for _, k, _ in limbs) < 2 or sum(k == "arm" for _, k, _ in limbs) < 2:
+        return fallback
+    # joints span ankle (~0.04 H) to head top or head joint (~0.9 H)
+    h = extent / 0.88
+    radii = fallback.copy()
+    ground = ylo - 0.04 * h
+    torso_y = np.array([0.40, 0.47, 0.53, 0.62, 0.72, 0.78, 0.82, 0.85, 0.90, 1.0])
+    torso_w = np.array([0.070, 0.090, 0.094, 0.080, 0.092, 0.085, 0.034, 0.032, 0.047, 0.040])
+    torso_d = np.array([0.060, 0.068, 0.068, 0.058, 0.064, 0.060, 0.034, 0.034, 0.055, 0.048])
+    for s in spine:
+        f = (positions[s, 1] - ground) / h
+        radii[s] = [np.interp(f, torso_y, torso_w) * h, np.interp(f, torso_y, torso_d) * h]
+    for first, kind, sub in limbs:
+        arc = {first: 0.0}
+        for j in sub:  # sub is in topological order
+            if j != first:
+                arc[j] = arc[parents[j]] + np.linalg.norm(positions[j] - positions[parents[j]])
+        total = max(arc.values()) or 1.0
+        for j in sub:
+            u = arc[j] / total
+            if kind == "leg":
+                r = np.interp(u, [0.0, 0.15, 0.55, 0.85, 1.0], [0.055, 0.052, 0.031, 0.022, 0.020])
+                radii[j] = [r * h, r * h]
+            else:
+                r = np.interp(u, [0.0, 0.25, 0.6, 0.85, 1.0], [0.034, 0.033, 0.025, 0.020, 0.015])
+                radii[j] = [r * h, r * h * (0.65 if u > 0.85 else 1.0)]
+    # joints off the spine and off any limb (rare): fallback
+    return radii
+
+
+def _subtree(root, children):
+    out = [root]
+    i = 0
+    while i < len(out):
+        out.extend(children[out[i]])
+        i += 1
+    return sorted(out)
+
+
+# ---------------------------------------------------------------------------------------------
+# Public skin generator
+
+
+def skin_skeleton(joint_names, parents, joint_positions, params: BodyParams = BodyParams(), *,
+                  radii=None, end_sites=None):
+    """A closed, manifold, outward-oriented skin around a skeleton, with linear-blend weights.
+
+    joint_names: J names (only used in messages). parents: (J,) ints, parents[j] < j, -1 root.
+    joint_positions: (J, 3) float, bind-pose world positions, metres, Y up.
+    params: `target_triangles` and `blend_radius` are used.
+    radii: optional (J,) or (J, 2) cross-section semi-axes (width, depth) at each joint, metres;
+        the width axis is world X projected off the bone, or world Z for bones running mostly
+        along X. Guessed by `guess_radii` when None.
+    end_sites: optional {joint index: (3,) world position} where a leaf bone ends (BVH End Site);
+        leaves without one extend along their parent bone.
+
+    Returns (vertices (V,3) float64 world, triangles (T,3) int32 CCW from outside,
+    skin_joints (V,4) int32, skin_weights (V,4) float64 rows summing to 1).
+    Raises ContractError for a malformed skeleton (bad parents, NaN, no positive-length bone).
+    """
+    o = "skin_skeleton"
+    nj = len(joint_names)
+    parents = np.asarray(parents)
+    if parents.shape != (nj,) or nj == 0:
+        raise ContractError(f"{o}: parents must have one entry per joint ({nj}), got shape {parents.shape}")
+    parents = parents.astype(np.int32)
+    if parents[0] != -1 or np.any(parents[1:] >= np.arange(1, nj)) or np.any(parents[1:] < -1):
+        raise ContractError(f"{o}: expected parents[0] == -1 and parents[j] < j")
+    positions = check_array(o, "joint_positions", np.ascontiguousarray(joint_positions, dtype=np.float64),
+                            (nj, 3), np.float64)
+    if radii is None:
+        radii = guess_radii(parents, positions)
+    radii = np.asarray(radii, dtype=np.float64)
+    if radii.shape == (nj,):
+        radii = np.repeat(radii[:, None], 2, axis=1)
+    check_array(o, "radii", radii, (nj, 2), np.float64)
+    if np.any(radii <= 0):
+        raise ContractError(f"{o}: radii must be positive")
+    ends = {}
+    for j, e in (end_sites or {}).items():
+        if not 0 <= int(j) < nj:
+            raise ContractError(f"{o}: end site for joint {j}, which does not exist")
+        ends[int(j)] = check_array(o, f"end_sites[{j}]", np.asarray(e, dtype=np.float64), (3,), np.float64)
+
+    scale = float(np.median(radii))
+    caps = _build_capsules(parents, positions, radii, ends, min_length=1e-3 * max(scale, 1e-3) * 10)
+    span = positions[:, 1].max() - positions[:, 1].min()
+    k = params.blend_radius * max(span / 0.88, 10 * scale)
+
+    # triangle count ~ c * area / spacing^2 for marching cubes; calibrate c by one trial run
+    area = float(np.sum(np.pi * (caps.r0.mean(1) + caps.r1.mean(1)) * caps.length)
+                 + 4 * np.pi * np.sum(caps.r1.mean(1) ** 2 * (caps.child < 0)))
+    spacing = np.sqrt(2.6 * area / params.target_triangles)
+    for attempt in range(4):
+        verts, faces = _marching_cubes(caps, k, spacing)
+        ratio = len(faces) / params.target_triangles
+        if 0.9 <= ratio <= 1.1 or attempt == 3:
+            break
+        spacing *= np.sqrt(ratio)
+    # a limb thinner than the grid can pinch off; keep the body, drop the crumbs
+    verts, faces, _ = _largest_component(verts, faces)
+    verts = _relax(verts, faces, caps, k, spacing)
+    # outward orientation: signed volume must be positive
+    vol = np.einsum("ij,ij->i", verts[faces[:, 0]], np.cross(verts[faces[:, 1]], verts[faces[:, 2]])).sum()
+    if vol < 0:
+        faces = faces[:, ::-1]
+    joints, weights = _skin_weights(verts, parents, positions, caps, softness=0.004 * max(span / 1.5, 0.2))
+    return verts, np.ascontiguousarray(faces, dtype=np.int32), joints, weights
+
+
+# ---------------------------------------------------------------------------------------------
+# Character
+
+
+def procedural_character(params: BodyParams = BodyParams(),
+                         motions=("rest", "walk", "arm_raise", "turn")) -> Character:
+    """The procedural humanoid: A-pose skin, 21-joint skeleton, LBS weights and clips.
+
+    The skin is generated with `skin_skeleton`, then skeleton and mesh are scaled together so the
+    mesh spans exactly y in [0, params.height]. Clips are built by
+    `stages.rig.procedural_motion.make_clip` (names: rest, walk, arm_raise, turn).
+    """
+    from stages.rig.procedural_motion import make_clip
+
+    names, parents, positions, (radii, ends) = _skeleton_table(params)
+    verts, tris, sj, sw = skin_skeleton(names, parents, positions, params, radii=radii, end_sites=ends)
+    # exact height and ground contact: uniform scale about the origin (x = z = 0), then lift
+    y0, y1 = verts[:, 1].min(), verts[:, 1].max()
+    s = params.height / (y1 - y0)
+    shift = np.array([0.0, -y0 * s, 0.0])
+    verts = verts * s + shift
+    positions = positions * s + shift
+    local = np.tile(np.eye(4), (len(names), 1, 1))
+    for j, p in enumerate(parents):
+        local[j, :3, 3] = positions[j] - (positions[p] if p >= 0 else 0.0)
+    world = forward_kinematics(parents, local)
+    inverse_bind = np.linalg.inv(world)
+    clips = tuple(make_clip(m, names, parents, local, params) for m in motions)
+    return Character(
+        name="procedural",
+        vertices=verts,
+        triangles=tris,
+        primitive_ids=np.zeros(len(verts), np.int32),
+        joint_names=names,
+        parents=parents,
+        rest_local=local,
+        inverse_bind=inverse_bind,
+        skin_joints=sj,
+        skin_weights=sw,
+        clips=clips,
+        root_joint=0,
+        source="procedural",
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# Measurements
+
+# arm: shoulder to wrist; leg: hip to ankle (procedural names first, then common rig names)
+_ARM_CHAINS = (("upperarm_l", "forearm_l", "hand_l"), ("LeftArm", "LeftForeArm", "LeftHand"),
+               ("LeftShoulder", "LeftElbow", "LeftWrist"))
+_LEG_CHAINS = (("thigh_l", "shin_l", "foot_l"), ("LeftUpLeg", "LeftLeg", "LeftFoot"),
+               ("LeftHip", "LeftKnee", "LeftAnkle"))
+
+
+def body_measurements(character: Character) -> dict:
+    """Tape-measure sizes of a character in its bind pose, metres.
+
+    height: mesh y extent. chest, waist, hips: girths = perimeter of the convex hull of the
+    torso's horizontal cross-section (the loop around the root joint's vertical axis) at 72 %,
+    62 % and 53 % of the height above the lowest vertex (the 'hips' slice is at hip-joint
+    level). chest_y, waist_y, hips_y: those heights (world y).
+    arm_length (shoulder to wrist) and leg_length (hip to ankle): sums of bind-pose bone lengths
+    of the left chain, found by joint name (procedural, Mixamo-like or CMU names); NaN when the
+    names are not recognised.
+    """
+    v = character.vertices
+    y0, y1 = float(v[:, 1].min()), float(v[:, 1].max())
+    h = y1 - y0
+    world = forward_kinematics(character.parents, character.rest_local)
+    root_xz = world[character.root_joint, [0, 2], 3]
+    out = {"height": h}
+    for key, frac in (("chest", 0.72), ("waist", 0.62), ("hips", 0.53)):
+        y = y0 + frac * h
+        out[f"{key}_y"] = y
+        out[key] = _girth(v, character.triangles, y, root_xz)
+    names = character.joint_names
+    pos = world[:, :3, 3]
+    for key, chains in (("arm_length", _ARM_CHAINS), ("leg_length", _LEG_CHAINS)):
+        out[key] = float("nan")
+        for chain in chains:
+            if all(n in names for n in chain):
+                p = pos[[names.index(n) for n in chain]]
+                out[key] = float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
+                break
+    return out
+
+
+def _girth(vertices, triangles, y, axis_xz):
+    """Convex-hull perimeter of the cross-section loop at height y that encloses axis_xz (or the
+    largest loop when none does)."""
+    from scipy.spatial import ConvexHull
+    from scipy.spatial import cKDTree
+
+    d = vertices[:, 1] - y
+    d = np.where(d == 0.0, 1e-12, d)  # a vertex exactly on the plane: nudge it above
+    tri_d = d[triangles]
+    crossing = (tri_d.min(axis=1) < 0) & (tri_d.max(axis=1) > 0)
+    segs = []
+    for t in np.flatnonzero(crossing):
+        pts = []
+        for a, b in ((0, 1), (1, 2), (2, 0)):
+            da, db = tri_d[t, a], tri_d[t, b]
+            if (da < 0) != (db < 0):
+                pa, pb = vertices[triangles[t, a]], vertices[triangles[t, b]]
+                pts.append(pa + (pb - pa) * (da / (da - db)))
+        segs.append(pts[:2])
+    if not segs:
+        return float("nan")
+    segs = np.asarray(segs)[:, :, [0, 2]]  # (S, 2, 2) in the xz plane
+    ends = segs.reshape(-1, 2)
+    pairs = cKDTree(ends).query_pairs(1e-9, output_type="ndarray")
+    n = len(ends)
+    links = np.concatenate([pairs, np.stack([np.arange(0, n, 2), np.arange(1, n, 2)], axis=1)])
+    adj = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(n, n))
+    ncomp, label = connected_components(adj, directed=False)
+    best, best_len, fallback, fallback_len = None, -1.0, None, -1.0
+    for c in range(ncomp):
+        pts = ends[label == c]
+        if len(pts) < 3:
+            continue
+        hull = ConvexHull(pts)
+        per = float(hull.area)  # in 2D, 'area' is the perimeter
+        eq = hull.equations
+        inside = np.all(eq[:, :2] @ axis_xz + eq[:, 2] <= 0)
+        if inside and per > best_len:
+            best, best_len = c, per
+        if per > fallback_len:
+            fallback, fallback_len = c, per
+    return best_len if best is not None else fallback_len
