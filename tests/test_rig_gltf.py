@@ -508,3 +508,24 @@ def test_rigged_simple(assets_dir):
     world = skin(c, m) + m.root_translation[:, None, :]
     np.testing.assert_allclose(world[1], _reference_world(assets_dir / "RiggedSimple.glb", 2.0), atol=2e-5)
     np.testing.assert_allclose(skin(c, rest_motion(c, 1, 0.1))[0], c.vertices, atol=1e-5)
+
+
+def test_sparse_accessor_positions(made, tmp_path):
+    b = build_test_gltf()
+    prim = b.doc["meshes"][0]["primitives"][1]
+    dense = b.accessors[prim["attributes"]["POSITION"]]
+    (_, _, _, _), (p1, _, _, _) = mesh_data()
+    idx = b.accessor(np.array([1, 4], np.uint32), np.uint32)
+    val = b.accessor(p1[[1, 4]] + 10.0, np.float32)
+    sparse = dict(dense)
+    sparse["sparse"] = {"count": 2, "indices": {"bufferView": b.accessors[idx]["bufferView"], "componentType": 5125},
+                        "values": {"bufferView": b.accessors[val]["bufferView"]}}
+    b.accessors.append(sparse)
+    prim["attributes"]["POSITION"] = len(b.accessors) - 1
+    b.write_glb(tmp_path / "sparse.glb")
+    got = load_gltf(tmp_path / "sparse.glb").vertices
+    base = load_gltf(made / "made.glb").vertices
+    moved = np.zeros(18, bool)
+    moved[[12 + 1, 12 + 4]] = True
+    np.testing.assert_allclose(got[~moved], base[~moved], atol=1e-6)
+    assert np.all(np.linalg.norm(got[moved] - base[moved], axis=1) > 10.0)  # moved by 10 * (2 * R) scale
