@@ -124,6 +124,8 @@ def test_motion_relative_frame():
     world[..., :3, 3] += m.root_translation[:, None, :]
     np.testing.assert_allclose(world, g @ c.inverse_bind, atol=1e-12)
     np.testing.assert_allclose(m.joint_world[0], g[0] @ c.inverse_bind, atol=1e-12)  # relative == world at frame 0
+    later = sample_motion(c, clip.name, times + 0.25)
+    np.testing.assert_allclose(later.times, times)  # Motion.times count from the first frame
     with pytest.raises(KeyError, match="no clip 'nope'"):
         sample_motion(c, "nope", times)
 
