@@ -58,6 +58,7 @@ from numba import njit
 from stages.obstacles.kdop import refit_particle_tree, refit_range, triangle_bounds
 
 BARY_TOL = 1e-9
+PUSH_TOL = 1e-10  # m: a particle already put at the band (previous pass) is not hit again
 
 
 @njit(cache=True, inline="always")
@@ -209,7 +210,7 @@ def point_triangle_ccd(p0, p1, a, b, c, h):
     d0 = nx * (p0[0] - a[0]) + ny * (p0[1] - a[1]) + nz * (p0[2] - a[2])
     d1 = nx * (p1[0] - a[0]) + ny * (p1[1] - a[1]) + nz * (p1[2] - a[2])
     # the inner-product (sign) test of paper B, against the plane offset by the band
-    if not (d1 < h and d0 >= -h):
+    if not (d1 < h - PUSH_TOL and d0 >= -h):
         return False, 0.0, d0, nx, ny, nz
     t = 0.0
     if d0 > h:
@@ -311,8 +312,12 @@ def best_contacts(x_prev, x, inv_mass, pairs, n_pairs, vertices, triangles, tri_
 
 @njit(cache=True)
 def respond(x_prev, x, best_tri, best_t, vertices, triangles, tri_obstacle, pose0, pose1,
-            thickness, friction, restitution, out_particle, out_triangle, out_toi, out_point, out_normal):
-    """Paper B response for each particle with a contact; returns the number of contacts."""
+            thickness, friction, restitution):
+    """Paper B response for each particle with a contact (modifies x, x_prev); returns the count.
+
+    Geometry of the push: the particle's end x against the chosen triangle's plane. Velocity:
+    the Verlet displacement currently encoded by x - x_prev (both in the obstacle's body frame).
+    """
     n = 0
     for p in range(x.shape[0]):
         tri = best_tri[p]
@@ -337,6 +342,7 @@ def respond(x_prev, x, best_tri, best_t, vertices, triangles, tri_obstacle, pose
         ny /= ln
         nz /= ln
         # body frame of the obstacle: the relative motion of particle and obstacle
+        # velocity (Verlet displacement) as currently encoded by x - x_prev
         s0x, s0y, s0z = _apply_inv(pose0[r], x_prev[p, 0], x_prev[p, 1], x_prev[p, 2])
         s1x, s1y, s1z = _apply_inv(pose1[r], x[p, 0], x[p, 1], x[p, 2])
         d1 = nx * (s1x - ax) + ny * (s1y - ay) + nz * (s1z - az)
@@ -369,16 +375,6 @@ def respond(x_prev, x, best_tri, best_t, vertices, triangles, tri_obstacle, pose
         q3 = e3 - (keep * tz + vn_new * nz)
         x[p, 0], x[p, 1], x[p, 2] = _apply(pose1[r], e1, e2, e3)
         x_prev[p, 0], x_prev[p, 1], x_prev[p, 2] = _apply(pose0[r], q1, q2, q3)
-        out_particle[n] = p
-        out_triangle[n] = tri
-        out_toi[n] = best_t[p]
-        out_point[n, 0] = x[p, 0]
-        out_point[n, 1] = x[p, 1]
-        out_point[n, 2] = x[p, 2]
-        # world normal: rotate only
-        out_normal[n, 0] = pose1[r][0, 0] * nx + pose1[r][0, 1] * ny + pose1[r][0, 2] * nz
-        out_normal[n, 1] = pose1[r][1, 0] * nx + pose1[r][1, 1] * ny + pose1[r][1, 2] * nz
-        out_normal[n, 2] = pose1[r][2, 0] * nx + pose1[r][2, 1] * ny + pose1[r][2, 2] * nz
         n += 1
     return n
 
@@ -389,22 +385,58 @@ def collide_obstacles(x_prev, x, inv_mass,
                       o_min, o_max, o_children, o_leaf, o_offsets,
                       directions, vertices, triangles, tri_obstacle, vertex_offsets, triangle_offsets,
                       pose0, pose1, moving, thickness, friction, restitution,
-                      out_particle, out_triangle, out_toi, out_point, out_normal, stats):
+                      out_particle, out_triangle, out_toi, out_point, out_normal, stats, passes=2):
     """One step of cloth x obstacle collision; see the module docstring for the contract."""
     refit_obstacles(o_min, o_max, o_children, o_leaf, directions, vertices, triangles,
                     vertex_offsets, triangle_offsets, o_offsets, pose0, pose1, moving, thickness)
-    refit_particle_tree(c_min, c_max, c_children, c_leaf, directions, x_prev, x)
-    order = motion_axis_order(directions, x_prev, x)
-    pairs, m = candidate_pairs(c_min, c_max, c_children, c_leaf, o_min, o_max, o_children, o_leaf,
-                               o_offsets, order, stats)
     n = x.shape[0]
+    x_start = x_prev.copy()  # the swept segments always start here, across passes
     best_tri = np.full(n, -1, dtype=np.int32)
     best_t = np.zeros(n)
     best_d0 = np.zeros(n)
-    stats[1] += best_contacts(x_prev, x, inv_mass, pairs, m, vertices, triangles, tri_obstacle,
-                              pose0, pose1, thickness, best_tri, best_t, best_d0)
-    k = respond(x_prev, x, best_tri, best_t, vertices, triangles, tri_obstacle, pose0, pose1,
-                thickness, friction, restitution, out_particle, out_triangle, out_toi, out_point, out_normal)
-    stats[2] += k
-    stats[3] = max(stats[3], pairs.shape[0])
-    return k
+    final_tri = np.full(n, -1, dtype=np.int32)
+    final_t = np.zeros(n)
+    for _ in range(passes):
+        refit_particle_tree(c_min, c_max, c_children, c_leaf, directions, x_start, x)
+        order = motion_axis_order(directions, x_start, x)
+        pairs, m = candidate_pairs(c_min, c_max, c_children, c_leaf, o_min, o_max, o_children, o_leaf,
+                                   o_offsets, order, stats)
+        stats[3] = max(stats[3], pairs.shape[0])
+        best_tri[:] = -1
+        stats[1] += best_contacts(x_start, x, inv_mass, pairs, m, vertices, triangles, tri_obstacle,
+                                  pose0, pose1, thickness, best_tri, best_t, best_d0)
+        k = respond(x_prev, x, best_tri, best_t, vertices, triangles, tri_obstacle, pose0, pose1,
+                    thickness, friction, restitution)
+        if k == 0:
+            break
+        for p in range(n):
+            if best_tri[p] >= 0 and final_tri[p] < 0:
+                final_tri[p] = best_tri[p]  # report the first (earliest) contact of the step
+                final_t[p] = best_t[p]
+    # the step's contact list: one row per particle touched in any pass, increasing particle id
+    c = 0
+    for p in range(n):
+        if final_tri[p] < 0:
+            continue
+        r = tri_obstacle[final_tri[p]]
+        out_particle[c] = p
+        out_triangle[c] = final_tri[p]
+        out_toi[c] = final_t[p]
+        for j in range(3):
+            out_point[c, j] = x[p, j]
+        a = triangles[final_tri[p], 0]
+        e1x = vertices[triangles[final_tri[p], 1], 0] - vertices[a, 0]
+        e1y = vertices[triangles[final_tri[p], 1], 1] - vertices[a, 1]
+        e1z = vertices[triangles[final_tri[p], 1], 2] - vertices[a, 2]
+        e2x = vertices[triangles[final_tri[p], 2], 0] - vertices[a, 0]
+        e2y = vertices[triangles[final_tri[p], 2], 1] - vertices[a, 1]
+        e2z = vertices[triangles[final_tri[p], 2], 2] - vertices[a, 2]
+        nx = e1y * e2z - e1z * e2y
+        ny = e1z * e2x - e1x * e2z
+        nz = e1x * e2y - e1y * e2x
+        ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+        for j in range(3):
+            out_normal[c, j] = (pose1[r][j, 0] * nx + pose1[r][j, 1] * ny + pose1[r][j, 2] * nz) / ln
+        c += 1
+    stats[2] += c
+    return c

@@ -49,9 +49,11 @@ class ObstacleCollider:
 
     oset: the scene's ObstacleSet. x_rest: (N, 3) float64 cloth positions the particle tree's
     topology is built from (the initial drape); its bounds are refit every step.
+    passes: detection + response rounds per step (1 = each particle's contact resolved exactly
+    once; 2 also resolves a second triangle the first push ended behind, e.g. at a table's edge).
     """
 
-    def __init__(self, oset: ObstacleSet, x_rest: np.ndarray):
+    def __init__(self, oset: ObstacleSet, x_rest: np.ndarray, passes: int = 2):
         check_array("ObstacleCollider", "x_rest", x_rest, (None, 3), np.float64)
         self.oset = oset
         ctree = build_particle_tree(x_rest, k=oset.tree.k)
@@ -75,6 +77,9 @@ class ObstacleCollider:
         self.out_normal = np.zeros((n, 3))
         self.stats = np.zeros(4, dtype=np.int64)
         self.n_contacts = 0
+        if not (isinstance(passes, int) and passes >= 1):
+            raise ContractError(f"ObstacleCollider.passes: expected an integer >= 1, got {passes!r}")
+        self.passes = passes
 
     def poses(self, t: float) -> np.ndarray:
         """(r, 4, 4) body -> world of every obstacle at time t."""
@@ -90,7 +95,7 @@ class ObstacleCollider:
                 self.o_min, self.o_max, t.children, t.leaf_prim, t.tree_offsets,
                 t.directions, o.vertices, o.triangles, o.tri_obstacle, o.vertex_offsets, o.triangle_offsets,
                 self.poses(t0), self.poses(t1), self.moving, self.thickness, self.friction, self.restitution,
-                self.out_particle, self.out_triangle, self.out_toi, self.out_point, self.out_normal, self.stats)
+                self.out_particle, self.out_triangle, self.out_toi, self.out_point, self.out_normal, self.stats, self.passes)
 
     def collide(self, x_prev: np.ndarray, x: np.ndarray, inv_mass: np.ndarray, t0: float = 0.0,
                 t1: float = 0.0) -> int:
