@@ -166,8 +166,10 @@ def _skeleton_table(params: BodyParams):
             ("toes", "foot", (0.052, 0.013, 0.078)),
         ):
             r, factor = _LIMB_RADII[name]
+            # the thigh tops make the outline of the hips, so they follow the hips factor too
+            f = getattr(params, factor) * (params.hips if name == "thigh" else 1.0)
             add(f"{name}_{side}", f"{parent}_{side}" if parent != "pelvis" else parent,
-                np.asarray(p) * m, np.asarray(r) * getattr(params, factor))
+                np.asarray(p) * m, np.asarray(r) * f)
     names_t = tuple(names)
     positions = np.array(pos)
     ends = {names_t.index("head"): np.array([0.0, 1.0, 0.004]) * h}
@@ -250,7 +252,7 @@ def _build_capsules(parents, positions, radii, ends, min_length):
             w, dp = _cross_section_axes(axis)
             r0 = radii[b] if (c < 0 or c == main) else np.minimum(radii[b], re)
             rows.append((positions[b], e, axis, n, w, dp, r0, re, b, c))
-    if not rows:
+    if not rows or max(r[3] for r in rows) < min_length:
         raise ContractError("skin_skeleton: the skeleton has no bone of positive length")
     cols = list(zip(*rows))
     f = lambda i: np.array(cols[i], dtype=np.float64)  # noqa: E731
@@ -503,6 +505,8 @@ def _skin_weights(verts, parents, positions, caps: _Capsules, softness, band_sca
             w[rows[live], p] += a[live] * rest * (1.0 - u)
         else:
             w[rows[live], b] += a[live] * rest
+    if nj < INFLUENCES:  # fewer joints than slots: zero-weight padding columns
+        w = np.concatenate([w, np.zeros((nv, INFLUENCES - nj))], axis=1)
     order = np.argsort(-w, axis=1, kind="stable")[:, :INFLUENCES]
     top = np.take_along_axis(w, order, axis=1)
     top /= top.sum(axis=1, keepdims=True)
