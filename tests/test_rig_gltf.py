@@ -107,7 +107,7 @@ def node_trs():
     }
 
 
-def channels():
+def channels(variant=None):
     """(node, path, interpolation, times, values) with values as glTF stores them."""
     rng = np.random.default_rng(7)
     hip_t = np.array([[0, 0.2, 0], [0.1, 0.25, 0.05], [0.3, 0.2, -0.1]])
@@ -123,7 +123,8 @@ def channels():
         (3, "rotation", "STEP", KEY_T, arm_r),
         (5, "scale", "LINEAR", np.array([0.0, 0.5, 0.8]), hand_s),
         (6, "translation", "CUBICSPLINE", KEY_T, tip_t),
-    ]
+    ] + ([(0, "rotation", "LINEAR", np.array([0.0, 1.0]), np.stack([quat([0, 1, 0], 0.7), quat([1, 0, 0], 0.5)]))]
+         if variant == "animated_above" else [])
 
 
 def mesh_data():
@@ -143,7 +144,7 @@ def mesh_data():
     return (p0, t0, j0, w0), (p1, t1, j1, w1)
 
 
-def build_test_gltf(skin=True, mode=4) -> Builder:
+def build_test_gltf(skin=True, mode=4, variant=None) -> Builder:
     b = Builder()
     trs = node_trs()
     nodes = []
@@ -157,6 +158,8 @@ def build_test_gltf(skin=True, mode=4) -> Builder:
         nodes.append(n)
     for parent, kids in {0: [1, 7], 1: [2], 2: [3], 3: [4], 4: [5], 5: [6]}.items():
         nodes[parent]["children"] = kids
+    if variant == "two_trees":  # 'tip' becomes a scene root: the joints share no ancestor
+        del nodes[5]["children"]
     (p0, t0, j0, w0), (p1, t1, j1, w1) = mesh_data()
     prim0 = {"attributes": {"POSITION": b.accessor(p0, np.float32),
                             "JOINTS_0": b.accessor(j0[:, :4], np.uint16), "WEIGHTS_0": b.accessor(w0[:, :4], np.float32),
@@ -172,10 +175,10 @@ def build_test_gltf(skin=True, mode=4) -> Builder:
         nodes[7]["skin"] = 0
     nodes[7]["mesh"] = 0
     b.doc["nodes"] = nodes
-    b.doc["scenes"] = [{"nodes": [0]}]
+    b.doc["scenes"] = [{"nodes": [0, 6] if variant == "two_trees" else [0]}]
     b.doc["scene"] = 0
     samplers, chans = [], []
-    for node, pth, interp, times, vals in channels():
+    for node, pth, interp, times, vals in channels(variant):
         samplers.append({"input": b.accessor(times, np.float32), "output": b.accessor(vals, np.float32),
                          "interpolation": interp})
         chans.append({"sampler": len(samplers) - 1, "target": {"node": node, "path": pth}})
@@ -224,9 +227,9 @@ def ref_sample(interp, pth, times, vals, t):
     return (1 - u) * vals[k] + u * vals[k + 1]
 
 
-def ref_world_vertices(t, scale=1.0, up_axis="y"):
+def ref_world_vertices(t, scale=1.0, up_axis="y", variant=None):
     trs = {i: [np.array(x, float) for x in v] for i, v in node_trs().items()}
-    for node, pth, interp, times, vals in channels():
+    for node, pth, interp, times, vals in channels(variant):
         trs[node][{"translation": 0, "rotation": 1, "scale": 2}[pth]] = ref_sample(interp, pth, times, vals, t)
 
     def local(i):
@@ -241,6 +244,8 @@ def ref_world_vertices(t, scale=1.0, up_axis="y"):
     world = {0: local(0)}
     for i, p in [(1, 0), (2, 1), (3, 2), (4, 3), (5, 4), (6, 5)]:
         world[i] = world[p] @ local(i)
+    if variant == "two_trees":
+        world[6] = local(6)
     ibm = [np.linalg.inv(m) for m in bind_worlds()]
     out = []
     for p, _, j, w in mesh_data():
@@ -529,3 +534,20 @@ def test_sparse_accessor_positions(made, tmp_path):
     moved[[12 + 1, 12 + 4]] = True
     np.testing.assert_allclose(got[~moved], base[~moved], atol=1e-6)
     assert np.all(np.linalg.norm(got[moved] - base[moved], axis=1) > 10.0)  # moved by 10 * (2 * R) scale
+
+
+@pytest.mark.parametrize("variant, names", [
+    ("animated_above", ("above", "hip", "mid", "arm", "helper", "hand", "tip")),
+    ("two_trees", ("__root__", "above", "hip", "mid", "arm", "helper", "hand", "tip")),
+])
+def test_skeleton_root_variants(tmp_path, variant, names):
+    """An animated node above the joints joins the skeleton; joints in two trees get a synthetic root."""
+    build_test_gltf(variant=variant).write_glb(tmp_path / "v.glb")
+    c = load_gltf(tmp_path / "v.glb")
+    assert c.joint_names == names
+    assert c.joint_names[c.root_joint] == "hip"
+    times = np.array([0.0, 0.25, 0.55, 0.85])
+    m = sample_motion(c, 0, times)
+    world = skin(c, m) + m.root_translation[:, None, :]
+    for f, t in enumerate(times):
+        np.testing.assert_allclose(world[f], ref_world_vertices(t, variant=variant), atol=2e-3, err_msg=f"t = {t}")

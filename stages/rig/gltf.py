@@ -614,10 +614,10 @@ def load_gltf(path, *, scale: float = 1.0, up_axis: str = "y", loop: bool = True
             if np.any(wv < -1e-3):
                 raise InputError(path, f"{where}: negative skin weights")
             wv = np.maximum(wv, 0.0)
-            wv[(jv < 0) | (jv >= joint_map.size)] = np.where(
-                wv[(jv < 0) | (jv >= joint_map.size)] > 0, np.nan, 0.0)
-            if np.isnan(wv).any():
+            bad = (jv < 0) | (jv >= joint_map.size)
+            if np.any(bad & (wv > 0)):
                 raise InputError(path, f"{where}: JOINTS_n index beyond the skin's {joint_map.size} joints")
+            wv[bad] = 0.0  # zero-weight slots may hold anything
             jv = np.clip(jv, 0, joint_map.size - 1)
             if prim.indices is None:
                 if nv % 3:
@@ -657,9 +657,9 @@ def load_gltf(path, *, scale: float = 1.0, up_axis: str = "y", loop: bool = True
         raise InputError(path, f"{int(np.sum(sums <= 0))} vertices have all skin weights zero")
     sw /= sums[:, None]
 
-    clips = _bake_clips(path, doc, rd, order, index_of, rest_trs, convert_trs, loop, cubic_rate, cubic_tol)
     root_joint = min(index_of[n] for n in skin_joint_nodes)
     try:
+        clips = _bake_clips(path, doc, rd, order, index_of, rest_trs, convert_trs, loop, cubic_rate, cubic_tol)
         return Character(
             name=path.stem,
             vertices=np.concatenate(verts),
