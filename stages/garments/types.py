@@ -1,0 +1,404 @@
+"""The garment contract: a triangle mesh turned into a mass-spring particle system (paper A §1).
+
+Frames: garment positions are in the *relative frame* at frame 0 (world with the root translation
+of frame 0 removed, which is world itself at frame 0; see stages/rig/types.py). Attached particles
+store their position in the bone-local frame of the joint they follow, so that at frame t their
+relative-frame position is `Motion.joint_world[t, j] @ attach_local`.
+
+`build_garment` makes a Garment from any triangle mesh:
+- particles = vertices; stretch/shear springs (kind 0) = unique mesh edges; bend springs (kind 1)
+  = the two opposite vertices of each pair of triangles sharing an edge;
+- rest lengths from the rest shape, lumped masses from an area density;
+- attachment selectors (`attach_indices`, `attach_near`, `attach_top_loop`) resolved against the
+  bind pose (frame 0 of the motion, `BindPose`).
+Degenerate input is repaired with a `warnings.warn` (zero-area / repeated triangles dropped,
+coincident vertices welded, unused vertices removed) or refused with `InputError` (non-manifold
+edges, nothing left, non-finite positions).
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from stages.checks import ContractError, check_array, check_index
+from stages.errors import InputError
+
+STRETCH = 0  # spring kind: mesh edge (stretch / shear)
+BEND = 1     # spring kind: opposite vertices of two adjacent triangles
+
+
+@dataclass(frozen=True)
+class Garment:
+    """A garment ready to simulate.
+
+    name: garment name (used in entity paths, e.g. sim/<name>/mesh).
+    positions: (N, 3) float64, metres, relative frame at frame 0: the initial particle positions.
+    rest_positions: (N, 3) float64, metres, the rest shape the rest lengths come from (may equal
+        positions; e.g. a flat pattern placed around the body has its own rest shape).
+    triangles: (T, 3) int32, indices into positions (orientation gives the rendered normals).
+    springs: (S, 2) int32, particle index pairs, i < j.
+    rest_lengths: (S,) float64, metres, > 0.
+    kinds: (S,) int8, STRETCH (0) or BEND (1).
+    inverse_mass: (N,) float64, 1/kg, >= 0; 0 = pinned (attached particles, or fixed in place when
+        attach_joint is -1).
+    attach_joint: (N,) int32, -1 = not attached; else the joint whose bone the particle follows.
+    attach_local: (N, 3) float64, metres, bone-local position of attached particles (0 for others).
+    density: area density used for the masses, kg/m^2.
+    """
+
+    name: str
+    positions: np.ndarray
+    rest_positions: np.ndarray
+    triangles: np.ndarray
+    springs: np.ndarray
+    rest_lengths: np.ndarray
+    kinds: np.ndarray
+    inverse_mass: np.ndarray
+    attach_joint: np.ndarray
+    attach_local: np.ndarray
+    density: float = 0.2
+
+    def __post_init__(self):
+        o = f"Garment[{self.name!r}]"
+        x = check_array(o, "positions", self.positions, (None, 3), np.float64)
+        n = x.shape[0]
+        if n == 0:
+            raise ContractError(f"{o}.positions: a garment needs at least one particle")
+        check_array(o, "rest_positions", self.rest_positions, (n, 3), np.float64)
+        check_array(o, "triangles", self.triangles, (None, 3), np.int32)
+        check_index(o, "triangles", self.triangles, n)
+        s = check_array(o, "springs", self.springs, (None, 2), np.int32)
+        check_index(o, "springs", s, n)
+        if s.size and np.any(s[:, 0] >= s[:, 1]):
+            raise ContractError(f"{o}.springs: expected i < j in every spring")
+        nl = s.shape[0]
+        r = check_array(o, "rest_lengths", self.rest_lengths, (nl,), np.float64)
+        if np.any(r <= 0):
+            raise ContractError(f"{o}.rest_lengths: rest lengths must be positive")
+        k = check_array(o, "kinds", self.kinds, (nl,), np.int8)
+        if np.any((k != STRETCH) & (k != BEND)):
+            raise ContractError(f"{o}.kinds: expected 0 (stretch) or 1 (bend)")
+        w = check_array(o, "inverse_mass", self.inverse_mass, (n,), np.float64)
+        if np.any(w < 0):
+            raise ContractError(f"{o}.inverse_mass: must be >= 0")
+        aj = check_array(o, "attach_joint", self.attach_joint, (n,), np.int32)
+        if np.any(aj < -1):
+            raise ContractError(f"{o}.attach_joint: expected -1 or a joint index")
+        if np.any((aj >= 0) & (w != 0)):
+            raise ContractError(f"{o}.inverse_mass: attached particles must have inverse mass 0")
+        check_array(o, "attach_local", self.attach_local, (n, 3), np.float64)
+
+    @property
+    def n_particles(self) -> int:
+        return int(self.positions.shape[0])
+
+    @property
+    def attached(self) -> np.ndarray:
+        """Indices of particles following a bone."""
+        return np.flatnonzero(self.attach_joint >= 0)
+
+
+# ---------------------------------------------------------------------------------------------
+# attachment selectors
+
+@dataclass(frozen=True)
+class Attachment:
+    """One attachment selector (paper A §3.2 geometric constraints).
+
+    kind: 'indices' (explicit particle indices), 'near' (particles within `radius` metres of a
+        collider or joint in the bind pose) or 'top_loop' (the highest boundary loop, e.g. a
+        skirt's waistband).
+    indices: particle indices for 'indices' (indices into the positions given to build_garment).
+    target: 'near': a collider name, joint name or joint index. The bone followed is the
+        collider's bone / that joint.
+    joint: joint name or index to follow for 'indices' and 'top_loop'; None = the bone of the
+        nearest collider (or nearest joint origin when no colliders are given), per particle.
+    radius: metres, for 'near'.
+    """
+
+    kind: str
+    indices: tuple[int, ...] = ()
+    target: str | int | None = None
+    joint: str | int | None = None
+    radius: float = 0.0
+
+    def __post_init__(self):
+        if self.kind not in ("indices", "near", "top_loop"):
+            raise ContractError(f"Attachment.kind: expected 'indices', 'near' or 'top_loop', got {self.kind!r}")
+        if self.kind == "near" and (self.target is None or not self.radius > 0):
+            raise ContractError("Attachment 'near' needs a target and a positive radius")
+
+
+def attach_indices(indices, joint: str | int | None = None) -> Attachment:
+    return Attachment("indices", indices=tuple(int(i) for i in np.asarray(indices).ravel()), joint=joint)
+
+
+def attach_near(target: str | int, radius: float) -> Attachment:
+    return Attachment("near", target=target, radius=float(radius))
+
+
+def attach_top_loop(joint: str | int | None = None) -> Attachment:
+    return Attachment("top_loop", joint=joint)
+
+
+@dataclass(frozen=True)
+class BindPose:
+    """What attachment selectors need from the character at frame 0 of the motion.
+
+    joint_world: (J, 4, 4) float64, Motion.joint_world[0] (bone-local -> relative frame).
+    joint_origins: (J, 3) float64, metres, joint positions at frame 0, relative frame.
+    joint_names: J names. colliders: optional ColliderSet (for 'near' a collider).
+    """
+
+    joint_world: np.ndarray
+    joint_origins: np.ndarray
+    joint_names: tuple[str, ...]
+    colliders: object = None
+
+    def __post_init__(self):
+        j = len(self.joint_names)
+        check_array("BindPose", "joint_world", self.joint_world, (j, 4, 4), np.float64)
+        check_array("BindPose", "joint_origins", self.joint_origins, (j, 3), np.float64)
+
+    def joint_index(self, key) -> int:
+        if isinstance(key, (int, np.integer)) and not isinstance(key, bool):
+            if 0 <= key < len(self.joint_names):
+                return int(key)
+        elif key in self.joint_names:
+            return self.joint_names.index(key)
+        raise InputError("attachment", f"unknown joint {key!r}; joints: {list(self.joint_names)}")
+
+    def to_local(self, joint: int, points: np.ndarray) -> np.ndarray:
+        m = np.linalg.inv(self.joint_world[joint])
+        return points @ m[:3, :3].T + m[:3, 3]
+
+
+def bind_pose(character, motion, colliders=None) -> BindPose:
+    """The bind pose of attachments: frame 0 of `motion` (relative frame)."""
+    jw = np.ascontiguousarray(motion.joint_world[0], dtype=np.float64)
+    # joint_world = global @ inverse_bind, so the joint's global transform is joint_world @ bind.
+    glob = jw @ np.linalg.inv(character.inverse_bind)
+    return BindPose(jw, np.ascontiguousarray(glob[:, :3, 3]), tuple(character.joint_names), colliders)
+
+
+def _collider_distances(bind: BindPose, points: np.ndarray):
+    """(C, N) signed distances of points to every collider and the (C,) bones they follow.
+
+    Hulls use the largest plane distance: exact inside, a lower bound outside (near corners it
+    selects slightly more than the true distance would).
+    """
+    cs = bind.colliders
+    dists, bones, names = [], [], []
+    for h in cs.hulls:
+        p = bind.to_local(h.bone, points)
+        pl = h.simplified.planes
+        dists.append((p @ pl[:, :3].T - pl[:, 3]).max(axis=1))
+        bones.append(h.bone)
+        names.append(h.name)
+    for s in cs.spheres:
+        p = bind.to_local(s.joint, points)
+        dists.append(np.linalg.norm(p - s.center, axis=1) - s.radius)
+        bones.append(s.joint)
+        names.append(s.name)
+    if not dists:
+        return np.zeros((0, points.shape[0])), np.zeros(0, np.int32), []
+    return np.array(dists), np.array(bones, np.int32), names
+
+
+def _nearest_bone(bind: BindPose, points: np.ndarray) -> np.ndarray:
+    if bind.colliders is not None and (bind.colliders.hulls or bind.colliders.spheres):
+        d, bones, _ = _collider_distances(bind, points)
+        return bones[np.argmin(d, axis=0)]
+    d = np.linalg.norm(points[None, :, :] - bind.joint_origins[:, None, :], axis=2)
+    return np.argmin(d, axis=0).astype(np.int32)
+
+
+def boundary_loops(triangles: np.ndarray) -> list[np.ndarray]:
+    """Closed boundary loops (edges used by one triangle) as ordered vertex index arrays."""
+    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    key = np.sort(e, axis=1)
+    uniq, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    directed = e[cnt[inv.ravel()] == 1]
+    nxt = {}
+    for a, b in directed:
+        nxt.setdefault(int(a), []).append(int(b))
+    loops, seen = [], set()
+    for start in sorted(nxt):
+        if start in seen:
+            continue
+        loop, v = [], start
+        while v not in seen:
+            seen.add(v)
+            loop.append(v)
+            v = nxt[v][0] if v in nxt else start
+        loops.append(np.array(loop, np.int32))
+    return loops
+
+
+def _select(att: Attachment, x0: np.ndarray, triangles: np.ndarray, remap: np.ndarray, bind: BindPose):
+    """(particle indices, joints followed) of one selector, in welded indexing."""
+    n = x0.shape[0]
+    if att.kind == "indices":
+        idx = np.asarray(att.indices, dtype=np.int64)
+        if idx.size and (idx.min() < 0 or idx.max() >= remap.size):
+            raise InputError("attachment", f"particle index out of range [0, {remap.size})")
+        idx = remap[idx]
+        if np.any(idx < 0):
+            raise InputError("attachment", "an attached index refers to a vertex no triangle uses")
+        idx = np.unique(idx)
+    elif att.kind == "top_loop":
+        loops = boundary_loops(triangles)
+        if not loops:
+            raise InputError("attachment", "'top_loop' on a mesh without boundary")
+        idx = np.unique(max(loops, key=lambda lp: (x0[lp, 1].mean(), -int(lp.min()))))
+    else:  # near
+        t = att.target
+        names = []
+        if bind.colliders is not None:
+            d, bones, names = _collider_distances(bind, x0)
+        if isinstance(t, str) and t in names:
+            c = names.index(t)
+            idx = np.flatnonzero(d[c] <= att.radius)
+            joints = np.full(idx.size, bones[c], np.int32)
+        else:
+            j = bind.joint_index(t)
+            idx = np.flatnonzero(np.linalg.norm(x0 - bind.joint_origins[j], axis=1) <= att.radius)
+            joints = np.full(idx.size, j, np.int32)
+        if idx.size == 0:
+            raise InputError("attachment", f"no particle within {att.radius} m of {t!r} in the bind pose")
+        return idx, joints
+    if att.joint is not None:
+        joints = np.full(idx.size, bind.joint_index(att.joint), np.int32)
+    else:
+        joints = _nearest_bone(bind, x0[idx])
+    return idx, joints
+
+
+# ---------------------------------------------------------------------------------------------
+# construction
+
+def _repair(name: str, x: np.ndarray, rest: np.ndarray, tri: np.ndarray):
+    """Weld coincident vertices, drop degenerate / repeated triangles and unused vertices.
+
+    Returns (x, rest, tri, remap) with remap: original vertex index -> new index (-1 = removed).
+    """
+    n = x.shape[0]
+    scale = max(float(np.ptp(rest, axis=0).max()), 1e-12)
+    # weld: vertices whose rest AND initial positions coincide (to 1e-9 of the mesh size)
+    q = np.round(np.hstack([rest, x]) / (scale * 1e-9)).astype(np.int64)
+    _, first, inv = np.unique(q, axis=0, return_index=True, return_inverse=True)
+    inv = inv.ravel()
+    weld = first[inv]
+    if np.any(weld != np.arange(n)):
+        used = np.unique(tri)
+        dup = int(np.sum(weld[used] != used))
+        if dup:
+            warnings.warn(f"garment {name!r}: welded {dup} coincident vertices", stacklevel=3)
+    tri = weld[tri]
+    a, b, c = rest[tri[:, 0]], rest[tri[:, 1]], rest[tri[:, 2]]
+    area2 = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    bad = (tri[:, 0] == tri[:, 1]) | (tri[:, 1] == tri[:, 2]) | (tri[:, 0] == tri[:, 2]) | (area2 <= 1e-12 * scale * scale)
+    if bad.any():
+        warnings.warn(f"garment {name!r}: dropped {int(bad.sum())} degenerate (zero-area) triangles", stacklevel=3)
+        tri = tri[~bad]
+    _, keep = np.unique(np.sort(tri, axis=1), axis=0, return_index=True)
+    if keep.size < tri.shape[0]:
+        warnings.warn(f"garment {name!r}: dropped {tri.shape[0] - keep.size} repeated triangles", stacklevel=3)
+        tri = tri[np.sort(keep)]
+    if tri.shape[0] == 0:
+        raise InputError(f"garment {name!r}", "no non-degenerate triangle")
+    used = np.unique(tri)
+    unused = np.setdiff1d(np.unique(weld), used)
+    if unused.size:
+        warnings.warn(f"garment {name!r}: removed {unused.size} vertices no triangle uses", stacklevel=3)
+    new = np.full(n, -1, np.int64)
+    new[used] = np.arange(used.size)
+    remap = new[weld]
+    return x[used], rest[used], new[tri].astype(np.int32), remap
+
+
+def build_garment(name: str, positions, triangles, *, rest_positions=None, density: float = 0.2,
+                  attachments=(), bind: BindPose | None = None) -> Garment:
+    """A Garment from a triangle mesh.
+
+    positions: (N, 3) initial positions, metres, relative frame at frame 0.
+    triangles: (T, 3) vertex indices.
+    rest_positions: (N, 3) rest shape for the rest lengths and masses (default: positions).
+    density: area density, kg/m^2 (lumped: each triangle gives a third of its mass to each vertex).
+    attachments: Attachment selectors; each chosen particle gets inverse mass 0 and follows its
+        bone rigidly. `bind` (see `bind_pose`) is required when there are attachments.
+    """
+    where = f"garment {name!r}"
+    x = np.asarray(positions, dtype=np.float64)
+    tri = np.asarray(triangles)
+    if x.ndim != 2 or x.shape[1] != 3 or x.shape[0] == 0:
+        raise InputError(where, f"positions must be (N, 3), got {x.shape}")
+    if tri.ndim != 2 or tri.shape[1] != 3 or tri.shape[0] == 0 or tri.dtype.kind not in "iu":
+        raise InputError(where, f"triangles must be a non-empty (T, 3) integer array, got {tri.shape} {tri.dtype}")
+    if tri.min() < 0 or tri.max() >= x.shape[0]:
+        raise InputError(where, "triangle index out of range")
+    rest = x if rest_positions is None else np.asarray(rest_positions, dtype=np.float64)
+    if rest.shape != x.shape:
+        raise InputError(where, f"rest_positions shape {rest.shape} differs from positions {x.shape}")
+    if not (np.isfinite(x).all() and np.isfinite(rest).all()):
+        raise InputError(where, "non-finite vertex position")
+    if not (np.isfinite(density) and density > 0):
+        raise InputError(where, f"density must be positive, got {density}")
+    x, rest, tri, remap = _repair(name, x, rest, tri.astype(np.int64))
+    n = x.shape[0]
+
+    # stretch/shear: unique edges; count the triangles on each edge for manifoldness
+    e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    opp = np.concatenate([tri[:, 2], tri[:, 0], tri[:, 1]])
+    key = np.sort(e, axis=1)
+    edges, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    if np.any(cnt > 2):
+        bad = edges[np.argmax(cnt > 2)]
+        raise InputError(where, f"non-manifold: edge ({bad[0]}, {bad[1]}) is shared by {cnt.max()} triangles")
+    # bend: the two opposite vertices of every interior edge
+    order = np.argsort(inv, kind="stable")
+    si = inv[order]
+    pair = np.flatnonzero(si[1:] == si[:-1])
+    bend = np.sort(np.stack([opp[order[pair]], opp[order[pair + 1]]], axis=1), axis=1)
+    bend = bend[bend[:, 0] != bend[:, 1]]
+    bend = np.unique(bend, axis=0)
+    # a bend pair that is also an edge (tiny closed meshes) would be a duplicate spring
+    if bend.size:
+        ecode = edges[:, 0] * n + edges[:, 1]
+        bend = bend[~np.isin(bend[:, 0] * n + bend[:, 1], ecode)]
+    springs = np.concatenate([edges, bend]).astype(np.int32)
+    kinds = np.concatenate([np.full(len(edges), STRETCH, np.int8), np.full(len(bend), BEND, np.int8)])
+    rest_len = np.linalg.norm(rest[springs[:, 1]] - rest[springs[:, 0]], axis=1)
+    if np.any(rest_len <= 0):
+        raise InputError(where, "a spring has zero rest length (coincident rest vertices)")
+
+    a, b, c = rest[tri[:, 0]], rest[tri[:, 1]], rest[tri[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    mass = np.bincount(tri.ravel(), weights=np.repeat(area * density / 3.0, 3), minlength=n)
+    inv_mass = 1.0 / mass
+
+    attach_joint = np.full(n, -1, np.int32)
+    attach_local = np.zeros((n, 3))
+    if attachments:
+        if bind is None:
+            raise InputError(where, "attachments need the bind pose (bind=bind_pose(character, motion, colliders))")
+        for att in attachments:
+            idx, joints = _select(att, x, tri, remap, bind)
+            attach_joint[idx] = joints
+        for j in np.unique(attach_joint[attach_joint >= 0]):
+            sel = attach_joint == j
+            attach_local[sel] = bind.to_local(int(j), x[sel])
+        inv_mass[attach_joint >= 0] = 0.0
+    return Garment(name, np.ascontiguousarray(x), np.ascontiguousarray(rest), np.ascontiguousarray(tri),
+                   springs, rest_len, kinds, inv_mass, attach_joint, attach_local, float(density))
+
+
+def edge_strain(garment: Garment, positions: np.ndarray) -> np.ndarray:
+    """(S_stretch,) relative length change (L - L0) / L0 of the stretch/shear springs at `positions`."""
+    s = garment.springs[garment.kinds == STRETCH]
+    l0 = garment.rest_lengths[garment.kinds == STRETCH]
+    p = np.asarray(positions, dtype=np.float64)
+    return np.linalg.norm(p[s[:, 1]] - p[s[:, 0]], axis=1) / l0 - 1.0

@@ -1,0 +1,402 @@
+"""The simulation stage: Verlet mass-spring cloth against the character's colliders (paper A).
+
+One step, in the paper's order (kernels.run_steps):
+1. character pose without the root translation (Motion.joint_world is in the relative frame);
+   colliders and attached particles follow their bones (poses interpolated between frames at
+   sub-steps: slerp of the rotation, lerp of the translation);
+2. forces: gravity, aerodynamic drag and lift per triangle (velocities from Verlet positions);
+3. Verlet integration, damping;
+4. `iterations` rounds of spring position correction (stretch and compression, shared by inverse
+   mass, per-kind stiffness);
+5. collisions in each collider's bone-local frame (spheres: paper eq. 5-6; hulls: the map stage's
+   inside test and response), friction, counts of corrected / still-inside particles;
+6. the root translation re-applied for the output (positions are stored in world).
+
+Inertia scale s in [0, 1]. World positions are y = x + T(t) (x: relative frame, T: root translation).
+A plain world-space Verlet step y' = y + (1 - k)(y - y_prev) + a h^2 rewritten in the relative frame is
+    x' = x + (1 - k)(x - x_prev + d_prev) - d_next + a h^2,
+with d_prev = T(t) - T(t - h) and d_next = T(t + h) - T(t): the cloth feels the root's
+acceleration (d_next - d_prev ~ T'' h^2) and the damping acts on its world velocity. We scale both
+root terms by s:
+    x' = x + (1 - k)(x - x_prev + s d_prev) - s d_next + a h^2,
+so s = 0 is the paper's relative simulation (no inertial effect of the root motion) and s = 1 is
+exactly a world-space simulation (to rounding). The aerodynamic air velocity uses the same scaled
+world velocity, (x - x_prev + s d_prev) / h. At the first step d_prev := d_next: the cloth starts
+at rest in the relative frame (moving with the character). Friction and collisions are relative to
+the colliders, so they do not depend on s.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from stages.checks import ContractError
+from stages.garments.types import BEND, Garment
+from stages.maps.kernels import METHOD_NEAREST_PLANE, METHOD_PAPER
+from stages.maps.types import MapArrays
+from stages.sim import kernels as K
+from stages.sim.types import GarmentTrack, SimParams, SimResult, SimulationDiverged
+
+_CYCLES_PER_S = None
+
+
+def cycles_per_second() -> float:
+    """Calibrate the kernels' cycle counter against perf_counter once per process."""
+    global _CYCLES_PER_S
+    if _CYCLES_PER_S is None:
+        K.read_cycles()
+        t0, c0 = time.perf_counter(), K.read_cycles()
+        while time.perf_counter() - t0 < 0.02:
+            pass
+        t1, c1 = time.perf_counter(), K.read_cycles()
+        _CYCLES_PER_S = max((c1 - c0) / (t1 - t0), 1.0)
+    return _CYCLES_PER_S
+
+
+def empty_map_arrays() -> MapArrays:
+    """A MapArrays with no hull (the kernels need the argument even without hulls)."""
+    f, i = np.zeros(0), np.zeros(0, np.int32)
+    return MapArrays(center=np.zeros((0, 3)), axes=np.zeros((0, 3, 3)), half=np.zeros((0, 3)), kind=i,
+                     n_theta=i, n_second=i, second_lo=f, second_hi=f, face_start=np.zeros(1, np.int32),
+                     planes=np.zeros((0, 4)), cell_base=np.zeros(1, np.int32), cell_start=np.zeros(1, np.int32),
+                     cell_tris=i, loc_base=np.zeros(1, np.int32), loc_x=f, loc_start=np.zeros(1, np.int32),
+                     loc_y=np.zeros((0, 4)), loc_face=i)
+
+
+# -- setup ----------------------------------------------------------------------------------------
+class _System:
+    """All garments concatenated into one particle system (flat arrays for the kernels)."""
+
+    def __init__(self, garments, joint_world0: np.ndarray, params: SimParams):
+        self.names = [g.name for g in garments]
+        self.offsets = np.cumsum([0] + [g.n_particles for g in garments])
+        n = int(self.offsets[-1])
+        self.particle_garment = np.repeat(np.arange(len(garments)), np.diff(self.offsets))
+        self.x = np.ascontiguousarray(np.concatenate([g.positions for g in garments]))
+        self.inv_mass = np.ascontiguousarray(np.concatenate([g.inverse_mass for g in garments]))
+        self.attach_joint = np.ascontiguousarray(np.concatenate([g.attach_joint for g in garments]))
+        self.attach_local = np.ascontiguousarray(np.concatenate([g.attach_local for g in garments]))
+        nj = joint_world0.shape[0]
+        if np.any(self.attach_joint >= nj):
+            raise ContractError(f"simulate: a garment is attached to joint {int(self.attach_joint.max())}, "
+                                f"the motion has {nj} joints")
+        att = self.attach_joint >= 0
+        if att.any():  # exact bind: the attached particles start where their bone puts them
+            m = joint_world0[self.attach_joint[att]]
+            self.x[att] = np.einsum("nij,nj->ni", m[:, :3, :3], self.attach_local[att]) + m[:, :3, 3]
+        self.xp = self.x.copy()
+        springs = np.concatenate([g.springs + o for g, o in zip(garments, self.offsets)])
+        rest = np.concatenate([g.rest_lengths for g in garments])
+        kinds = np.concatenate([g.kinds for g in garments])
+        w = self.inv_mass
+        wsum = w[springs[:, 0]] + w[springs[:, 1]]
+        live = wsum > 0
+        springs, rest, kinds, wsum = springs[live], rest[live], kinds[live], wsum[live]
+        stiff = np.where(kinds == BEND, params.bend_stiffness, params.stretch_stiffness)
+        order, self.part_start = K.partition_springs(self.x, springs, n_parts=2)
+        springs, rest, stiff, wsum = springs[order], rest[order], stiff[order], wsum[order]
+        self.si = np.ascontiguousarray(springs[:, 0], dtype=np.int32)
+        self.sj = np.ascontiguousarray(springs[:, 1], dtype=np.int32)
+        self.rest = np.ascontiguousarray(rest)
+        self.wi = np.ascontiguousarray(stiff * w[self.si] / wsum)
+        self.wj = np.ascontiguousarray(stiff * w[self.sj] / wsum)
+        self.tris = np.ascontiguousarray(np.concatenate([g.triangles + o for g, o in zip(garments, self.offsets)]),
+                                         dtype=np.int32)
+        flat = self.tris.ravel()
+        o = np.argsort(flat, kind="stable")
+        self.vt_tri = (o // 3).astype(np.int32)
+        self.vt_start = np.searchsorted(flat[o], np.arange(n + 1)).astype(np.int64)
+        self.tri_force = np.zeros((self.tris.shape[0], 3))
+        self.corrected = np.zeros(n, np.uint8)
+        self.inside = np.zeros(n, np.uint8)
+        self.speed2 = np.zeros(n)
+
+    def split(self, a: np.ndarray) -> list:
+        return [a[self.offsets[i]:self.offsets[i + 1]] for i in range(len(self.names))]
+
+
+class _Colliders:
+    """Colliders as flat arrays: unified index c (hulls first, then spheres)."""
+
+    def __init__(self, colliders, maps):
+        hulls = tuple(colliders.hulls) if colliders is not None else ()
+        spheres = tuple(colliders.spheres) if colliders is not None else ()
+        self.notes = []
+        if hulls:
+            if maps is None:
+                from stages.maps import build_maps
+                maps = build_maps(colliders)
+                self.notes.append("maps built with default settings (none given)")
+            if len(maps.maps) != len(hulls) or np.any(np.asarray(maps.bones) != [h.bone for h in hulls]):
+                raise ContractError("simulate: the MapSet does not match the ColliderSet's hulls (order / bones)")
+            self.m = maps.arrays
+        else:
+            self.m = empty_map_arrays()
+        joint, kind, index, bc, br = [], [], [], [], []
+        for h, hull in enumerate(hulls):
+            v = hull.simplified.vertices
+            c = v.mean(axis=0)
+            joint.append(hull.bone)
+            kind.append(K.KIND_HULL)
+            index.append(h)
+            bc.append(c)
+            br.append(np.linalg.norm(v - c, axis=1).max() * (1 + 1e-9) + 1e-9)
+        for k, s in enumerate(spheres):
+            joint.append(s.joint)
+            kind.append(K.KIND_SPHERE)
+            index.append(k)
+            bc.append(s.center)
+            br.append(s.radius * (1 + 1e-9) + 1e-9)
+        nc = len(joint)
+        self.joint = np.array(joint, np.int32)
+        self.kind = np.array(kind, np.int32)
+        self.index = np.array(index, np.int32)
+        self.bcenter = np.array(bc, np.float64).reshape(nc, 3)
+        self.bradius = np.array(br, np.float64)
+        self.sph_center = np.array([s.center for s in spheres], np.float64).reshape(len(spheres), 3)
+        self.sph_radius = np.array([s.radius for s in spheres], np.float64)
+        self.cw = np.zeros((nc, 4))
+        self.bin_start = np.zeros(K.N_BINS + 1, np.int64)
+        self.bin_items = np.zeros(max(nc * K.N_BINS, 1), np.int32)
+        self.bin_range = np.zeros(2)
+
+
+def _is_rigid(m: np.ndarray) -> bool:
+    r = m[..., :3, :3]
+    return bool(np.allclose(np.einsum("...ij,...kj->...ik", r, r), np.eye(3), atol=1e-6))
+
+
+def interpolate_poses(a: np.ndarray, b: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Poses between (J, 4, 4) a and b at fractions u (S,): (S, J, 4, 4); slerp + lerp when rigid,
+    plain matrix lerp otherwise (scaled rigs)."""
+    s, j = u.size, a.shape[0]
+    if not (_is_rigid(a) and _is_rigid(b)):
+        return (1 - u)[:, None, None, None] * a[None] + u[:, None, None, None] * b[None]
+    from stages.rig.transforms import slerp
+    qa = Rotation.from_matrix(a[:, :3, :3]).as_quat()
+    qb = Rotation.from_matrix(b[:, :3, :3]).as_quat()
+    q = slerp(np.broadcast_to(qa, (s, j, 4)), np.broadcast_to(qb, (s, j, 4)), np.broadcast_to(u[:, None], (s, j)))
+    out = np.zeros((s, j, 4, 4))
+    out[..., :3, :3] = Rotation.from_quat(q.reshape(-1, 4)).as_matrix().reshape(s, j, 3, 3)
+    out[..., :3, 3] = (1 - u)[:, None, None] * a[None, :, :3, 3] + u[:, None, None] * b[None, :, :3, 3]
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def _frame_poses(motion, f: int, substeps: int):
+    """End-of-step poses (S, J, 4, 4), their inverses, and the start-of-step inverses, frame f-1 -> f."""
+    a, b = motion.joint_world[f - 1], motion.joint_world[f]
+    if substeps == 1:
+        fwd = b[None]
+    else:
+        fwd = interpolate_poses(a, b, np.arange(1, substeps + 1) / substeps)
+        fwd[-1] = b  # exact at the frame
+    inv = np.linalg.inv(fwd)
+    inv0 = np.concatenate([np.linalg.inv(a)[None], inv[:-1]])
+    return np.ascontiguousarray(fwd), np.ascontiguousarray(inv), np.ascontiguousarray(inv0)
+
+
+# -- body audit -------------------------------------------------------------------------------------
+class BodyAudit:
+    """Particles inside the true skinned mesh, by the fast generalised winding number (>= 0.5)."""
+
+    def __init__(self, character, beta: float = 2.0):
+        self.character = character
+        self.beta = float(beta)
+        self.tree = K.build_winding_tree(character.vertices, character.triangles)
+        self.data = np.zeros((self.tree[1].size, 8))
+        self.tris = np.ascontiguousarray(character.triangles, dtype=np.int32)
+
+    def winding(self, vertices: np.ndarray, points: np.ndarray) -> np.ndarray:
+        order, start, end, kids = self.tree
+        v = np.ascontiguousarray(vertices, dtype=np.float64)
+        K.refit_winding_tree(v, self.tris, order, start, end, kids, self.data)
+        out = np.empty(points.shape[0])
+        K.winding_numbers_tree(np.ascontiguousarray(points, dtype=np.float64), v, self.tris, order, start, end,
+                               kids, self.data, self.beta, out)
+        return out
+
+    def inside(self, vertices: np.ndarray, points: np.ndarray) -> np.ndarray:
+        return self.winding(vertices, points) >= 0.5
+
+
+def winding_number(vertices, triangles, points, *, exact: bool = False, beta: float = 2.0) -> np.ndarray:
+    """(N,) generalised winding numbers of points w.r.t. a triangle mesh (1 inside a closed
+    outward-oriented mesh, 0 outside). exact=True sums every triangle's solid angle (O(N T))."""
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    t = np.ascontiguousarray(triangles, dtype=np.int32)
+    p = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    out = np.empty(p.shape[0])
+    if exact:
+        K.winding_numbers_brute(p, v, t, out)
+        return out
+    order, start, end, kids = K.build_winding_tree(v, t)
+    data = np.zeros((start.size, 8))
+    K.refit_winding_tree(v, t, order, start, end, kids, data)
+    K.winding_numbers_tree(p, v, t, order, start, end, kids, data, float(beta), out)
+    return out
+
+
+# -- the stage ----------------------------------------------------------------------------------------
+def simulate(character, motion, colliders, maps, garments, params: SimParams, *, obstacles=None,
+             progress=None) -> SimResult:
+    """Simulate `garments` on `character` playing `motion` (see the module docstring).
+
+    character: stages.rig.types.Character; motion: Motion sampled every params.dt seconds;
+    colliders: ColliderSet (or None: no colliders); maps: MapSet of colliders.hulls (None: built
+    with defaults); garments: sequence of Garment (relative frame at frame 0);
+    obstacles: optional ObstacleSet (paper B environment, world frame) collided after the colliders;
+    progress: optional callable(frames_done, n_frames).
+    Raises SimulationDiverged (with the partial result) when the cloth blows up.
+    """
+    t_start = time.perf_counter()
+    garments = tuple(garments)
+    if not garments:
+        raise ContractError("simulate: no garment to simulate")
+    if not all(isinstance(g, Garment) for g in garments):
+        raise ContractError("simulate: garments must be stages.garments.types.Garment")
+    names = [g.name for g in garments]
+    if len(set(names)) != len(names):
+        raise ContractError(f"simulate: garment names must be unique, got {names}")
+    nf = motion.n_frames
+    if motion.joint_world.shape[1] != character.n_joints:
+        raise ContractError(f"simulate: motion has {motion.joint_world.shape[1]} joints, character {character.n_joints}")
+    if nf > 1:
+        dts = np.diff(motion.times)
+        if not np.allclose(dts, params.dt, rtol=1e-6, atol=1e-9):
+            raise ContractError(f"simulate: motion frames are {dts.min():.6g}..{dts.max():.6g} s apart, "
+                                f"SimParams.dt is {params.dt:.6g} s")
+    sysm = _System(garments, motion.joint_world[0], params)
+    col = _Colliders(colliders, maps)
+    notes = list(col.notes)
+    method = METHOD_PAPER if params.hull_response == "ray" else METHOD_NEAREST_PLANE
+    s = float(params.inertia_scale)
+    h = params.step
+    ss = params.substeps
+    n = sysm.x.shape[0]
+    gravity = np.asarray(params.gravity, np.float64)
+    wind = np.asarray(params.wind, np.float64)
+    k_drag = 0.5 * params.air_density * params.drag
+    k_lift = 0.5 * params.air_density * params.lift
+    use_aero = bool(k_drag > 0 or k_lift > 0)
+    timers = np.zeros(3, np.int64)
+    timings = {"poses": 0.0, "integrate": 0.0, "constraints": 0.0, "collisions": 0.0, "obstacles": 0.0,
+               "audit": 0.0}
+
+    root = motion.root_translation
+    ocol = None
+    if obstacles is not None:
+        from stages.obstacles.stage import ObstacleCollider
+        oset = getattr(obstacles, "obstacle_set", obstacles)
+        ocol = ObstacleCollider(oset, sysm.x + root[0])
+        notes.append(f"obstacles: {len(oset.obstacles)} (k-DOP trees, world frame)")
+
+    audit = None
+    if params.body_audit and character.triangles.shape[0] > 0:
+        audit = BodyAudit(character)
+        from stages.rig.skinning import skin
+
+    pos = [np.zeros((nf, g.n_particles, 3), np.float32) for g in garments]
+    pen_col = np.zeros((nf, len(garments)), np.int32)
+    pen_body = np.full((nf, len(garments)), -1, np.int32)
+    corrected = np.zeros(nf, np.int32)
+    max_speed = np.zeros(nf)
+    step_ms = np.zeros(nf)
+
+    def record(f):
+        for gi, part in enumerate(sysm.split(sysm.x)):
+            pos[gi][f] = part + root[f]
+        pen_col[f] = [int(a.sum()) for a in sysm.split(sysm.inside)]
+        if audit is not None:
+            t0 = time.perf_counter()
+            verts = skin(character, motion, frames=[f])[0]
+            ins = audit.inside(verts, sysm.x)
+            pen_body[f] = [int(a.sum()) for a in sysm.split(ins)]
+            timings["audit"] += time.perf_counter() - t0
+
+    def partial(f_end):
+        return _result(garments, pos, pen_col, pen_body, corrected, max_speed, step_ms, motion.times, timings,
+                       timers, (f_end - 1) * ss, params, notes, f_end)
+
+    # frame 0: the initial state; count particles starting inside a collider (no response)
+    fwd0 = np.ascontiguousarray(motion.joint_world[0])
+    inv_0 = np.ascontiguousarray(np.linalg.inv(fwd0))
+    K.build_bins(fwd0, col.joint, col.bcenter, col.bradius, col.cw, col.bin_start, col.bin_items, col.bin_range)
+    K.collide(sysm.x.copy(), sysm.xp, sysm.inv_mass, fwd0, inv_0, inv_0, col.m, method, col.joint, col.kind,
+              col.index, col.sph_center, col.sph_radius, col.cw, col.bin_start, col.bin_items, col.bin_range,
+              0.0, 0, sysm.corrected, sysm.inside, sysm.speed2, h)
+    record(0)
+    if progress is not None:
+        progress(1, nf)
+
+    d_last = None
+    for f in range(1, nf):
+        t0 = time.perf_counter()
+        fwd, inv, inv0 = _frame_poses(motion, f, ss)
+        tr = root[f - 1][None, :] + (root[f] - root[f - 1])[None, :] * (np.arange(ss + 1) / ss)[:, None]
+        d_next = np.diff(tr, axis=0) if s > 0 else np.zeros((ss, 3))
+        d_prev = np.empty_like(d_next)
+        d_prev[1:] = d_next[:-1]
+        d_prev[0] = d_next[0] if d_last is None else d_last
+        d_last = d_next[-1].copy()
+        d_next = np.ascontiguousarray(d_next)
+        t1 = time.perf_counter()
+        timings["poses"] += t1 - t0
+        sysm.corrected[:] = 0
+        chunks = [(0, ss)] if ocol is None else [(k, k + 1) for k in range(ss)]
+        for k0, k1 in chunks:
+            K.run_steps(sysm.x, sysm.xp, sysm.inv_mass, sysm.attach_joint, sysm.attach_local,
+                        sysm.si, sysm.sj, sysm.rest, sysm.wi, sysm.wj, sysm.part_start, params.iterations,
+                        sysm.tris, sysm.vt_start, sysm.vt_tri, sysm.tri_force, use_aero,
+                        h, gravity, params.damping, wind, k_drag, k_lift, s, d_prev[k0:k1], d_next[k0:k1],
+                        fwd[k0:k1], inv[k0:k1], inv0[k0:k1], col.m, method, col.joint, col.kind, col.index,
+                        col.bcenter, col.bradius, col.sph_center, col.sph_radius, params.friction,
+                        params.collision_passes, col.cw, col.bin_start, col.bin_items, col.bin_range,
+                        sysm.corrected, sysm.inside, sysm.speed2, timers)
+            if ocol is not None:
+                to = time.perf_counter()
+                ta = motion.times[f - 1] + k0 * h
+                # obstacles live in world: hand over world positions, take the responded ones back
+                xpw, xw = sysm.xp + tr[k0], sysm.x + tr[k1]
+                ocol.collide(xpw, xw, sysm.inv_mass, ta, ta + h)
+                sysm.xp[:] = xpw - tr[k0]
+                sysm.x[:] = xw - tr[k1]
+                timings["obstacles"] += time.perf_counter() - to
+        step_ms[f] = (time.perf_counter() - t1) * 1e3 / ss
+        sp2 = sysm.speed2
+        bad = ~(np.isfinite(sp2) & (sp2 <= params.max_speed ** 2)) | ~np.isfinite(sysm.x).all(axis=1)
+        if bad.any():
+            idx = np.flatnonzero(bad)
+            gname = [names[int(sysm.particle_garment[i])] for i in idx]
+            local = idx - sysm.offsets[sysm.particle_garment[idx]]
+            fin = sp2[np.isfinite(sp2)]
+            raise SimulationDiverged(f, local, gname, float(np.sqrt(fin.max())) if fin.size else float("nan"),
+                                     partial=partial(f) if f > 0 else None)
+        max_speed[f] = float(np.sqrt(sp2.max()))
+        corrected[f] = int(sysm.corrected.sum())
+        record(f)
+        if progress is not None:
+            progress(f + 1, nf)
+    timings["total"] = time.perf_counter() - t_start
+    return _result(garments, pos, pen_col, pen_body, corrected, max_speed, step_ms, motion.times, timings,
+                   timers, (nf - 1) * ss, params, notes, nf)
+
+
+def _result(garments, pos, pen_col, pen_body, corrected, max_speed, step_ms, times, timings, timers, steps,
+            params, notes, nf) -> SimResult:
+    cps = cycles_per_second()
+    tm = dict(timings)
+    tm["integrate"] = float(timers[K.T_INTEGRATE] / cps)
+    tm["constraints"] = float(timers[K.T_CONSTRAINTS] / cps)
+    tm["collisions"] = float(timers[K.T_COLLISIONS] / cps)
+    audit_on = bool((pen_body[:nf] >= 0).all())
+    tracks = tuple(GarmentTrack(g.name, g.triangles, pos[i][:nf], np.ascontiguousarray(pen_col[:nf, i]),
+                                np.ascontiguousarray(pen_body[:nf, i]))
+                   for i, g in enumerate(garments))
+    body = pen_body[:nf].sum(axis=1).astype(np.int32) if audit_on else np.full(nf, -1, np.int32)
+    return SimResult(garments=tracks, times=np.asarray(times[:nf], np.float64),
+                     penetrations_colliders=pen_col[:nf].sum(axis=1).astype(np.int32), penetrations_body=body,
+                     corrected=corrected[:nf].copy(), max_speed=max_speed[:nf].copy(), step_ms=step_ms[:nf].copy(),
+                     timings=tm, steps=int(steps), params=params, notes=tuple(notes))

@@ -1,0 +1,206 @@
+"""Data contracts of the simulation stage (paper A §1, §3.2-3.3).
+
+Frames: the simulation runs in the *relative frame* (world minus the root translation, see
+stages/rig/types.py); results are stored in WORLD (root translation re-applied).
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from stages.checks import ContractError, check_array
+
+
+@dataclass(frozen=True)
+class SimParams:
+    """Simulation parameters.
+
+    dt: frame time, s (the motion's frame spacing). substeps: steps per frame (step h = dt / substeps);
+        collider poses are interpolated between frames (slerp + lerp) at each sub-step.
+    iterations: rounds of spring position correction per step (paper: 3).
+    gravity: (3,) m/s^2. damping: fraction of the Verlet displacement removed per step, [0, 1).
+    wind: (3,) air velocity, m/s, world. air_density: kg/m^3. drag, lift: aerodynamic coefficients
+        of the per-triangle model (0 disables the term).
+    friction: [0, 1], share of the tangential displacement relative to a collider removed at contact.
+    inertia_scale: [0, 1]. 0 = the paper's relative simulation (the cloth does not feel the root
+        translation), 1 = plain world-space simulation (see simulate.py for the formula).
+    stretch_stiffness, bend_stiffness: share of each spring correction applied, [0, 1] (paper: 1).
+    thickness: m, extra margin around every collider (colliders are already inflated by delta).
+    hull_response: 'ray' (paper: map-volume ray cast) or 'nearest_plane' (push to the nearest face plane).
+    collision_passes: passes over the colliders per particle and step, so a push out of one
+        collider into an overlapping one is resolved.
+    max_speed: m/s; a particle faster than this (or NaN / inf) stops the run as diverged.
+    body_audit: count particles inside the true skinned mesh per frame (generalised winding number).
+    """
+
+    dt: float = 1.0 / 30.0
+    substeps: int = 1
+    iterations: int = 3
+    gravity: tuple = (0.0, -9.81, 0.0)
+    damping: float = 0.01
+    wind: tuple = (0.0, 0.0, 0.0)
+    air_density: float = 1.2
+    drag: float = 0.5
+    lift: float = 0.1
+    friction: float = 0.5
+    inertia_scale: float = 0.0
+    stretch_stiffness: float = 1.0
+    bend_stiffness: float = 1.0
+    thickness: float = 0.0
+    hull_response: str = "ray"
+    collision_passes: int = 4
+    max_speed: float = 100.0
+    body_audit: bool = True
+
+    def __post_init__(self):
+        o = "SimParams"
+
+        def rng(name, lo, hi, lo_open=False, hi_open=False):
+            v = getattr(self, name)
+            ok = np.isfinite(v) and (v > lo if lo_open else v >= lo) and (v < hi if hi_open else v <= hi)
+            if not ok:
+                raise ContractError(f"{o}.{name}: expected a value in {'(' if lo_open else '['}{lo}, {hi}{')' if hi_open else ']'}, got {v}")
+
+        rng("dt", 0.0, 10.0, lo_open=True)
+        for name in ("substeps", "iterations", "collision_passes"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, np.integer)) and v >= 1):
+                raise ContractError(f"{o}.{name}: expected an integer >= 1, got {v!r}")
+        for name in ("gravity", "wind"):
+            v = np.asarray(getattr(self, name), dtype=np.float64)
+            if v.shape != (3,) or not np.isfinite(v).all():
+                raise ContractError(f"{o}.{name}: expected 3 finite numbers, got {getattr(self, name)!r}")
+        rng("damping", 0.0, 1.0, hi_open=True)
+        rng("air_density", 0.0, 1e3)
+        rng("drag", 0.0, 1e3)
+        rng("lift", 0.0, 1e3)
+        rng("friction", 0.0, 1.0)
+        rng("inertia_scale", 0.0, 1.0)
+        rng("stretch_stiffness", 0.0, 1.0, lo_open=True)
+        rng("bend_stiffness", 0.0, 1.0)
+        rng("thickness", 0.0, 1.0)
+        rng("max_speed", 0.0, 1e6, lo_open=True)
+        if self.hull_response not in ("ray", "nearest_plane"):
+            raise ContractError(f"{o}.hull_response: expected 'ray' or 'nearest_plane', got {self.hull_response!r}")
+
+    @property
+    def step(self) -> float:
+        """Step length h, s."""
+        return self.dt / self.substeps
+
+    def as_dict(self) -> dict:
+        """Plain dict for the recording's static record."""
+        d = asdict(self)
+        d["gravity"] = list(map(float, self.gravity))
+        d["wind"] = list(map(float, self.wind))
+        return d
+
+
+@dataclass(frozen=True)
+class GarmentTrack:
+    """One garment's simulated frames.
+
+    name: garment name. triangles: (T, 3) int32 (static).
+    positions: (F, N, 3) float32, metres, WORLD frame (root translation re-applied).
+    penetrations_colliders: (F,) int32, this garment's particles inside any collider after the
+        frame's last step. penetrations_body: (F,) int32, particles inside the skinned mesh (-1 when
+        the audit is off).
+    """
+
+    name: str
+    triangles: np.ndarray
+    positions: np.ndarray
+    penetrations_colliders: np.ndarray
+    penetrations_body: np.ndarray
+
+    def __post_init__(self):
+        o = f"GarmentTrack[{self.name!r}]"
+        check_array(o, "triangles", self.triangles, (None, 3), np.int32)
+        p = check_array(o, "positions", self.positions, (None, None, 3), np.float32)
+        check_array(o, "penetrations_colliders", self.penetrations_colliders, (p.shape[0],), np.int32)
+        check_array(o, "penetrations_body", self.penetrations_body, (p.shape[0],), np.int32)
+
+
+@dataclass(frozen=True)
+class SimResult:
+    """The simulation of every garment over the motion's frames.
+
+    garments: one GarmentTrack per garment, in input order.
+    times: (F,) float64, s, the motion's frame times.
+    penetrations_colliders: (F,) int32, particles (all garments) inside any collider after the
+        frame's last step (target 0).
+    penetrations_body: (F,) int32, particles inside the true skinned character mesh at the frame
+        (generalised winding number >= 0.5); -1 when the audit is off.
+    corrected: (F,) int32, particles the collision response moved at least once during the frame.
+    max_speed: (F,) float64, m/s, the fastest particle at the end of the frame (relative frame).
+    step_ms: (F,) float64, wall milliseconds per step in the frame (frame time / substeps; the
+        body audit excluded; 0 for frame 0, the initial state).
+    timings: total seconds per phase: 'poses' (collider / attachment poses), 'integrate'
+        (forces + Verlet + attachments), 'constraints' (springs), 'collisions', 'audit'
+        (skinning + winding numbers), 'total' (whole call).
+    steps: number of steps simulated. params: the SimParams used.
+    notes: human-readable remarks (e.g. which collision path was used for hulls).
+    """
+
+    garments: tuple
+    times: np.ndarray
+    penetrations_colliders: np.ndarray
+    penetrations_body: np.ndarray
+    corrected: np.ndarray
+    max_speed: np.ndarray
+    step_ms: np.ndarray
+    timings: dict
+    steps: int
+    params: SimParams
+    notes: tuple = field(default_factory=tuple)
+
+    def __post_init__(self):
+        o = "SimResult"
+        t = check_array(o, "times", self.times, (None,), np.float64)
+        f = t.size
+        for name in ("penetrations_colliders", "penetrations_body", "corrected"):
+            check_array(o, name, getattr(self, name), (f,), np.int32)
+        check_array(o, "max_speed", self.max_speed, (f,), np.float64)
+        check_array(o, "step_ms", self.step_ms, (f,), np.float64)
+        for g in self.garments:
+            if g.positions.shape[0] != f:
+                raise ContractError(f"{o}.garments[{g.name!r}]: {g.positions.shape[0]} frames, expected {f}")
+
+    def garment(self, name: str) -> GarmentTrack:
+        for g in self.garments:
+            if g.name == name:
+                return g
+        raise KeyError(f"no garment {name!r}; garments: {[g.name for g in self.garments]}")
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.times.size)
+
+    def penetration_summary(self) -> dict:
+        """Max / mean per frame and worst frame of both penetration counts, and particle total."""
+        out = {"particles": int(sum(g.positions.shape[1] for g in self.garments))}
+        for key in ("colliders", "body"):
+            a = getattr(self, f"penetrations_{key}")
+            out[key] = {"max": int(a.max()) if a.size else 0, "mean": float(a.mean()) if a.size else 0.0,
+                        "worst_frame": int(np.argmax(a)) if a.size else 0}
+        return out
+
+
+class SimulationDiverged(RuntimeError):
+    """The cloth blew up (NaN / inf or a particle faster than SimParams.max_speed).
+
+    frame: the frame index where it was detected; particles: the offending particle indices
+    (global, all garments concatenated in input order) with their garment names; partial: the
+    SimResult of the frames before it (None if frame 0).
+    """
+
+    def __init__(self, frame: int, particles, garment_names, speed: float, partial=None):
+        self.frame = int(frame)
+        self.particles = np.asarray(particles)
+        self.garment_names = tuple(garment_names)
+        self.partial = partial
+        shown = ", ".join(f"{g}#{i}" for g, i in list(zip(self.garment_names, self.particles))[:8])
+        more = f" (+{self.particles.size - 8} more)" if self.particles.size > 8 else ""
+        super().__init__(f"simulation diverged at frame {self.frame}: {self.particles.size} particle(s) "
+                         f"non-finite or faster than the limit (max speed {speed:.3g} m/s): {shown}{more}")
