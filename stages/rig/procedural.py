@@ -20,6 +20,7 @@ skeleton's shape when none are given.
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -221,7 +222,14 @@ def _cross_section_axes(axis: np.ndarray):
     return w, np.cross(axis, w)
 
 
-def _build_capsules(parents, positions, radii, ends, min_length):
+_END_SITE = re.compile(r"(?i:(^|[_\s.])(end(\s*site)?|nub|tip))\d*$|[a-z0-9](End|Nub|Tip)\d*$")
+
+
+def _build_capsules(parents, positions, radii, ends, min_length, end_leaf=None):
+    """end_leaf: (J,) bool, leaves that ARE end sites (BVH 'Head_end'): the bone into them stops
+    at them (cap pulled back) without a blend band, and they get no capsule of their own."""
+    if end_leaf is None:
+        end_leaf = np.zeros(len(parents), bool)
     rows = []
     children = [[] for _ in parents]
     for j, p in enumerate(parents):
@@ -231,8 +239,21 @@ def _build_capsules(parents, positions, radii, ends, min_length):
         main = _main_child(b, parents, positions, children)
         # side branches (pelvis -> thighs, chest -> clavicles) keep the child's size throughout,
         # so the torso's wide section does not spread sideways along them
-        targets = [(c, positions[c], radii[c]) for c in children[b]]
-        if not children[b]:
+        targets = []
+        for c in children[b]:
+            if end_leaf[c]:
+                d = positions[c] - positions[b]
+                n = np.linalg.norm(d)
+                cap = 0.5 * (radii[c][0] + radii[c][1])
+                if n > cap:
+                    targets.append((-1, positions[b] + d / n * (n - cap), radii[c]))
+                else:
+                    targets.append((-1, positions[b].copy(), radii[c]))
+            else:
+                targets.append((c, positions[c], radii[c]))
+        if end_leaf[b]:
+            pass
+        elif not children[b]:
             tip = ends.get(b)
             if tip is None:
                 tip = _guess_tip(b, parents, positions, radii)
@@ -519,7 +540,7 @@ def _skin_weights(verts, parents, positions, caps: _Capsules, softness, band_sca
 # Radii guessed from an arbitrary skeleton
 
 
-def guess_radii(parents, positions) -> np.ndarray:
+def guess_radii(parents, positions, joint_names=None) -> np.ndarray:
     """(J, 2) (width, depth) semi-axes guessed from the skeleton's shape, metres.
 
     Humanoid-looking skeletons (a spine chain from the root to the highest joint with at least
@@ -572,10 +593,15 @@ def guess_radii(parents, positions) -> np.ndarray:
             limbs.append((c, kind, sub))
     if sum(k == "leg" for _, k, _ in limbs) < 2 or sum(k == "arm" for _, k, _ in limbs) < 2:
         return fallback
-    # joints span ankle (~0.04 H) to head top or head joint (~0.9 H)
-    h = extent / 0.88
+    # joints span ankle (~0.04 H) to the head joint (~0.9 H), or floor to head top when the
+    # highest joint is an end site (BVH 'Head_end')
+    if joint_names is not None and _END_SITE.search(str(joint_names[top])):
+        h = extent / 0.98
+        ground = ylo - 0.01 * h
+    else:
+        h = extent / 0.88
+        ground = ylo - 0.04 * h
     radii = fallback.copy()
-    ground = ylo - 0.04 * h
     torso_y = np.array([0.40, 0.47, 0.53, 0.62, 0.72, 0.78, 0.82, 0.85, 0.90, 1.0])
     torso_w = np.array([0.070, 0.090, 0.094, 0.080, 0.092, 0.085, 0.034, 0.032, 0.047, 0.040])
     torso_d = np.array([0.060, 0.068, 0.068, 0.058, 0.064, 0.060, 0.034, 0.034, 0.055, 0.048])
@@ -624,7 +650,9 @@ def skin_skeleton(joint_names, parents, joint_positions, params: BodyParams = Bo
         the width axis is world X projected off the bone, or world Z for bones running mostly
         along X. Guessed by `guess_radii` when None.
     end_sites: optional {joint index: (3,) world position} where a leaf bone ends (BVH End Site);
-        leaves without one extend along their parent bone.
+        leaves without one extend along their parent bone, except leaves named like end sites
+        ('Head_end', 'LeftToe_End2', 'HandNub', 'finger_tip'): those ARE the end of their parent
+        bone, which then stops there, and they carry no weight.
 
     Returns (vertices (V,3) float64 world, triangles (T,3) int32 CCW from outside,
     skin_joints (V,4) int32, skin_weights (V,4) float64 rows summing to 1).
@@ -641,7 +669,7 @@ def skin_skeleton(joint_names, parents, joint_positions, params: BodyParams = Bo
     positions = check_array(o, "joint_positions", np.ascontiguousarray(joint_positions, dtype=np.float64),
                             (nj, 3), np.float64)
     if radii is None:
-        radii = guess_radii(parents, positions)
+        radii = guess_radii(parents, positions, joint_names)
     radii = np.asarray(radii, dtype=np.float64)
     if radii.shape == (nj,):
         radii = np.repeat(radii[:, None], 2, axis=1)
@@ -655,7 +683,12 @@ def skin_skeleton(joint_names, parents, joint_positions, params: BodyParams = Bo
         ends[int(j)] = check_array(o, f"end_sites[{j}]", np.asarray(e, dtype=np.float64), (3,), np.float64)
 
     scale = float(np.median(radii))
-    caps = _build_capsules(parents, positions, radii, ends, min_length=1e-3 * max(scale, 1e-3) * 10)
+    children = np.zeros(nj, bool)
+    children[parents[parents >= 0]] = True
+    end_leaf = np.array([not children[j] and parents[j] >= 0 and j not in ends
+                         and bool(_END_SITE.search(str(joint_names[j]))) for j in range(nj)])
+    caps = _build_capsules(parents, positions, radii, ends, min_length=1e-3 * max(scale, 1e-3) * 10,
+                           end_leaf=end_leaf)
     span = positions[:, 1].max() - positions[:, 1].min()
     k = params.blend_radius * max(span / 0.88, 10 * scale)
 
