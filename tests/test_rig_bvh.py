@@ -311,3 +311,127 @@ def test_cmu_file_numbers(cmu):
     world = clip_world(clip, cmu.parents)
     height = world[cmu.joint_names.index("Head_end"), 1] - world[:, 1].min()
     assert 1.3 < height < 1.6
+
+
+# ------------------------------------------------------------------------------------- character
+
+FIGURE = """HIERARCHY
+ROOT Hips
+{
+  OFFSET 0 0 0
+  CHANNELS 6 Xposition Yposition Zposition Yrotation Xrotation Zrotation
+  JOINT Spine
+  {
+    OFFSET 0 0.3 0
+    CHANNELS 3 Zrotation Xrotation Yrotation
+    End Site
+    {
+      OFFSET 0 0.4 0
+    }
+  }
+  JOINT LeftLeg
+  {
+    OFFSET 0.1 -0.05 0
+    CHANNELS 3 Xrotation Zrotation Yrotation
+    End Site
+    {
+      OFFSET 0 -0.8 0
+    }
+  }
+  JOINT RightLeg
+  {
+    OFFSET -0.1 -0.05 0
+    CHANNELS 3 Xrotation Zrotation Yrotation
+    End Site
+    {
+      OFFSET 0 -0.8 0
+    }
+  }
+}
+MOTION
+Frames: 3
+Frame Time: 0.1
+2.0 0.95 -1.0   30 5 0   10 0 0   -20 0 5   15 0 -5
+2.1 0.90 -0.8   35 0 0   0 0 0   0 0 0   0 0 0
+2.2 0.97 -0.6   40 0 0   0 0 0   -40 0 0   30 0 0
+"""
+
+
+def skinned_frames(character, times):
+    from stages.rig.skinning import sample_motion, skin
+
+    motion = sample_motion(character, 0, times)
+    return skin(character, motion) + motion.root_translation[:, None, :]
+
+
+def test_character_frame_zero_is_the_bind_pose_on_the_floor(tmp_path):
+    from stages.rig.bvh import load_bvh_character
+
+    path = write(tmp_path, FIGURE, "figure.bvh")
+    ch = load_bvh_character(path)
+    assert ch.name == "figure" and ch.source == str(path) and ch.root_joint == 0
+    assert ch.joint_names == ("Hips", "Spine", "Spine_end", "LeftLeg", "LeftLeg_end", "RightLeg", "RightLeg_end")
+    assert ch.vertices[:, 1].min() == pytest.approx(0.0, abs=1e-12)
+    clip = ch.clip(0)
+    assert clip.name == "figure" and clip.times.tolist() == pytest.approx([0.0, 0.1, 0.2])
+    # The clip's root is moved by one constant: over the origin at frame 0, key-to-key motion kept.
+    raw = bvh_clip(parse_bvh(path))
+    shift = clip.translations[:, 0] - raw.translations[:, 0]
+    np.testing.assert_allclose(shift, np.broadcast_to(shift[0], shift.shape), atol=1e-12)
+    np.testing.assert_allclose(clip.translations[0, 0, [0, 2]], 0.0, atol=1e-12)
+    np.testing.assert_array_equal(clip.translations[:, 1:], raw.translations[:, 1:])
+    np.testing.assert_array_equal(clip.rotations, raw.rotations)
+    # Frame 0 (the default bind frame) reproduces the bind mesh exactly.
+    frames = skinned_frames(ch, clip.times)
+    np.testing.assert_allclose(frames[0], ch.vertices, atol=1e-9)
+    # The bind skeleton is frame 0's pose: world joints match FK of the clip's first key.
+    bind = np.linalg.inv(ch.inverse_bind)
+    np.testing.assert_allclose(bind, forward_kinematics(ch.parents, ch.rest_local), atol=1e-12)
+    first = forward_kinematics(ch.parents, trs_to_matrix(clip.translations[0], clip.rotations[0]))
+    np.testing.assert_allclose(bind, first, atol=1e-12)
+
+
+def test_character_rest_pose_bind(tmp_path):
+    from stages.rig.bvh import load_bvh_character
+
+    path = write(tmp_path, FIGURE, "figure.bvh")
+    ch = load_bvh_character(path, bind_frame=None)
+    data = parse_bvh(path)
+    # Rest pose: no rotation, offsets only (root lifted onto the floor).
+    np.testing.assert_allclose(ch.rest_local[:, :3, :3], np.broadcast_to(np.eye(3), (7, 3, 3)), atol=1e-12)
+    np.testing.assert_allclose(ch.rest_local[1:, :3, 3], data.offsets[1:], atol=1e-12)
+    assert ch.vertices[:, 1].min() == pytest.approx(0.0, abs=1e-12)
+    # Frame 0 differs from the bind pose, but it still stands on the floor over the origin.
+    v0 = skinned_frames(ch, [0.0])[0]
+    assert v0[:, 1].min() == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_allclose(ch.clip(0).translations[0, 0, [0, 2]], 0.0, atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def cmu_character(assets_dir):
+    from stages.rig.bvh import load_bvh_character
+
+    return load_bvh_character(assets_dir / "cmu_131_01_walk.bvh")
+
+
+@pytest.mark.assets
+def test_cmu_character_skin(cmu_character):
+    import trimesh
+
+    ch = cmu_character
+    assert ch.n_joints == 38 and len(ch.clips) == 1 and ch.clip(0).times.size == 995
+    mesh = trimesh.Trimesh(ch.vertices, ch.triangles, process=False)
+    assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0
+    np.testing.assert_allclose(ch.skin_weights.sum(axis=1), 1.0, atol=1e-9)
+    assert ch.vertices[:, 1].min() == pytest.approx(0.0, abs=1e-12)
+    height = ch.vertices[:, 1].max()
+    assert 1.35 < height < 1.6  # CMU subject 131, metres
+    # End sites carry no skin weight (they only give the leaf bones their length).
+    end = [j for j, n in enumerate(ch.joint_names) if n.endswith("_end")]
+    assert len(end) == 7
+    assert not np.any(np.isin(ch.skin_joints, end) & (ch.skin_weights > 0))
+    frames = skinned_frames(ch, [0.0, 5.0])
+    np.testing.assert_allclose(frames[0], ch.vertices, atol=1e-9)
+    # 5 s in, the subject is walking along +Z, still on the floor (within 3 cm of mocap noise).
+    assert frames[1][:, 2].mean() - frames[0][:, 2].mean() > 1.0
+    assert abs(frames[1][:, 1].min()) < 0.03
