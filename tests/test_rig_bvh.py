@@ -435,3 +435,13 @@ def test_cmu_character_skin(cmu_character):
     # 5 s in, the subject is walking along +Z, still on the floor (within 3 cm of mocap noise).
     assert frames[1][:, 2].mean() - frames[0][:, 2].mean() > 1.0
     assert abs(frames[1][:, 1].min()) < 0.03
+
+
+def test_crlf_bom_and_compact_header(tmp_path):
+    text = "\ufeff" + UNUSUAL.replace("Frames: 2", "FRAMES:2").replace("Frame Time: ", "Frame Time:\t")
+    path = tmp_path / "crlf.bvh"
+    path.write_bytes(text.replace("\n", "\r\n").encode("utf-8"))
+    a, b = parse_bvh(path), parse_bvh(write(tmp_path, UNUSUAL))
+    assert a.joint_names == b.joint_names
+    np.testing.assert_array_equal(a.frames, b.frames)
+    assert a.frame_time == b.frame_time

@@ -14,6 +14,17 @@ Blender's importer):
   file order right after their parent's subtree content, so bones to the end have a length.
 - Only one ROOT hierarchy is supported: a second ROOT is an InputError (a Character has one root,
   and a synthetic root would carry no motion, breaking the relative-frame simulation).
+- MOTION: 'Frames: N' and 'Frame Time: dt' (colon optional), then N x C numbers, one frame per
+  line as usual or in any whitespace layout when the total count is exactly N x C.
+
+Character bind pose: the BVH rest pose (all channels zero) is often not a stance at all; in the
+CMU capture (shared assets) it has the legs splayed ~20 degrees outward with the feet 0.69 m apart
+and the arms hanging straight, while frame 0 is the subject standing still. So
+`load_bvh_character` binds at frame 0 by default (`bind_frame=None` picks the rest pose).
+
+CMU 131_01 (measured): 31 joints + 7 end sites = 38 Character joints, 96 channels, 995 frames,
+Frame Time 0.008333 s (120 Hz), metres, Y up, facing +Z; the subject stands (~0-2.5 s), kneels
+on one knee (~2.7-3.7 s), walks ~2.3 m along +Z (~4-6.7 s) and stands.
 """
 from __future__ import annotations
 
@@ -310,7 +321,7 @@ def parse_bvh(path, *, scale: float = 1.0) -> BvhData:
     if not (np.isfinite(scale) and scale > 0):
         raise InputError(src, f"scale must be a positive number, got {scale}")
     try:
-        text = Path(path).read_text(encoding="utf-8", errors="replace")
+        text = Path(path).read_text(encoding="utf-8-sig", errors="replace")
     except OSError as e:
         raise InputError(src, f"cannot read file ({e.strerror or e})") from None
     lines = text.splitlines()
