@@ -42,8 +42,9 @@ Contract of `collide_obstacles` (everything world frame, metres, unless said oth
 
 Exact test (paper B §3.2, the inner-product test): with n the triangle's unit outward normal and
 d(p) = n . (p - a) the particle's signed distance to its plane, a particle moving p0 -> p1 hits the
-triangle when it ends inside the proximity band (d1 < h), starts no deeper than h behind the plane
-(d0 >= -h, so particles on the far side of a thin slab are not pulled through), and the point where
+triangle when it ends inside the proximity band (d1 < h), starts no deeper than h/2 behind the plane
+(d0 >= -h/2, so particles on the far side of a thin slab or two-sided plane are not pulled through),
+and the point where
 it crosses the offset plane d = h (or its start, if it already starts inside the band) projects
 inside the triangle (barycentric, tolerance 1e-9). Time of impact t = (d0 - h) / (d0 - d1), 0 when
 starting in the band. Each particle keeps ONE contact per step: the earliest t; at equal t the
@@ -58,6 +59,9 @@ from numba import njit
 from stages.obstacles.kdop import refit_particle_tree, refit_range, triangle_bounds
 
 BARY_TOL = 1e-9
+# a particle may start up to this fraction of the band BEHIND a plane and still be pushed out;
+# < 1 so a particle resting at +h on one side of a two-sided plane is no candidate of the other.
+BACK_FRACTION = 0.5
 PUSH_TOL = 1e-10  # m: a particle already put at the band (previous pass) is not hit again
 
 
@@ -210,7 +214,7 @@ def point_triangle_ccd(p0, p1, a, b, c, h):
     d0 = nx * (p0[0] - a[0]) + ny * (p0[1] - a[1]) + nz * (p0[2] - a[2])
     d1 = nx * (p1[0] - a[0]) + ny * (p1[1] - a[1]) + nz * (p1[2] - a[2])
     # the inner-product (sign) test of paper B, against the plane offset by the band
-    if not (d1 < h - PUSH_TOL and d0 >= -h):
+    if not (d1 < h - PUSH_TOL and d0 >= -BACK_FRACTION * h):
         return False, 0.0, d0, nx, ny, nz
     t = 0.0
     if d0 > h:
@@ -274,10 +278,13 @@ def refit_obstacles(o_min, o_max, o_children, o_leaf, directions, vertices, tria
 
 @njit(cache=True)
 def best_contacts(x_prev, x, inv_mass, pairs, n_pairs, vertices, triangles, tri_obstacle,
-                  pose0, pose1, thickness, best_tri, best_t, best_d0):
+                  pose0, pose1, thickness, best_tri, best_t, best_d0, prev_normal, has_prev):
     """Exact tests over candidate pairs; keeps per particle the earliest contact (see module doc).
 
-    best_tri (N,) i4 must come in as -1. Returns the number of exact tests run.
+    best_tri (N,) i4 must come in as -1. A particle with has_prev (pushed along the world normal
+    prev_normal earlier in this step) skips triangles facing against that normal, so a later pass
+    never pushes it back through (the underside of a two-sided plane or of a thin slab).
+    Returns the number of exact tests run.
     """
     p0 = np.empty(3)
     p1 = np.empty(3)
@@ -298,9 +305,16 @@ def best_contacts(x_prev, x, inv_mass, pairs, n_pairs, vertices, triangles, tri_
             b[j] = vertices[triangles[tri, 1], j]
             c[j] = vertices[triangles[tri, 2], j]
         tests += 1
-        hit, t, d0, _nx, _ny, _nz = point_triangle_ccd(p0, p1, a, b, c, thickness[r])
+        hit, t, d0, nx, ny, nz = point_triangle_ccd(p0, p1, a, b, c, thickness[r])
         if not hit:
             continue
+        if has_prev[p]:
+            m = pose1[r]
+            wx = m[0, 0] * nx + m[0, 1] * ny + m[0, 2] * nz
+            wy = m[1, 0] * nx + m[1, 1] * ny + m[1, 2] * nz
+            wz = m[2, 0] * nx + m[2, 1] * ny + m[2, 2] * nz
+            if wx * prev_normal[p, 0] + wy * prev_normal[p, 1] + wz * prev_normal[p, 2] < 0.0:
+                continue
         cur = best_tri[p]
         better = cur < 0 or t < best_t[p] or (t == best_t[p] and (d0 > best_d0[p] or (d0 == best_d0[p] and tri < cur)))
         if better:
@@ -312,7 +326,7 @@ def best_contacts(x_prev, x, inv_mass, pairs, n_pairs, vertices, triangles, tri_
 
 @njit(cache=True)
 def respond(x_prev, x, best_tri, best_t, vertices, triangles, tri_obstacle, pose0, pose1,
-            thickness, friction, restitution):
+            thickness, friction, restitution, prev_normal, has_prev):
     """Paper B response for each particle with a contact (modifies x, x_prev); returns the count.
 
     Geometry of the push: the particle's end x against the chosen triangle's plane. Velocity:
@@ -375,6 +389,11 @@ def respond(x_prev, x, best_tri, best_t, vertices, triangles, tri_obstacle, pose
         q3 = e3 - (keep * tz + vn_new * nz)
         x[p, 0], x[p, 1], x[p, 2] = _apply(pose1[r], e1, e2, e3)
         x_prev[p, 0], x_prev[p, 1], x_prev[p, 2] = _apply(pose0[r], q1, q2, q3)
+        m = pose1[r]
+        prev_normal[p, 0] = m[0, 0] * nx + m[0, 1] * ny + m[0, 2] * nz
+        prev_normal[p, 1] = m[1, 0] * nx + m[1, 1] * ny + m[1, 2] * nz
+        prev_normal[p, 2] = m[2, 0] * nx + m[2, 1] * ny + m[2, 2] * nz
+        has_prev[p] = True
         n += 1
     return n
 
@@ -396,6 +415,8 @@ def collide_obstacles(x_prev, x, inv_mass,
     best_d0 = np.zeros(n)
     final_tri = np.full(n, -1, dtype=np.int32)
     final_t = np.zeros(n)
+    prev_normal = np.zeros((n, 3))
+    has_prev = np.zeros(n, dtype=np.bool_)
     for _ in range(passes):
         refit_particle_tree(c_min, c_max, c_children, c_leaf, directions, x_start, x)
         order = motion_axis_order(directions, x_start, x)
@@ -404,9 +425,9 @@ def collide_obstacles(x_prev, x, inv_mass,
         stats[3] = max(stats[3], pairs.shape[0])
         best_tri[:] = -1
         stats[1] += best_contacts(x_start, x, inv_mass, pairs, m, vertices, triangles, tri_obstacle,
-                                  pose0, pose1, thickness, best_tri, best_t, best_d0)
+                                  pose0, pose1, thickness, best_tri, best_t, best_d0, prev_normal, has_prev)
         k = respond(x_prev, x, best_tri, best_t, vertices, triangles, tri_obstacle, pose0, pose1,
-                    thickness, friction, restitution)
+                    thickness, friction, restitution, prev_normal, has_prev)
         if k == 0:
             break
         for p in range(n):
