@@ -120,17 +120,26 @@ def planar_meshes(local_vertices: np.ndarray, faces: np.ndarray, scale: float):
 
 
 # -- map cells ------------------------------------------------------------------------------------
-def _clip(poly: list, n: np.ndarray, off: float, tol: float) -> list:
-    """Sutherland-Hodgman: keep the part of a convex polygon with n.x >= off - tol."""
+def _dot(a, b) -> float:
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _cross(a, b) -> tuple:
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _clip(poly: list, n: tuple, off: float, tol: float) -> list:
+    """Sutherland-Hodgman: keep the part of a convex polygon (list of 3-tuples) with n.x >= off - tol."""
     out = []
     k = len(poly)
     for i in range(k):
         p, q = poly[i], poly[(i + 1) % k]
-        sp, sq = n @ p - off, n @ q - off
+        sp, sq = _dot(n, p) - off, _dot(n, q) - off
         if sp >= -tol:
             out.append(p)
         if (sp >= -tol) != (sq >= -tol):
-            out.append(p + (q - p) * (sp / (sp - sq)))
+            w = sp / (sp - sq)
+            out.append((p[0] + (q[0] - p[0]) * w, p[1] + (q[1] - p[1]) * w, p[2] + (q[2] - p[2]) * w))
     return out
 
 
@@ -138,8 +147,8 @@ def _wedge_polys(tri: list, th0: float, th1: float, tol: float) -> list:
     """Parts of a triangle inside the closed theta wedge [th0, th1] around axis 0 (list of polygons)."""
     if th1 - th0 >= 2 * math.pi:
         return [tri]
-    n0 = np.array([0.0, -math.sin(th0), math.cos(th0)])   # n0.x = r sin(theta - th0)
-    n1 = np.array([0.0, math.sin(th1), -math.cos(th1)])   # n1.x = r sin(th1 - theta)
+    n0 = (0.0, -math.sin(th0), math.cos(th0))   # n0.x = r sin(theta - th0)
+    n1 = (0.0, math.sin(th1), -math.cos(th1))   # n1.x = r sin(th1 - theta)
     if th1 - th0 <= math.pi:
         poly = _clip(_clip(tri, n0, 0.0, tol), n1, 0.0, tol)
         return [poly] if poly else []
@@ -149,6 +158,33 @@ def _wedge_polys(tri: list, th0: float, th1: float, tol: float) -> list:
 
 def _phi(x) -> float:
     return math.atan2(math.hypot(x[1], x[2]), x[0])
+
+
+def _edge_phi_range(a, b):
+    """Min and max of phi over the segment a-b (which does not pass through the origin).
+
+    Its directions run along a great-circle arc shorter than pi; the angle to the pole along it is
+    extreme at the arc's ends or at the circle's point nearest to (farthest from) the pole.
+    """
+    pa, pb = _phi(a), _phi(b)
+    lo, hi = min(pa, pb), max(pa, pb)
+    m = _cross(a, b)
+    mn = math.sqrt(_dot(m, m))
+    if mn <= 1e-14 * math.sqrt(_dot(a, a) * _dot(b, b)):
+        return lo, hi
+    m = (m[0] / mn, m[1] / mn, m[2] / mn)
+    f = (1.0 - m[0] * m[0], -m[0] * m[1], -m[0] * m[2])   # the pole projected on the circle's plane
+    fn = math.sqrt(_dot(f, f))
+    if fn <= 1e-14:
+        return lo, hi
+    f = (f[0] / fn, f[1] / fn, f[2] / fn)
+    for g, is_min in ((f, True), ((-f[0], -f[1], -f[2]), False)):
+        if _dot(_cross(a, g), m) >= -1e-14 and _dot(_cross(g, b), m) >= -1e-14:
+            if is_min:
+                lo = min(lo, _phi(g))
+            else:
+                hi = max(hi, _phi(g))
+    return lo, hi
 
 
 def _axis_ray_hits(a, b, c, sign: float, tol: float) -> bool:
@@ -190,10 +226,13 @@ def _edge_phi_range(a, b):
     return lo, hi
 
 
-def _point_triangle_distance(p, a, b, c) -> float:
-    """Euclidean distance from p to triangle abc (small helper for the degenerate source test)."""
-    q = trimesh.triangles.closest_point(np.array([[a, b, c]]), p[None])[0]
-    return float(np.linalg.norm(q - p))
+def _origin_near_triangle(a, b, c, eps: float) -> bool:
+    """Is the origin within eps of triangle abc? (the map sphere's centre on a face)"""
+    n = np.cross(b - a, c - a)
+    if abs(n @ a) > eps * np.linalg.norm(n):
+        return False
+    q = trimesh.triangles.closest_point(np.array([[a, b, c]]), np.zeros((1, 3)))[0]
+    return bool(np.linalg.norm(q) <= eps)
 
 
 def cell_lists(local_vertices: np.ndarray, faces: np.ndarray, kind: str, n_theta: int,
@@ -203,12 +242,12 @@ def cell_lists(local_vertices: np.ndarray, faces: np.ndarray, kind: str, n_theta
     ds = (second_hi - second_lo) / n_second
     eps_len = CELL_MARGIN * scale
     tol = 1e-12 * scale
-    tris = [[local_vertices[f[0]], local_vertices[f[1]], local_vertices[f[2]]] for f in faces]
+    tris = [[tuple(float(x) for x in local_vertices[i]) for i in f] for f in faces]
     lists = [[] for _ in range(n_theta * n_second)]
     if kind == "cylinder":
         umin = local_vertices[faces, 0].min(1)
         umax = local_vertices[faces, 0].max(1)
-        e0 = np.array([1.0, 0.0, 0.0])
+        e0, e0_neg = (1.0, 0.0, 0.0), (-1.0, 0.0, 0.0)
         for it in range(n_theta):
             th0, th1 = it * dth - CELL_MARGIN, (it + 1) * dth + CELL_MARGIN
             for t, tri in enumerate(tris):
@@ -218,12 +257,12 @@ def cell_lists(local_vertices: np.ndarray, faces: np.ndarray, kind: str, n_theta
                         z1 = second_lo + (js + 1) * ds + eps_len
                         if umax[t] < z0 or umin[t] > z1:
                             continue
-                        if _clip(_clip(poly, e0, z0, tol), -e0, -z1, tol):
+                        if _clip(_clip(poly, e0, z0, tol), e0_neg, -z1, tol):
                             lists[it * n_second + js].append(t)
     else:
         for t, tri in enumerate(tris):
-            a, b, c = tri
-            if _point_triangle_distance(np.zeros(3), a, b, c) <= eps_len:
+            a, b, c = (np.array(v) for v in tri)
+            if _origin_near_triangle(a, b, c, eps_len):
                 for cell in lists:       # the centre is on this face: every ray touches it
                     cell.append(t)
                 continue
