@@ -107,7 +107,7 @@ def test_skin_kernel_matches_per_vertex_reference(seed, k):
     got = skin(c, m)
     assert got.shape == (4, c.vertices.shape[0], 3) and got.dtype == np.float64
     for f in range(4):
-        np.testing.assert_allclose(got[f], reference_lbs(c, m.joint_world[f]), atol=1e-10)
+        np.testing.assert_allclose(got[f], reference_lbs(c, m.joint_world[f] @ c.inverse_bind), atol=1e-10)
     np.testing.assert_allclose(skin_numpy(c, m), got, atol=1e-10)
     np.testing.assert_allclose(skin(c, m, frames=[2])[0], got[2], atol=0)
 
@@ -122,8 +122,8 @@ def test_motion_relative_frame():
     np.testing.assert_allclose(m.root_translation, root - root[0], atol=1e-12)
     world = m.joint_world.copy()
     world[..., :3, 3] += m.root_translation[:, None, :]
-    np.testing.assert_allclose(world, g @ c.inverse_bind, atol=1e-12)
-    np.testing.assert_allclose(m.joint_world[0], g[0] @ c.inverse_bind, atol=1e-12)  # relative == world at frame 0
+    np.testing.assert_allclose(world, g, atol=1e-12)
+    np.testing.assert_allclose(m.joint_world[0], g[0], atol=1e-12)  # relative == world at frame 0
     later = sample_motion(c, clip.name, times + 0.25)
     np.testing.assert_allclose(later.times, times)  # Motion.times count from the first frame
     with pytest.raises(KeyError, match="no clip 'nope'"):

@@ -177,10 +177,8 @@ class BindPose:
 
 def bind_pose(character, motion, colliders=None) -> BindPose:
     """The bind pose of attachments: frame 0 of `motion` (relative frame)."""
-    jw = np.ascontiguousarray(motion.joint_world[0], dtype=np.float64)
-    # joint_world = global @ inverse_bind, so the joint's global transform is joint_world @ bind.
-    glob = jw @ np.linalg.inv(character.inverse_bind)
-    return BindPose(jw, np.ascontiguousarray(glob[:, :3, 3]), tuple(character.joint_names), colliders)
+    jw = np.ascontiguousarray(motion.joint_world[0], dtype=np.float64)  # bone-local -> relative frame
+    return BindPose(jw, np.ascontiguousarray(jw[:, :3, 3]), tuple(character.joint_names), colliders)
 
 
 def _collider_distances(bind: BindPose, points: np.ndarray):

@@ -1,9 +1,9 @@
 """Clip sampling, motion (skinning matrices per frame) and linear blend skinning.
 
-Frame conventions are those of `stages.rig.types`: `Motion.joint_world[f, j]` is the skinning
-matrix global_joint(t_f) @ inverse_bind[j] in the relative frame (root translation of frame f
-minus frame 0 removed), so it maps bind-pose model-frame points to relative-frame points and the
-relative frame equals world at frame 0.
+Frame conventions are those of `stages.rig.types`: `Motion.joint_world[f, j]` is joint j's global
+transform at t_f in the relative frame (root translation of frame f minus frame 0 removed): it maps
+bone-local points to relative-frame points; the skinning matrix is `joint_world @ inverse_bind`.
+The relative frame equals world at frame 0.
 """
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ def sample_clip(character: Character, clip: Clip, times) -> np.ndarray:
 def _motion_from_globals(name: str, times: np.ndarray, globals_: np.ndarray, character: Character) -> Motion:
     root = globals_[:, character.root_joint, :3, 3]
     root_translation = root - root[0]
-    joint_world = globals_ @ character.inverse_bind
+    joint_world = globals_.copy()
     joint_world[..., :3, 3] -= root_translation[:, None, :]
     return Motion(clip_name=name, times=np.asarray(times, np.float64), joint_world=joint_world,
                   root_translation=root_translation)
@@ -77,12 +77,20 @@ def rest_motion(character: Character, n_frames: int, dt: float) -> Motion:
     return _motion_from_globals("rest", times, np.broadcast_to(g, (n_frames,) + g.shape).copy(), character)
 
 
+def skinning_matrices(character: Character, motion: Motion, frames=None) -> np.ndarray:
+    """(F, J, 4, 4) joint_world @ inverse_bind: bind-pose model-frame points -> relative frame."""
+    g = motion.joint_world if frames is None else motion.joint_world[np.atleast_1d(frames)]
+    if g.shape[1] != character.n_joints:
+        raise ValueError(f"motion {motion.clip_name!r} has {g.shape[1]} joints, character has {character.n_joints}")
+    return g @ character.inverse_bind
+
+
 def skin(character: Character, motion: Motion, frames=None) -> np.ndarray:
     """Linear-blend-skinned vertices (F, V, 3) float64 in the relative frame.
 
     frames: indices into the motion's frames (None = all). Add motion.root_translation[f] for world.
     """
-    m = motion.joint_world if frames is None else motion.joint_world[np.atleast_1d(frames)]
+    m = skinning_matrices(character, motion, frames)
     if m.shape[1] != character.n_joints:
         raise ValueError(f"motion {motion.clip_name!r} has {m.shape[1]} joints, character has {character.n_joints}")
     out = np.empty((m.shape[0], character.vertices.shape[0], 3))
@@ -92,7 +100,7 @@ def skin(character: Character, motion: Motion, frames=None) -> np.ndarray:
 
 def skin_numpy(character: Character, motion: Motion, frames=None) -> np.ndarray:
     """Vectorised numpy LBS (same result as `skin`; kept for the benchmark)."""
-    m = motion.joint_world if frames is None else motion.joint_world[np.atleast_1d(frames)]
+    m = skinning_matrices(character, motion, frames)
     v_h = np.concatenate([character.vertices, np.ones((character.vertices.shape[0], 1))], axis=1)
     out = np.empty((m.shape[0], v_h.shape[0], 3))
     for f in range(m.shape[0]):

@@ -4,8 +4,8 @@ Frames
 - *model frame*: the frame the bind-pose mesh is given in (Y up, metres, after the scene's
   scale / up-axis override). World = model frame; the character stands on y = 0 at frame 0.
 - *bone-local frame of joint j*: `inverse_bind[j] @ x_model`. Hulls and spheres live there.
-  At time t a bone-local point maps to world by `joint_world[t, j] @ x_local` (this is exactly the
-  linear-blend-skinning matrix `global_joint(t) @ inverse_bind`, composed once).
+  At time t a bone-local point maps to the relative frame by `Motion.joint_world[t, j] @ x_local`
+  (joint j's global transform); the linear-blend-skinning matrix is `joint_world @ inverse_bind`.
 - *relative frame*: world with the root translation of the frame removed (paper A §3.2, relative
   simulation). `Motion.joint_world` is given in it; add `Motion.root_translation` for world.
 
@@ -153,8 +153,9 @@ class Motion:
     """A clip sampled at the simulation's frame times.
 
     times: (F,) float64, seconds from the first frame, non-decreasing.
-    joint_world: (F, J, 4, 4) float64, skinning matrices global_joint(t) @ inverse_bind, in the
-        *relative* frame (root translation removed): maps bone-local points to relative-frame points.
+    joint_world: (F, J, 4, 4) float64, each joint's global transform at t in the *relative* frame
+        (root translation removed): maps bone-local points to relative-frame points. Skinning
+        matrices are `joint_world @ inverse_bind` (see stages.rig.skinning.skinning_matrices).
     root_translation: (F, 3) float64, metres, world translation of the relative frame at each frame
         (root joint's world position minus its position at frame 0); world = relative + this.
     """
