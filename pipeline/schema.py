@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -42,6 +43,14 @@ class Field:
     variants: dict = field(default_factory=dict)      # union: tag value -> fields dict
     length: int | None = None                          # fixed-length number lists ('vec3' is 3)
     check: Callable[[Any], str | None] | None = None   # extra check: returns a problem or None
+
+
+def expand_path_vars(text: str) -> str:
+    """Expand $VARS in a path; $GARMENT_ASSETS defaults to the shared assets folder when unset."""
+    from pipeline.assets import ASSETS_ENV, assets_dir
+    for form in ("${%s}" % ASSETS_ENV, "$" + ASSETS_ENV):
+        text = text.replace(form, str(assets_dir()))
+    return os.path.expandvars(text)
 
 
 def _where(path: str) -> str:
@@ -133,7 +142,7 @@ def _value(f: Field, v, path: str, ctx: _Ctx):
             ctx.fail(path, f"{_describe(v)} is not one of {', '.join(map(str, f.choices))}{hint}")
         out = v
         if k == "path":
-            p = Path(v).expanduser()
+            p = Path(expand_path_vars(v)).expanduser()
             out = str(p if p.is_absolute() or ctx.base_dir is None else (ctx.base_dir / p))
     elif k == "vec3" or (k == "list" and f.item is not None and f.item.kind in ("float", "int") and f.length):
         n = 3 if k == "vec3" else f.length
