@@ -261,3 +261,33 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result) -> dict:
                                               f" ({100 * int(body.max(initial=0)) / max(n, 1):.2f} % of particles, worst frame {worst})",
         "steps/s (simulation only)": f"{result.steps / max(float(result.step_ms.sum()) / 1000, 1e-9):.0f}",
     }
+
+
+def log_obstacles(rec: rr.RecordingStream, obstacles, times: np.ndarray, *, kdop_depth: int = 3) -> None:
+    """obstacles/<name>/mesh static in the body frame (under a per-frame transform when moving),
+    and the k-DOP nodes at `kdop_depth` of each static obstacle's tree (boxes for k = 6, wireframes
+    otherwise), at obstacles/<name>/kdop."""
+    from stages.obstacles import kdop_box, kdop_nodes_at_depth, kdop_wireframe
+    tree = obstacles.tree
+    colors = palette(len(obstacles.obstacles), seed=3)
+    for i, ob in enumerate(obstacles.obstacles):
+        base = f"obstacles/{ob.name}"
+        c = tuple(int(x) for x in colors[i][:3])
+        rec.log(f"{base}/mesh", rr.Mesh3D(vertex_positions=ob.vertices.astype(np.float32),
+                                          vertex_normals=vertex_normals(ob.vertices, ob.triangles).astype(np.float32),
+                                          triangle_indices=ob.triangles.astype(np.uint32), albedo_factor=(*c, 255)),
+                static=True)
+        if not ob.is_static:
+            log_transform_series(rec, base, np.stack([ob.pose_at(float(t)) for t in times]), times)
+            continue
+        lo, hi = tree.tree_offsets[i], tree.tree_offsets[i + 1]
+        sub_depth = tree.depth[lo:hi]
+        sel = np.arange(lo, hi)[(sub_depth == kdop_depth) | ((sub_depth < kdop_depth) & (tree.leaf_prim[lo:hi] >= 0))]
+        mins, maxs = tree.node_min[sel], tree.node_max[sel]
+        if tree.directions.shape[0] == 3:
+            centres, half = kdop_box(mins, maxs, tree.directions)
+            rec.log(f"{base}/kdop", rr.Boxes3D(centers=centres, half_sizes=half, colors=[(*c, 255)]), static=True)
+        else:
+            segs = [kdop_wireframe(a, b, tree.directions) for a, b in zip(mins, maxs)]
+            rec.log(f"{base}/kdop", rr.LineStrips3D([s.astype(np.float32) for g in segs for s in g],
+                                                    colors=[(*c, 255)], radii=0.001), static=True)

@@ -164,6 +164,43 @@ def build_scene_garments(scene: Scene, character, motion, colliders):
     return out
 
 
+def build_scene_obstacles(scene: Scene, duration: float):
+    """The scene's obstacles (world frame) with their k-DOP trees."""
+    from scipy.spatial.transform import Rotation
+
+    from stages.obstacles import (ObstacleMotion, box_mesh, build_obstacle_set, cylinder_mesh,
+                                  load_obstacle_mesh, make_obstacle, plane_mesh, sphere_mesh, table_mesh)
+    out = []
+    for o in scene["obstacles"]:
+        t = o["type"]
+        if t == "box":
+            mesh, pivot = box_mesh(o["center"], o["size"]), o["center"]
+        elif t == "table":
+            c = np.asarray(o["center"])
+            mesh = table_mesh(top_center=c + [0.0, o["height"], 0.0], top_size=tuple(o["top_size"]),
+                              top_thickness=o["top_thickness"])
+            pivot = c
+        elif t == "sphere":
+            mesh, pivot = sphere_mesh(o["center"], o["radius"], o["subdivisions"]), o["center"]
+        elif t == "plane":
+            mesh, pivot = plane_mesh(o["point"], o["normal"], (o["size"], o["size"])), o["point"]
+        elif t == "cylinder":
+            mesh, pivot = cylinder_mesh(o["center"], o["radius"], o["height"], o["sections"]), o["center"]
+        else:  # mesh file
+            m = np.eye(4)
+            m[:3, :3] = Rotation.from_euler("xyz", o["rotate_deg"], degrees=True).as_matrix()
+            m[:3, 3] = o["translate"]
+            mesh = load_obstacle_mesh(o["path"], scale=o["scale"], transform=m)
+            pivot = o["translate"]
+        motion = None
+        if any(o["velocity"]) or any(o["angular_velocity"]):
+            motion = ObstacleMotion.from_velocity(o["velocity"], o["angular_velocity"], pivot=pivot,
+                                                  duration=max(duration, 1e-3) + 1.0)
+        out.append(make_obstacle(o["name"], mesh, thickness=max(o["thickness"], 1e-4), friction=o["friction"],
+                                 restitution=o["restitution"], motion=motion))
+    return build_obstacle_set(out)
+
+
 def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = None,
               progress: bool = True, on_stage=None) -> RunSummary:
     """Run every stage the scene needs and write the recording atomically."""
@@ -200,7 +237,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
         summary.tables["collider fit"] = logs.log_colliders(rec, character, motion, colliders)
 
         say("maps")
-        from stages.maps import build_maps
+        from stages.maps.build import build_maps
         m = s["colliders"]["map"]
         with _Timer(summary, "maps") as r:
             maps = build_maps(colliders, kind=m["type"], n_theta=m["n_theta"], n_phi=m["n_phi"], n_axial=m["n_axial"])
@@ -210,10 +247,10 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
         obstacles = None
         if s["obstacles"]:
             say("obstacles")
-            from stages.obstacles import build_obstacles
             with _Timer(summary, "obstacles") as r:
-                obstacles = build_obstacles(s["obstacles"], dt=s["simulation"]["dt"], n_frames=len(times))
-                r.sizes.update(obstacles=len(obstacles.obstacles))
+                obstacles = build_scene_obstacles(scene, float(times[-1] - times[0]))
+                r.sizes.update(obstacles=len(obstacles.obstacles), triangles=obstacles.triangles.shape[0],
+                               tree_nodes=obstacles.tree.node_min.shape[0])
             logs.log_obstacles(rec, obstacles, times)
 
         if s["garments"]:
