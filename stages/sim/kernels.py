@@ -61,7 +61,7 @@ def _apply(m, x, y, z):
 
 # -- forces + Verlet ------------------------------------------------------------------------------
 @njit(cache=True, parallel=True)
-def aero_forces(x, xp, tris, h, s, d_prev, wind, k_drag, k_lift, out):
+def aero_forces(x, xp, inv_mass, tris, h, s, d_prev, wind, k_drag, k_lift, out):
     """Per-triangle aerodynamic force (N) from the air velocity relative to the triangle.
 
     Vertex velocity v = (x - xp + s d_prev) / h (Verlet estimate, world velocity scaled by the
@@ -104,6 +104,17 @@ def aero_forces(x, xp, tris, h, s, d_prev, wind, k_drag, k_lift, out):
             cs = -cs
         fd = k_drag * area * cs * w2 / wn
         fl = k_lift * area * cs * w2
+        # explicit drag is unstable once it would more than stop the triangle within one step:
+        # cap the force at (triangle mass) |w| / h
+        mt = 0.0
+        for v in (a, b, c):
+            if inv_mass[v] > 0.0:
+                mt += 1.0 / (3.0 * inv_mass[v])
+        fmax = mt * wn / h
+        ftot = math.sqrt(fd * fd * w2 + fl * fl * (1.0 - cs * cs))
+        if mt > 0.0 and ftot > fmax:
+            fd *= fmax / ftot
+            fl *= fmax / ftot
         out[t, 0] = fd * wx + fl * (nx - cs * wx / wn)
         out[t, 1] = fd * wy + fl * (ny - cs * wy / wn)
         out[t, 2] = fd * wz + fl * (nz - cs * wz / wn)
@@ -209,20 +220,43 @@ def partition_springs(positions: np.ndarray, springs: np.ndarray, n_parts: int =
 
     Particles are split at the median of their longest axis into n_parts slabs; a spring whose two
     particles lie in one slab goes to that slab's block, the rest to the last (sequential) block.
-    Springs keep their input order inside each block.
+    Inside a block springs are ordered by colour (spring_colours), then input order.
     """
     n = positions.shape[0]
     if n_parts < 2 or n < 64:
-        return np.arange(springs.shape[0]), np.array([0, springs.shape[0], springs.shape[0]], np.int64)
-    axis = int(np.argmax(np.ptp(positions, axis=0)))
-    rank = np.empty(n, np.int64)
-    rank[np.argsort(positions[:, axis], kind="stable")] = np.arange(n)
-    part = (rank * n_parts) // n
-    pa, pb = part[springs[:, 0]], part[springs[:, 1]]
-    block = np.where(pa == pb, pa, n_parts)
-    order = np.argsort(block, kind="stable")
+        n_parts = 1
+    if n_parts == 1:
+        block = np.zeros(springs.shape[0], np.int64)
+    else:
+        axis = int(np.argmax(np.ptp(positions, axis=0)))
+        rank = np.empty(n, np.int64)
+        rank[np.argsort(positions[:, axis], kind="stable")] = np.arange(n)
+        part = (rank * n_parts) // n
+        pa, pb = part[springs[:, 0]], part[springs[:, 1]]
+        block = np.where(pa == pb, pa, n_parts)
+    colour = spring_colours(springs.astype(np.int64), n)
+    order = np.lexsort((np.arange(springs.shape[0]), colour, block))
     part_start = np.searchsorted(block[order], np.arange(n_parts + 2)).astype(np.int64)
     return order, part_start
+
+
+@njit(cache=True)
+def spring_colours(springs, n):
+    """Greedy edge colouring: no two springs of one colour share a particle. Ordering springs by
+    colour keeps Gauss-Seidel sequential but lets consecutive corrections overlap in the CPU
+    (no dependency chain through a shared particle), ~3x faster than lexicographic order."""
+    used = np.zeros(n, np.int64)          # bit c set: particle already has a spring of colour c
+    out = np.empty(springs.shape[0], np.int64)
+    for k in range(springs.shape[0]):
+        m = used[springs[k, 0]] | used[springs[k, 1]]
+        c = 0
+        while c < 63 and (m >> c) & 1:
+            c += 1
+        out[k] = c
+        if c < 63:
+            used[springs[k, 0]] |= 1 << c
+            used[springs[k, 1]] |= 1 << c
+    return out
 
 
 # -- collisions -----------------------------------------------------------------------------------
@@ -381,18 +415,28 @@ def collide(x, xp, inv_mass, fwd, inv, inv0, m, method, col_joint, col_kind, col
                     qx += PUSH_EPS * nx
                     qy += PUSH_EPS * ny
                     qz += PUSH_EPS * nz
+                    if col_kind[c] == KIND_HULL:  # the ray is not the surface normal: use the exit face's
+                        nx, ny, nz = _hull_normal(m, col_index[c], qx, qy, qz)
+                    ox, oy, oz = _apply(inv0[j], xp[i, 0], xp[i, 1], xp[i, 2])
+                    ux = qx - ox
+                    uy = qy - oy
+                    uz = qz - oz
+                    un = ux * nx + uy * ny + uz * nz
                     if friction > 0.0:
-                        if col_kind[c] == KIND_HULL:  # the ray is not the surface normal: use the exit face's
-                            nx, ny, nz = _hull_normal(m, col_index[c], qx, qy, qz)
-                        ox, oy, oz = _apply(inv0[j], xp[i, 0], xp[i, 1], xp[i, 2])
-                        ux = qx - ox
-                        uy = qy - oy
-                        uz = qz - oz
-                        un = ux * nx + uy * ny + uz * nz
                         qx -= friction * (ux - un * nx)
                         qy -= friction * (uy - un * ny)
                         qz -= friction * (uz - un * nz)
                     px, py, pz = _apply(fwd[j], qx, qy, qz)
+                    if un > 0.0:
+                        # fully inelastic: the push-out must not become an outward Verlet velocity,
+                        # so move xp along the (world) normal by the outward relative travel
+                        f = fwd[j]
+                        wx = f[0, 0] * nx + f[0, 1] * ny + f[0, 2] * nz
+                        wy = f[1, 0] * nx + f[1, 1] * ny + f[1, 2] * nz
+                        wz = f[2, 0] * nx + f[2, 1] * ny + f[2, 2] * nz
+                        xp[i, 0] += un * wx
+                        xp[i, 1] += un * wy
+                        xp[i, 2] += un * wz
                     moved = True
                     corrected[i] = 1
                 if not moved or inside[i]:
@@ -423,7 +467,7 @@ def run_steps(x, xp, inv_mass, attach_joint, attach_local,
     for k in range(fwd.shape[0]):
         t0 = cycles()
         if use_aero:
-            aero_forces(x, xp, tris, h, s, d_prev[k], wind, k_drag, k_lift, tri_force)
+            aero_forces(x, xp, inv_mass, tris, h, s, d_prev[k], wind, k_drag, k_lift, tri_force)
         integrate(x, xp, inv_mass, attach_joint, attach_local, fwd[k], h, gravity, damping, s,
                   d_prev[k], d_next[k], use_aero, tri_force, vt_start, vt_tri)
         t1 = cycles()
