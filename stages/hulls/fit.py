@@ -1,0 +1,132 @@
+"""Colliders of a character: a simplified inflated hull per rigid region, a sphere per flexible one.
+
+Frames: every collider lives in the bone-local frame of its joint, x_local = inverse_bind[j] @ x_model
+(stages/rig/types.py), so it follows its bone rigidly at run time.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from stages.checks import ContractError
+from stages.errors import InputError
+from stages.hulls import kernels
+from stages.hulls.hull import convex_hull, inflate_hull, mesh_volume
+from stages.hulls.simplify import simplify_hull
+from stages.hulls.types import ColliderSet, ConvexMesh, HullCollider, HullFitReport, SphereCollider
+from stages.rig.transforms import transform_points
+from stages.rig.types import Character, RegionSplit
+
+
+def joint_sphere(points_local: np.ndarray, center_local: np.ndarray, delta: float) -> tuple[np.ndarray, float]:
+    """Sphere at the joint enclosing a flexible region: radius = farthest point + delta (metres)."""
+    p = np.asarray(points_local, dtype=np.float64).reshape(-1, 3)
+    c = np.asarray(center_local, dtype=np.float64).reshape(3)
+    if p.shape[0] == 0:
+        raise InputError("joint sphere", "the flexible region has no vertices")
+    radius = float(np.sqrt(((p - c) ** 2).sum(axis=1).max())) + float(delta)
+    if not radius > 0:
+        raise InputError("joint sphere", f"degenerate sphere (radius {radius}): all points at the joint and delta 0")
+    return c.copy(), radius
+
+
+def distance_to_hull(points: np.ndarray, hull: ConvexMesh) -> np.ndarray:
+    """(P,) Euclidean distance from each point to the solid convex hull (0 inside)."""
+    return kernels.distance_to_convex(np.ascontiguousarray(points, dtype=np.float64), hull.vertices,
+                                      hull.faces, np.ascontiguousarray(hull.planes))
+
+
+def hausdorff_to_hull(outer: ConvexMesh, inner: ConvexMesh) -> float:
+    """One-sided Hausdorff distance from the surface of `outer` to the solid `inner` (metres).
+
+    Exact when inner is convex: the distance to a convex set is a convex function, so its maximum
+    over the polytope `outer` is reached at a vertex of `outer`. When outer contains inner (as here)
+    no point of outer's surface is inside inner, so this is also the distance to inner's surface.
+    """
+    return float(distance_to_hull(outer.vertices, inner).max())
+
+
+def containment(points: np.ndarray, hull: ConvexMesh) -> float:
+    """Worst signed plane distance max_p max_f (n_f . p - d_f): <= 0 iff every point is inside.
+
+    For a point outside it is a lower bound of its distance to the hull (the exact sign matters).
+    """
+    pl = hull.planes
+    return float((points @ pl[:, :3].T - pl[:, 3]).max())
+
+
+CONTAIN_TOLERANCE = 1e-7  # metres: a region vertex this close outside still counts as contained
+
+
+def fit_hull(points_local: np.ndarray, delta: float, min_triangles: int, *, source="region",
+             priority: str = "qem") -> tuple[ConvexMesh, ConvexMesh, ConvexMesh, HullFitReport]:
+    """Raw hull, inflated hull, simplified hull and fit report of one rigid region (bone-local).
+
+    A coplanar region falls back to a slab of half-thickness max(delta, 1e-4 m) (see hull.py).
+    """
+    raw = convex_hull(points_local, source=source, flat_thickness=max(delta, 1e-4))
+    inflated = inflate_hull(raw, delta)
+    simplified = simplify_hull(inflated, min_triangles, priority=priority)
+    worst = containment(points_local, simplified)
+    report = HullFitReport(
+        faces_raw=int(raw.faces.shape[0]), faces_inflated=int(inflated.faces.shape[0]),
+        faces_simplified=int(simplified.faces.shape[0]), volume_raw=mesh_volume(raw),
+        volume_simplified=mesh_volume(simplified), hausdorff=hausdorff_to_hull(simplified, raw),
+        contains_region=bool(worst <= CONTAIN_TOLERANCE), worst_violation=worst)
+    return raw, inflated, simplified, report
+
+
+def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.01,
+                  min_triangles: int = 40, priority: str = "qem") -> ColliderSet:
+    """Hull colliders for split.hull_bones and sphere colliders for split.sphere_joints.
+
+    delta: inflation thickness (m), also added to sphere radii. min_triangles: simplification floor.
+    Bone-local points = inverse_bind[b] @ bind-pose vertices. Sphere centre = the joint origin in its
+    own frame: inverse_bind[j] @ (translation of inv(inverse_bind[j])), ~0 up to rounding.
+    """
+    if not (np.isfinite(delta) and delta >= 0):
+        raise ContractError(f"fit_colliders: delta must be a non-negative thickness, got {delta}")
+    if split.dominant_joint.shape[0] != character.vertices.shape[0]:
+        raise ContractError(f"fit_colliders: split has {split.dominant_joint.shape[0]} vertices, "
+                            f"character {character.vertices.shape[0]}")
+    hulls = []
+    for b in split.hull_bones:
+        name = character.joint_names[b]
+        idx = split.rigid_vertices(b)
+        pts = np.ascontiguousarray(transform_points(character.inverse_bind[b], character.vertices[idx]))
+        raw, inflated, simplified, report = fit_hull(pts, delta, min_triangles, source=f"hull of bone {name!r}",
+                                                     priority=priority)
+        hulls.append(HullCollider(bone=int(b), name=name, region_points=pts, raw=raw, inflated=inflated,
+                                  simplified=simplified, report=report))
+    spheres = []
+    for j in split.sphere_joints:
+        name = character.joint_names[j]
+        idx = split.flexible_vertices(j)
+        ib = character.inverse_bind[j]
+        pts = np.ascontiguousarray(transform_points(ib, character.vertices[idx]))
+        joint_model = np.linalg.inv(ib)[:3, 3]
+        try:
+            center, radius = joint_sphere(pts, transform_points(ib, joint_model[None])[0], delta)
+        except InputError as err:
+            raise InputError(f"sphere of joint {name!r}", err.problem) from None
+        spheres.append(SphereCollider(joint=int(j), name=name, center=center, radius=radius, region_points=pts))
+    return ColliderSet(hulls=tuple(hulls), spheres=tuple(spheres), delta=float(delta),
+                       min_triangles=int(min_triangles))
+
+
+def fit_report_totals(colliders: ColliderSet) -> dict:
+    """Character totals of the hull fit reports (faces summed, volumes in m^3, distances in m)."""
+    reps = [h.report for h in colliders.hulls]
+    return {
+        "hulls": len(reps),
+        "spheres": len(colliders.spheres),
+        "faces_raw": int(sum(r.faces_raw for r in reps)),
+        "faces_inflated": int(sum(r.faces_inflated for r in reps)),
+        "faces_simplified": int(sum(r.faces_simplified for r in reps)),
+        "volume_raw": float(sum(r.volume_raw for r in reps)),
+        "volume_simplified": float(sum(r.volume_simplified for r in reps)),
+        "excess_volume": float(sum(r.excess_volume for r in reps)),
+        "hausdorff_max": float(max((r.hausdorff for r in reps), default=0.0)),
+        "all_contained": bool(all(r.contains_region for r in reps)),
+        "worst_violation": float(max((r.worst_violation for r in reps), default=-np.inf)),
+        "sphere_volume": float(sum(4.0 / 3.0 * np.pi * s.radius ** 3 for s in colliders.spheres)),
+    }
