@@ -53,7 +53,7 @@ TWO_PI = 2.0 * math.pi
 
 
 # -- frames -------------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _to_local(m, h, p):
     c = m.center[h]
     r = m.axes[h]
@@ -65,7 +65,7 @@ def _to_local(m, h, p):
             r[2, 0] * dx + r[2, 1] * dy + r[2, 2] * dz)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _to_bone(m, h, q0, q1, q2):
     c = m.center[h]
     r = m.axes[h]
@@ -74,14 +74,14 @@ def _to_bone(m, h, q0, q1, q2):
             c[2] + r[0, 2] * q0 + r[1, 2] * q1 + r[2, 2] * q2)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _plane_dist(m, f, q0, q1, q2):
     pl = m.planes[f]
     return pl[0] * q0 + pl[1] * q1 + pl[2] * q2 - pl[3]
 
 
 # -- inside ---------------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _locate(m, k, x, y):
     """Face of planar mesh k (= 2h + side) containing (x, y); -1 outside the outline, -2 in a gap."""
     b0 = m.loc_base[k]
@@ -89,14 +89,14 @@ def _locate(m, k, x, y):
     xs = m.loc_x
     if x < xs[b0] or x > xs[b1 - 1]:
         return -1
+    # last slab whose left boundary <= x; branch-free halving (a select, not a jump, per step:
+    # random query points would mispredict a branchy binary search at every level)
     lo = b0
-    hi = b1 - 2
-    while lo < hi:                       # last slab whose left boundary <= x
-        mid = (lo + hi + 1) // 2
-        if xs[mid] <= x:
-            lo = mid
-        else:
-            hi = mid - 1
+    n = b1 - 1 - b0
+    while n > 1:
+        half = n >> 1
+        lo = lo + half if xs[lo + half] <= x else lo
+        n -= half
     xl = xs[lo]
     f = (x - xl) / (xs[lo + 1] - xl)
     e0 = m.loc_start[lo]
@@ -107,19 +107,18 @@ def _locate(m, k, x, y):
     if ys[e0, 0] + f * (ys[e0, 1] - ys[e0, 0]) > y:
         return -1
     lo = e0
-    hi = e1 - 1
-    while lo < hi:                       # last entry whose lower edge is at or below y
-        mid = (lo + hi + 1) // 2
-        if ys[mid, 0] + f * (ys[mid, 1] - ys[mid, 0]) <= y:
-            lo = mid
-        else:
-            hi = mid - 1
+    n = e1 - e0
+    while n > 1:                         # last entry whose lower edge is at or below y
+        half = n >> 1
+        k = lo + half
+        lo = k if ys[k, 0] + f * (ys[k, 1] - ys[k, 0]) <= y else lo
+        n -= half
     if y > ys[lo, 2] + f * (ys[lo, 3] - ys[lo, 2]):
         return -1 if lo == e1 - 1 else -2
     return m.loc_face[lo]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _inside_brute_local(m, h, q0, q1, q2):
     for f in range(m.face_start[h], m.face_start[h + 1]):
         if _plane_dist(m, f, q0, q1, q2) > 0.0:
@@ -127,7 +126,7 @@ def _inside_brute_local(m, h, q0, q1, q2):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _inside_local(m, h, q0, q1, q2):
     hx = m.half[h]
     if abs(q0) > hx[0] or abs(q1) > hx[1] or abs(q2) > hx[2]:
@@ -158,7 +157,7 @@ def hull_inside_brute(m, h, p):
 
 
 # -- response -------------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _nearest_plane_local(m, h, q0, q1, q2):
     best = -np.inf
     bf = m.face_start[h]
@@ -171,7 +170,7 @@ def _nearest_plane_local(m, h, q0, q1, q2):
     return q0 - best * pl[0], q1 - best * pl[1], q2 - best * pl[2]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _cell_of(m, h, q0, d0, d1, d2):
     """Global cell of a unit ray direction d (and axial coordinate q0 for the cylinder)."""
     nt = m.n_theta[h]
@@ -195,7 +194,7 @@ def _cell_of(m, h, q0, d0, d1, d2):
     return m.cell_base[h] + it * ns + js
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _ray_exit_local(m, h, q0, q1, q2, brute):
     """Exit point of the map ray through q (OBB-local); ok=False when there is no usable ray."""
     if m.kind[h] == KIND_CYLINDER:
@@ -235,7 +234,7 @@ def _ray_exit_local(m, h, q0, q1, q2, brute):
     return True, s0 + tmin * d0, tmin * d1, tmin * d2
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _response_local(m, h, q0, q1, q2, brute):
     ok, r0, r1, r2 = _ray_exit_local(m, h, q0, q1, q2, brute)
     if not ok:
