@@ -31,14 +31,17 @@ def reference_collide(x_prev, x, inv_mass, v, f, h, mu, e):
             if not (d1 < h - 1e-10 and d0 >= -0.5 * h):
                 continue
             t = (d0 - h) / (d0 - d1) if d0 > h else 0.0
-            q = x_prev[p] + t * (x[p] - x_prev[p])
-            # barycentric by areas in the plane
-            q = q - (n @ (q - a)) * n
+            ts = [t] + ([d0 / (d0 - d1)] if (d1 < 0 < d0) else [])
             area = np.cross(b - a, c - a) @ n
-            l0 = np.cross(c - b, q - b) @ n / area
-            l1 = np.cross(a - c, q - c) @ n / area
-            l2 = 1 - l0 - l1
-            if min(l0, l1, l2) < -1e-9:
+
+            def inside(tt):
+                q = x_prev[p] + tt * (x[p] - x_prev[p])
+                q = q - (n @ (q - a)) * n
+                l0 = np.cross(c - b, q - b) @ n / area
+                l1 = np.cross(a - c, q - c) @ n / area
+                return min(l0, l1, 1 - l0 - l1) >= -1e-9
+
+            if not any(inside(tt) for tt in ts):
                 continue
             key = (t, -d0, t_id)
             if best is None or key < best[0]:

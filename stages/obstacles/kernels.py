@@ -44,9 +44,9 @@ Exact test (paper B §3.2, the inner-product test): with n the triangle's unit o
 d(p) = n . (p - a) the particle's signed distance to its plane, a particle moving p0 -> p1 hits the
 triangle when it ends inside the proximity band (d1 < h), starts no deeper than h/2 behind the plane
 (d0 >= -h/2, so particles on the far side of a thin slab or two-sided plane are not pulled through),
-and the point where
-it crosses the offset plane d = h (or its start, if it already starts inside the band) projects
-inside the triangle (barycentric, tolerance 1e-9). Time of impact t = (d0 - h) / (d0 - d1), 0 when
+and a point of its path projects inside the triangle (barycentric, tolerance 1e-9): where it
+crosses the offset plane d = h (or its start, if it already starts inside the band), where it
+or where it crosses the surface d = 0. Time of impact t = (d0 - h) / (d0 - d1), 0 when
 starting in the band. Each particle keeps ONE contact per step: the earliest t; at equal t the
 triangle it is most in front of (largest d0: a particle on top of a two-sided plane is not pushed
 to the underside); then the lowest triangle id. Deterministic regardless of traversal order.
@@ -189,6 +189,23 @@ def _apply_inv(m, x, y, z):
             m[0, 2] * x + m[1, 2] * y + m[2, 2] * z)
 
 
+@njit(cache=True, inline="always")
+def _projects_inside(p0, p1, t, a, e1x, e1y, e1z, e2x, e2y, e2z):
+    """Whether p0 + t (p1 - p0), projected on the triangle's plane, lies inside it."""
+    wx = p0[0] + t * (p1[0] - p0[0]) - a[0]
+    wy = p0[1] + t * (p1[1] - p0[1]) - a[1]
+    wz = p0[2] + t * (p1[2] - p0[2]) - a[2]
+    d11 = e1x * e1x + e1y * e1y + e1z * e1z
+    d12 = e1x * e2x + e1y * e2y + e1z * e2z
+    d22 = e2x * e2x + e2y * e2y + e2z * e2z
+    dw1 = wx * e1x + wy * e1y + wz * e1z
+    dw2 = wx * e2x + wy * e2y + wz * e2z
+    den = d11 * d22 - d12 * d12
+    v = (d22 * dw1 - d12 * dw2) / den
+    w = (d11 * dw2 - d12 * dw1) / den
+    return v >= -BARY_TOL and w >= -BARY_TOL and 1.0 - v - w >= -BARY_TOL
+
+
 @njit(cache=True)
 def point_triangle_ccd(p0, p1, a, b, c, h):
     """Continuous test of a particle moving p0 -> p1 against triangle abc with band h.
@@ -219,25 +236,13 @@ def point_triangle_ccd(p0, p1, a, b, c, h):
     t = 0.0
     if d0 > h:
         t = (d0 - h) / (d0 - d1)
-    qx = p0[0] + t * (p1[0] - p0[0])
-    qy = p0[1] + t * (p1[1] - p0[1])
-    qz = p0[2] + t * (p1[2] - p0[2])
-    # barycentric coordinates of q's projection on the plane
-    wx = qx - a[0]
-    wy = qy - a[1]
-    wz = qz - a[2]
-    d11 = e1x * e1x + e1y * e1y + e1z * e1z
-    d12 = e1x * e2x + e1y * e2y + e1z * e2z
-    d22 = e2x * e2x + e2y * e2y + e2z * e2z
-    dw1 = wx * e1x + wy * e1y + wz * e1z
-    dw2 = wx * e2x + wy * e2y + wz * e2z
-    den = d11 * d22 - d12 * d12
-    v = (d22 * dw1 - d12 * dw2) / den
-    w = (d11 * dw2 - d12 * dw1) / den
-    u = 1.0 - v - w
-    if u < -BARY_TOL or v < -BARY_TOL or w < -BARY_TOL:
-        return False, t, d0, nx, ny, nz
-    return True, t, d0, nx, ny, nz
+    # the crossing of the offset plane, or of the surface itself (an oblique path near an edge
+    # can cross the band outside the triangle yet the surface inside it)
+    if _projects_inside(p0, p1, t, a, e1x, e1y, e1z, e2x, e2y, e2z):
+        return True, t, d0, nx, ny, nz
+    if d1 < 0.0 and d0 > 0.0 and _projects_inside(p0, p1, d0 / (d0 - d1), a, e1x, e1y, e1z, e2x, e2y, e2z):
+        return True, t, d0, nx, ny, nz
+    return False, t, d0, nx, ny, nz
 
 
 @njit(cache=True)
