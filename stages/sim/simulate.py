@@ -241,7 +241,22 @@ def winding_number(vertices, triangles, points, *, exact: bool = False, beta: fl
 
 # -- the stage ----------------------------------------------------------------------------------------
 def simulate(character, motion, colliders, maps, garments, params: SimParams, *, obstacles=None,
-             progress=None) -> SimResult:
+             progress=None, threads: int | None = None) -> SimResult:
+    """See `_simulate`. threads: numba threads for the parallel kernels during the call (None = the
+    current setting). Results do not depend on it; on a loaded machine 1 thread avoids waiting for
+    a descheduled worker at every parallel loop."""
+    if threads is None:
+        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress)
+    import numba
+    old = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+    try:
+        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress)
+    finally:
+        numba.set_num_threads(old)
+
+
+def _simulate(character, motion, colliders, maps, garments, params, obstacles, progress) -> SimResult:
     """Simulate `garments` on `character` playing `motion` (see the module docstring).
 
     character: stages.rig.types.Character; motion: Motion sampled every params.dt seconds;
