@@ -317,8 +317,8 @@ def collapse_rows(t, verts, valive, faces, falive, planes, keep, keep_vertex, nr
                 gy = uz * vx - ux * vz
                 gz = ux * vy - uy * vx
                 ng = np.sqrt(gx * gx + gy * gy + gz * gz)
-                if ng < 1e-30:
-                    continue  # p on the ring edge's line: on the new plane whatever v is
+                if ng <= 1e-9 * np.sqrt((ux * ux + uy * uy + uz * uz) * (vx * vx + vy * vy + vz * vz)):
+                    continue  # p (nearly) on the ring edge's line: on the new plane whatever v is
                 gx /= ng
                 gy /= ng
                 gz /= ng
