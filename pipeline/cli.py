@@ -16,7 +16,8 @@ def _user_errors():
     from pipeline.schema import SceneError
     from stages.checks import ContractError
     from stages.errors import InputError
-    return (SceneError, InputError, ContractError)
+    from stages.sim import SimulationDiverged
+    return (SceneError, InputError, ContractError, SimulationDiverged)
 
 
 def cmd_validate(args) -> int:

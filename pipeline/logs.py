@@ -244,8 +244,10 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result) -> dict:
                         albedo=(*c, 255))
     log_scalar_series(rec, "sim/penetrations/colliders", result.penetrations_colliders, result.times,
                       name="inside a collider", color=(230, 80, 60))
-    log_scalar_series(rec, "sim/penetrations/body", result.penetrations_body, result.times,
-                      name="inside the body mesh", color=(150, 60, 200))
+    audited = bool(result.params.body_audit)
+    if audited:
+        log_scalar_series(rec, "sim/penetrations/body", result.penetrations_body, result.times,
+                          name="inside the body mesh", color=(150, 60, 200))
     log_scalar_series(rec, "sim/step_ms", result.step_ms, result.times, name="step (ms)", color=(60, 160, 90))
     log_scalar_series(rec, "sim/corrected", result.corrected, result.times, name="particles corrected", color=(90, 90, 90))
     p = result.params
@@ -253,14 +255,19 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result) -> dict:
         f"| {k} | {v} |" for k, v in p.__dict__.items()))
     n = sum(t.positions.shape[1] for t in result.garments)
     body = result.penetrations_body
-    worst = int(np.argmax(body)) if body.size else 0
-    return {
+    worst = int(np.argmax(body))
+    steps_s = result.steps / max(float(result.step_ms.sum()) * result.params.substeps / 1000, 1e-9)
+    out = {
         "particles": n,
-        "inside colliders (max per frame)": int(result.penetrations_colliders.max(initial=0)),
-        "inside body (max / mean per frame)": f"{int(body.max(initial=0))} / {float(body.mean()) if body.size else 0:.2f}"
-                                              f" ({100 * int(body.max(initial=0)) / max(n, 1):.2f} % of particles, worst frame {worst})",
-        "steps/s (simulation only)": f"{result.steps / max(float(result.step_ms.sum()) / 1000, 1e-9):.0f}",
+        "inside colliders (max / mean per frame, frame 0 excluded)":
+            f"{int(result.penetrations_colliders[1:].max(initial=0))} / {float(result.penetrations_colliders[1:].mean()) if len(body) > 1 else 0:.2f}",
+        "inside body (max / mean per frame)": (f"{int(body.max())} / {float(body.mean()):.2f} "
+                                               f"({100 * int(body.max()) / max(n, 1):.2f} % of particles, worst frame {worst})")
+                                              if audited else "not audited (simulation.body_audit: false)",
+        "steps/s (simulation only)": f"{steps_s:.0f}",
     }
+    log_text(rec, "sim/report", "\n".join(f"- {k}: {v}" for k, v in out.items()))
+    return out
 
 
 def log_obstacles(rec: rr.RecordingStream, obstacles, times: np.ndarray, *, kdop_depth: int = 3) -> None:

@@ -269,11 +269,12 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                                body_audit=sp["body_audit"])
             bar = Progress(len(times), "simulation", enabled=progress)
             with _Timer(summary, "simulation") as r:
-                result = simulate(character, motion, colliders, maps, garments, params, obstacles=obstacles,
-                                  progress=lambda done, total: bar.update(done))
-                bar.close()
-                r.sizes.update(steps=len(times) * sp["substeps"],
-                               steps_per_s=round(len(times) * sp["substeps"] / max(sum(result.step_ms) / 1000, 1e-9)))
+                try:
+                    result = simulate(character, motion, colliders, maps, garments, params, obstacles=obstacles,
+                                      progress=lambda done, total: bar.update(done), threads=1)
+                finally:
+                    bar.close()
+                r.sizes.update(steps=result.steps)
             summary.penetrations = logs.log_sim(rec, motion, garments, result)
         logs.log_text(rec, "meta/summary", summary.markdown())
     summary.output = out
