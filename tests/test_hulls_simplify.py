@@ -118,7 +118,8 @@ def test_collapse_lps_match_highs():
             continue
         vmark[buf[1][:k]] = t + 1
         a, b, c, origin, scale, _ = kernels.collapse_rows(t, v, valive, f, falive, planes, v, np.arange(len(v)), nr, k,
-                                                          buf[0], buf[1], vmark, t + 1, 1e-7 * d, 1e-4 * d)
+                                                          buf[0], buf[1], vmark, t + 1, 1e-7 * d, 1e-4 * d,
+                                                          np.zeros((0, 4)))
         ok, x = kernels.seidel_lp3(a, b, c, kernels.BOX, np.random.default_rng(t).permutation(len(b)))
         ref = highs(a, b, c, kernels.BOX)
         assert ok == (ref.status == 0), t
@@ -167,3 +168,16 @@ def test_hausdorff_is_the_max_over_a_dense_surface_sampling():
     sampled = distance_to_hull(np.concatenate([samples, out.vertices]), raw).max()
     assert sampled == pytest.approx(h, rel=1e-12)
     assert h >= 0.01 * (1 - 1e-9)  # at least the inflation
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 10_000), st.sampled_from(["gauss", "sphere"]), st.sampled_from([0.001, 0.01]))
+def test_max_offset_bounds_the_growth(seed, kind, bound):
+    inflated = inflate_hull(convex_hull(cloud(seed, 200, kind)), 0.003)
+    out = simplify_hull(inflated, 4, max_offset=bound)
+    pl = inflated.planes
+    assert (out.vertices @ pl[:, :3].T - pl[:, 3]).max() <= bound + 1e-9
+    assert_convex(out, 1e-9)
+    assert_contains(out, inflated.vertices, 1e-9)
+    free = simplify_hull(inflated, 4)
+    assert out.faces.shape[0] >= free.faces.shape[0] or mesh_volume(out) <= mesh_volume(free)

@@ -58,14 +58,14 @@ CONTAIN_TOLERANCE = 1e-7  # metres: a region vertex this close outside still cou
 
 
 def fit_hull(points_local: np.ndarray, delta: float, min_triangles: int, *, source="region",
-             priority: str = "qem") -> tuple[ConvexMesh, ConvexMesh, ConvexMesh, HullFitReport]:
+             priority: str = "qem", max_offset: float | None = None) -> tuple[ConvexMesh, ConvexMesh, ConvexMesh, HullFitReport]:
     """Raw hull, inflated hull, simplified hull and fit report of one rigid region (bone-local).
 
     A coplanar region falls back to a slab of half-thickness max(delta, 1e-4 m) (see hull.py).
     """
     raw = convex_hull(points_local, source=source, flat_thickness=max(delta, 1e-4))
     inflated = inflate_hull(raw, delta)
-    simplified = simplify_hull(inflated, min_triangles, priority=priority)
+    simplified = simplify_hull(inflated, min_triangles, priority=priority, max_offset=max_offset)
     worst = containment(points_local, simplified)
     report = HullFitReport(
         faces_raw=int(raw.faces.shape[0]), faces_inflated=int(inflated.faces.shape[0]),
@@ -76,10 +76,12 @@ def fit_hull(points_local: np.ndarray, delta: float, min_triangles: int, *, sour
 
 
 def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.01,
-                  min_triangles: int = 40, priority: str = "qem") -> ColliderSet:
+                  min_triangles: int = 40, priority: str = "qem", max_offset: float | None = None) -> ColliderSet:
     """Hull colliders for split.hull_bones and sphere colliders for split.sphere_joints.
 
     delta: inflation thickness (m), also added to sphere radii. min_triangles: simplification floor.
+    priority / max_offset: see simplify_hull (max_offset None = only the floor stops simplification,
+    as in the paper; with a low floor, set it to bound how far a hull may grow past the inflated one).
     Bone-local points = inverse_bind[b] @ bind-pose vertices. Sphere centre = the joint origin in its
     own frame: inverse_bind[j] @ (translation of inv(inverse_bind[j])), ~0 up to rounding.
     """
@@ -94,7 +96,7 @@ def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.
         idx = split.rigid_vertices(b)
         pts = np.ascontiguousarray(transform_points(character.inverse_bind[b], character.vertices[idx]))
         raw, inflated, simplified, report = fit_hull(pts, delta, min_triangles, source=f"hull of bone {name!r}",
-                                                     priority=priority)
+                                                     priority=priority, max_offset=max_offset)
         hulls.append(HullCollider(bone=int(b), name=name, region_points=pts, raw=raw, inflated=inflated,
                                   simplified=simplified, report=report))
     spheres = []

@@ -222,7 +222,7 @@ def _region(t, faces, falive, rfaces, ring, es, ee):
 
 @njit(cache=True)
 def collapse_rows(t, verts, valive, faces, falive, planes, keep, keep_vertex, nr, k, rfaces, ring, vmark, stamp,
-                  eps_convex, near):
+                  eps_convex, near, bound):
     """The LP of collapsing triangle t onto one new vertex v, in normalised coordinates.
 
     Unknown y = (v - origin) / scale. Rows (unit normals, so b is a distance in scale units):
@@ -233,6 +233,8 @@ def collapse_rows(t, verts, valive, faces, falive, planes, keep, keep_vertex, nr
       (keep points that are still mesh vertices are covered by the convexity rows and skipped).
     vmark[w] == stamp must flag the ring vertices.
     "p behind the plane of (v, w_i, w_i+1)" is linear in v: ((w_i - p) x (w_i+1 - p)) . (v - p) >= 0.
+    - bound (q, 4) planes n.x <= d (unit n): v must stay behind them (the caller's error bound; these
+      rows are `local` False, i.e. only added when violated).
     Objective: the volume of the new faces' cone, sum_i (v - o) . ((w_i - o) x (w_i+1 - o)) / 6.
     Returns (a, b, c, origin, scale, local) with local[r] False for the non-local ring rows.
     """
@@ -277,11 +279,16 @@ def collapse_rows(t, verts, valive, faces, falive, planes, keep, keep_vertex, nr
         if touch and not inreg:
             outside[nout] = f
             nout += 1
-    nrows = nout + k * (k - 2) + k * (3 + nkeep_near)
+    nrows = nout + k * (k - 2) + k * (3 + nkeep_near) + bound.shape[0]
     a = np.empty((nrows, 3))
     b = np.empty(nrows)
     local = np.ones(nrows, dtype=np.bool_)
     m = 0
+    for q in range(bound.shape[0]):
+        a[m, 0], a[m, 1], a[m, 2] = bound[q, 0], bound[q, 1], bound[q, 2]
+        b[m] = (bound[q, 3] - (bound[q, 0] * origin[0] + bound[q, 1] * origin[1] + bound[q, 2] * origin[2])) / scale
+        local[m] = False
+        m += 1
     for io in range(nout):
         f = outside[io]
         a[m, 0], a[m, 1], a[m, 2] = planes[f, 0], planes[f, 1], planes[f, 2]
@@ -338,14 +345,14 @@ def collapse_rows(t, verts, valive, faces, falive, planes, keep, keep_vertex, nr
 
 @njit(cache=True)
 def _place_and_verify(t, verts, valive, nv, faces, falive, planes, keep, keep_vertex, tol, eps_convex, near,
-                      min_height, rfaces, ring, nr, k, newplanes, vout, rng, vmark, stamp):
+                      min_height, rfaces, ring, nr, k, newplanes, vout, rng, vmark, stamp, bound):
     """Solve the collapse LP for v (into vout) and verify the result exactly.
 
     Returns (ok, why): why = 1 LP infeasible / degenerate face / containment, 2 a vertex in front
     of a new face (convexity), 3 v in front of an unchanged face.
     """
     a, b, c, origin, scale, local = collapse_rows(t, verts, valive, faces, falive, planes, keep, keep_vertex,
-                                                  nr, k, rfaces, ring, vmark, stamp, eps_convex, near)
+                                                  nr, k, rfaces, ring, vmark, stamp, eps_convex, near, bound)
     # a tiny fixed tilt breaks ties between equal-volume optima deterministically
     cn = np.sqrt(np.sum(c * c)) + 1e-300
     c[0] += 1e-9 * cn
@@ -424,7 +431,7 @@ def _place_and_verify(t, verts, valive, nv, faces, falive, planes, keep, keep_ve
 
 @njit(cache=True)
 def _evaluate(t, verts, valive, nv, faces, falive, planes, quad, keep, keep_vertex, tol, eps_convex, near,
-              min_height, prio, rfaces, ring, es, ee, newplanes, vout, rng, vmark, stamp):
+              min_height, prio, rfaces, ring, es, ee, newplanes, vout, rng, vmark, stamp, bound):
     """Best legal collapse of triangle t: returns (ok, cost, n_region, k); v in vout."""
     nr, k = _region(t, faces, falive, rfaces, ring, es, ee)
     if nr < 0:
@@ -434,7 +441,7 @@ def _evaluate(t, verts, valive, nv, faces, falive, planes, quad, keep, keep_vert
         vmark[ring[i]] = stamp[0]
     ok, why = _place_and_verify(t, verts, valive, nv, faces, falive, planes, keep, keep_vertex, tol,
                                 eps_convex, near, min_height, rfaces, ring, nr, k, newplanes, vout, rng,
-                                vmark, stamp[0])
+                                vmark, stamp[0], bound)
     if not ok:
         return False, np.inf, nr, k
     v = vout
@@ -469,7 +476,7 @@ def _evaluate(t, verts, valive, nv, faces, falive, planes, quad, keep, keep_vert
 
 @njit(cache=True)
 def simplify_kernel(verts0, faces0, keep, keep_vertex, min_faces, tol, eps_convex, near, min_height, prio,
-                    dirty_depth):
+                    dirty_depth, bound):
     """Greedy constrained triangle collapses, cheapest first, until min_faces or none is legal.
 
     keep_vertex[p]: index of the input vertex equal to keep[p], or -1.
@@ -509,7 +516,7 @@ def simplify_kernel(verts0, faces0, keep, keep_vertex, min_faces, tol, eps_conve
     for f in range(nf):
         ok, cst, nr, k = _evaluate(f, verts, valive, nv, faces, falive, planes, quad, keep, keep_vertex, tol,
                                    eps_convex, near, min_height, prio, rfaces, ring, es, ee, newplanes, vout, rng,
-                                   emark, estamp)
+                                   emark, estamp, bound)
         cost[f] = cst
     nalive = nf
     ncollapse = 0
@@ -532,14 +539,14 @@ def simplify_kernel(verts0, faces0, keep, keep_vertex, min_faces, tol, eps_conve
                 if falive[f]:
                     ok, cst, nr, k = _evaluate(f, verts, valive, nv, faces, falive, planes, quad, keep, keep_vertex,
                                                tol, eps_convex, near, min_height, prio, rfaces, ring, es, ee,
-                                               newplanes, vout, rng, emark, estamp)
+                                               newplanes, vout, rng, emark, estamp, bound)
                     cost[f] = cst
                     nevals += 1
             continue
         swept = False
         ok, cst, nr, k = _evaluate(best, verts, valive, nv, faces, falive, planes, quad, keep, keep_vertex, tol,
                                    eps_convex, near, min_height, prio, rfaces, ring, es, ee, newplanes, vout, rng,
-                                   emark, estamp)
+                                   emark, estamp, bound)
         if not ok:
             cost[best] = np.inf
             continue
@@ -584,7 +591,7 @@ def simplify_kernel(verts0, faces0, keep, keep_vertex, min_faces, tol, eps_conve
             if vmark[faces[f, 0]] >= stamp - 1 or vmark[faces[f, 1]] >= stamp - 1 or vmark[faces[f, 2]] >= stamp - 1:
                 ok, cst, nr2, k2 = _evaluate(f, verts, valive, nv + 1, faces, falive, planes, quad, keep, keep_vertex,
                                              tol, eps_convex, near, min_height, prio, rfaces, ring, es, ee,
-                                             newplanes, vout, rng, emark, estamp)
+                                             newplanes, vout, rng, emark, estamp, bound)
                 nevals += 1
                 cost[f] = cst
         nv += 1

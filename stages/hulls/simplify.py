@@ -51,7 +51,7 @@ PRIORITIES = {"qem": kernels.PRIO_QEM, "volume": kernels.PRIO_VOLUME}
 
 
 def simplify_hull(mesh: ConvexMesh, min_triangles: int, *, priority: str = "qem",
-                  keep: np.ndarray | None = None) -> ConvexMesh:
+                  keep: np.ndarray | None = None, max_offset: float | None = None) -> ConvexMesh:
     """Simplify a convex mesh by constrained triangle collapses down to >= min_triangles faces.
 
     mesh: a convex outward-oriented triangle mesh (e.g. from inflate_hull).
@@ -59,6 +59,10 @@ def simplify_hull(mesh: ConvexMesh, min_triangles: int, *, priority: str = "qem"
     priority: 'qem' (paper) or 'volume' (least added volume first).
     keep: (p, 3) points that must stay inside (default: mesh's own vertices, i.e. the result
         contains the input hull).
+    max_offset: optional error bound (m): new vertices stay behind every input face plane moved
+        out by max_offset (linear rows of the same LP), so the result stays within about that
+        distance of the input (more at sharp input vertices, where offset planes meet further out).
+        None = no bound (the paper: only the face floor stops it).
     Returns a convex mesh with fewer or equal faces containing `keep` (to 1e-9 x bbox diagonal).
     """
     if priority not in PRIORITIES:
@@ -73,10 +77,16 @@ def simplify_hull(mesh: ConvexMesh, min_triangles: int, *, priority: str = "qem"
     else:
         keep = np.ascontiguousarray(keep, dtype=np.float64)
         keep_vertex = np.full(keep.shape[0], -1, dtype=np.int64)
+    bound = np.zeros((0, 4))
+    if max_offset is not None:
+        if not (np.isfinite(max_offset) and max_offset >= 0):
+            raise ContractError(f"simplify_hull: max_offset must be a non-negative distance, got {max_offset}")
+        bound = np.ascontiguousarray(mesh.planes)
+        bound[:, 3] += max_offset
     out_v, valive, out_f, falive, _, _ = kernels.simplify_kernel(
         verts, mesh.faces.astype(np.int64), keep, keep_vertex, min_faces, TOL_RELATIVE * diag,
         CONVEX_MARGIN_RELATIVE * diag, NEAR_RELATIVE * diag, MIN_HEIGHT_RELATIVE * diag, PRIORITIES[priority],
-        DIRTY_DEPTH)
+        DIRTY_DEPTH, bound)
     faces = out_f[falive]
     used = np.flatnonzero(valive)
     remap = np.full(valive.shape[0], -1, dtype=np.int64)
