@@ -231,7 +231,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
         from stages.hulls import fit_colliders
         with _Timer(summary, "colliders") as r:
             colliders = fit_colliders(character, split, delta=s["colliders"]["delta"],
-                                      min_triangles=s["colliders"]["min_triangles"])
+                                      min_triangles=s["colliders"]["min_triangles"],
+                                      max_offset=s["colliders"]["max_offset"])
             faces = [h.report.faces_simplified for h in colliders.hulls]
             r.sizes.update(hulls=len(colliders.hulls), spheres=len(colliders.spheres), faces=int(np.sum(faces)))
         summary.tables["collider fit"] = logs.log_colliders(rec, character, motion, colliders)

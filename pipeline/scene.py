@@ -126,6 +126,7 @@ SCENE_SPEC = {
         "delta": Field("float", 0.01, "inflation thickness, m", lo=0.0, hi=0.5),
         "rigid_threshold": Field("float", 0.9, "dominant skin weight that makes a vertex rigid", lo=0.0, lo_open=True, hi=1.0),
         "min_triangles": Field("int", 40, "simplification stops at this many hull faces", lo=4),
+        "max_offset": Field("float", 0.02, "simplified hull stays within this distance (m) of the inflated one; null = unbounded (paper)", lo=0.0, lo_open=True),
         "map": Field("section", {}, "map volume per hull", fields={
             "type": Field("str", "auto", "auto | sphere | cylinder", choices=("auto", "sphere", "cylinder")),
             "n_theta": Field("int", 12, "cells around", lo=3, hi=720),

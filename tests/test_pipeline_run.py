@@ -1,0 +1,96 @@
+"""End to end: a scene through every stage into a recording, read back with the SDK's reader."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.run import frame_times, load_character, run_scene, sample_scene_motion
+from pipeline.scene import load_scene, parse_scene_text
+from tests.rrd_read import content, entity_paths, rows, timelines
+
+REPO = Path(__file__).resolve().parent.parent
+FRAMES = 6
+
+
+@pytest.fixture(scope="module")
+def default_run(tmp_path_factory):
+    scene = load_scene(REPO / "scenes" / "default.yaml")
+    out = tmp_path_factory.mktemp("rec") / "default.rrd"
+    summary = run_scene(scene, output=out, frames=FRAMES, progress=False)
+    return scene, out, summary
+
+
+def test_every_stage_is_logged(default_run):
+    scene, out, summary = default_run
+    assert summary.output == out and out.is_file()
+    assert [s.name for s in summary.stages] == ["rig", "colliders", "maps", "garments", "simulation"]
+    paths = entity_paths(out)
+    for p in ["/rig/mesh", "/rig/skeleton", "/rig/joints", "/rig/regions", "/colliders/report", "/maps/report",
+              "/sim/skirt/mesh", "/sim/penetrations/colliders", "/sim/penetrations/body", "/sim/step_ms",
+              "/meta/scene", "/meta/provenance", "/meta/summary", "/sim/params"]:
+        assert p in paths, p
+    hulls = {p.split("/")[3] for p in paths if p.startswith("/colliders/hulls/")}
+    assert len(hulls) == summary.stages[0].sizes["hulls"]
+    for bone in hulls:
+        for part in ("raw", "inflated", "simplified", "region"):
+            assert f"/colliders/hulls/{bone}/{part}" in paths
+        assert f"/maps/{bone}/obb" in paths and f"/maps/{bone}/cells" in paths
+    assert timelines(out) == {"frame", "sim_time"}
+
+
+def test_per_frame_series_have_one_value_per_frame(default_run):
+    _, out, _ = default_run
+    for entity in ("sim/penetrations/colliders", "sim/penetrations/body", "sim/step_ms"):
+        got = rows(out, entity, "Scalars:scalars")
+        assert [f for f, _ in got] == list(range(FRAMES)), entity
+    pen = np.array([v[0] for _, v in rows(out, "sim/penetrations/colliders", "Scalars:scalars")])
+    assert (pen[1:] == 0).all()          # nothing left inside a collider after the response
+    cloth = rows(out, "sim/skirt/mesh", "Mesh3D:vertex_positions")
+    assert [f for f, _ in cloth] == list(range(FRAMES))
+    assert all(np.isfinite(v).all() for _, v in cloth)
+    assert not np.allclose(cloth[0][1], cloth[-1][1])   # the cloth moved
+
+
+def test_skinned_mesh_in_the_recording_is_the_world_frame_skin(default_run):
+    scene, out, _ = default_run
+    from stages.rig.skinning import skin
+    character = load_character(scene)
+    motion = sample_scene_motion(scene, character, frame_times(scene, FRAMES))
+    world = skin(character, motion) + motion.root_translation[:, None, :]
+    got = rows(out, "rig/mesh", "Mesh3D:vertex_positions")
+    assert len(got) == FRAMES
+    np.testing.assert_allclose(got[-1][1], world[-1], atol=1e-5)
+    assert np.linalg.norm(motion.root_translation[-1]) > 0.05   # the walk moves the root
+
+
+def test_scene_yaml_and_summary_are_stored(default_run):
+    scene, out, _ = default_run
+    text = str(rows(out, "meta/scene", "TextDocument:text")[0][1])
+    assert "at_joint: pelvis" in text
+    summary = str(rows(out, "meta/summary", "TextDocument:text")[0][1])
+    assert "colliders" in summary and "simulation" in summary
+    prov = str(rows(out, "meta/provenance", "TextDocument:text")[0][1])
+    assert "rerun-sdk" in prov and "CC-BY 4.0" in prov
+
+
+def test_same_scene_gives_the_same_recording(default_run, tmp_path):
+    scene, out, _ = default_run
+    again = tmp_path / "again.rrd"
+    run_scene(scene, output=again, frames=FRAMES, progress=False)
+    wall = ("/sim/step_ms", "/sim/report", "/meta/summary")   # wall-clock measurements differ by nature
+    a = [(e, b) for e, b in content(out) if e not in wall]
+    b = [(e, b) for e, b in content(again) if e not in wall]
+    assert len(a) == len(b) and all(ea == eb and ba.equals(bb) for (ea, ba), (eb, bb) in zip(a, b))
+
+
+def test_failed_run_keeps_the_earlier_recording(default_run, tmp_path):
+    scene, out, _ = default_run
+    before = out.read_bytes()
+    bad = parse_scene_text(scene.text.replace("at_joint: pelvis", "at_joint: nowhere"), source="bad.yaml")
+    from pipeline.schema import SceneError
+    with pytest.raises(SceneError, match="nowhere"):
+        run_scene(bad, output=out, frames=2, progress=False)
+    assert out.read_bytes() == before
+    assert sorted(p.name for p in out.parent.iterdir()) == [out.name]
