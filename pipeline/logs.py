@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 import rerun as rr
-import scipy.sparse
 
+from stages.rig.skinning import vertex_normals
 from stages.rig.types import Character, Motion, RegionSplit
 
 
@@ -26,21 +26,6 @@ def palette(n: int, seed: int = 7) -> np.ndarray:
     b = np.choose(i, [p, p, t, v, v, q])
     rgb = (np.stack([r, g, b], 1) * 255).astype(np.uint8)
     return np.column_stack([rgb, np.full(n, 255, np.uint8)])
-
-
-def vertex_normals(positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals for one (V, 3) or a stack (F, V, 3) of positions."""
-    p = positions if positions.ndim == 3 else positions[None]
-    f, v = p.shape[:2]
-    a, b, c = (p[:, triangles[:, k]] for k in range(3))
-    fn = np.cross(b - a, c - a)                                   # (F, T, 3), |fn| = 2 * area
-    t = triangles.shape[0]
-    incidence = scipy.sparse.csr_matrix(
-        (np.ones(3 * t), (triangles.T.ravel(), np.tile(np.arange(t), 3))), shape=(v, t))
-    n = (incidence @ fn.transpose(1, 0, 2).reshape(t, -1)).reshape(v, f, 3).transpose(1, 0, 2)
-    norm = np.linalg.norm(n, axis=-1, keepdims=True)
-    n = n / np.where(norm > 0, norm, 1.0)
-    return n if positions.ndim == 3 else n[0]
 
 
 def time_columns(times: np.ndarray, first_frame: int = 0) -> list:

@@ -8,6 +8,7 @@ The relative frame equals world at frame 0.
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse
 
 from stages.rig.kernels import lbs_kernel
 from stages.rig.transforms import forward_kinematics, slerp, trs_to_matrix
@@ -127,12 +128,19 @@ def benchmark_skin(character: Character, n_frames: int = 100, repeats: int = 5) 
 
 
 def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals (V, 3); vertices in no non-degenerate triangle get 0."""
+    """Area-weighted unit vertex normals for (V, 3) positions or a (F, V, 3) stack of them.
+
+    Vertices in no non-degenerate triangle get 0. One sparse vertex-triangle incidence product per
+    call, so a whole animation's normals cost one matrix multiply.
+    """
     v = np.asarray(vertices, np.float64)
+    p = v if v.ndim == 3 else v[None]
     tri = np.asarray(triangles, np.int64)
-    fn = np.cross(v[tri[:, 1]] - v[tri[:, 0]], v[tri[:, 2]] - v[tri[:, 0]])  # |fn| = 2 * area
-    n = np.zeros_like(v)
-    for c in range(3):
-        n[:, c] = np.bincount(tri.ravel(), weights=np.repeat(fn[:, c], 3), minlength=v.shape[0])
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, length, out=np.zeros_like(n), where=length > 1e-300)
+    f, nv, t = p.shape[0], p.shape[1], tri.shape[0]
+    a = p[:, tri[:, 0]]
+    fn = np.cross(p[:, tri[:, 1]] - a, p[:, tri[:, 2]] - a)  # (F, T, 3), |fn| = 2 * area
+    incidence = scipy.sparse.csr_matrix((np.ones(3 * t), (tri.T.ravel(), np.tile(np.arange(t), 3))), shape=(nv, t))
+    n = (incidence @ fn.transpose(1, 0, 2).reshape(t, -1)).reshape(nv, f, 3).transpose(1, 0, 2)
+    length = np.linalg.norm(n, axis=-1, keepdims=True)
+    n = np.divide(n, length, out=np.zeros_like(n), where=length > 1e-300)
+    return n if v.ndim == 3 else n[0]
