@@ -5,9 +5,20 @@ x (N, 3) current positions, xp (N, 3) previous positions (Verlet), both in the r
 Poses: fwd (J, 4, 4) bone-local -> relative frame at the END of the step, inv (J, 4, 4) its inverse,
 inv0 (J, 4, 4) the inverse at the START of the step (for friction relative to a moving collider).
 
-Determinism: every parallel loop writes only its own particle / triangle / spring partition, and
-the spring partitions touch disjoint particles (see `partition_springs`), so results do not depend
-on the thread count or scheduling.
+Speed (issue 6): the kernels are serial (on the 2-core machine a parallel region per phase cost more
+than it saved under load) and a whole chunk of frames runs in one call (`run_frames`), so nothing is
+allocated and no Python runs between steps. Collisions: per step each collider gets a world bounding
+sphere and one 3x4 matrix world -> *query frame* (hulls: the OBB-local frame of the maps; spheres:
+bone-local with the centre at the origin); a particle is transformed only after the world sphere
+test, the hull response reports its exit face (the contact normal, no face scan), and a particle is
+re-checked only against colliders whose world sphere holds its new position.
+
+Cloth-side argument tuples (built once by simulate.py, unpacked for free inside njit):
+    cloth = (x, xp, inv_mass, attach_joint, attach_local, si, sj, rest, wi, wj, tris, tri_mass, force)
+    cols  = (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
+             tq, tq0, fq, cw, bin_start, bin_items, bin_range)
+    prm   = (h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method)
+    flags = (corrected, inside, speed2)
 """
 from __future__ import annotations
 
@@ -19,13 +30,15 @@ from numba import njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from stages.maps.kernels import hull_collide
+from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER, TWO_PI, ZERO_DIR
+from stages.maps.types import KIND_CYLINDER
 
 KIND_HULL = 0
 KIND_SPHERE = 1
 PUSH_EPS = 1e-7      # m: responded particles end this far outside, so the inclusive inside test says "out"
 TOUCH_EPS = 1e-9     # m: a response moving a particle less than this is a touch, not a penetration
 N_BINS = 64          # broad phase: horizontal slabs over the colliders' height range
+_EYE3 = np.eye(3)    # the query frame of a sphere is not rotated
 
 # timer slots (CPU cycles; simulate.py converts to seconds)
 T_INTEGRATE = 0
@@ -59,78 +72,116 @@ def _apply(m, x, y, z):
             m[2, 0] * x + m[2, 1] * y + m[2, 2] * z + m[2, 3])
 
 
+@njit(cache=True, inline="always")
+def _apply12(a, c, x, y, z):
+    """Row c of a (C, 12) array of row-major 3x4 affine matrices applied to (x, y, z)."""
+    return (a[c, 0] * x + a[c, 1] * y + a[c, 2] * z + a[c, 3],
+            a[c, 4] * x + a[c, 5] * y + a[c, 6] * z + a[c, 7],
+            a[c, 8] * x + a[c, 9] * y + a[c, 10] * z + a[c, 11])
+
+
+@njit(cache=True, inline="always")
+def _rotate12(a, c, x, y, z):
+    return (a[c, 0] * x + a[c, 1] * y + a[c, 2] * z,
+            a[c, 4] * x + a[c, 5] * y + a[c, 6] * z,
+            a[c, 8] * x + a[c, 9] * y + a[c, 10] * z)
+
+
 # -- forces + Verlet ------------------------------------------------------------------------------
-@njit(cache=True, parallel=True)
-def aero_forces(x, xp, inv_mass, tris, h, s, d_prev, wind, k_drag, k_lift, out):
-    """Per-triangle aerodynamic force (N) from the air velocity relative to the triangle.
+@njit(cache=True, inline="always")
+def _tri_aero(x, xp, tri_mass, t, a, b, c, h, s, d_prev, wind, k_drag, k_lift):
+    """Aerodynamic force (N) on triangle t = (a, b, c) from the air velocity relative to it.
 
     Vertex velocity v = (x - xp + s d_prev) / h (Verlet estimate, world velocity scaled by the
     inertia scale s). w = wind - mean v; n' = unit normal oriented along w; c = n'.w/|w|.
     drag = k_drag A c |w|^2 w/|w|; lift = k_lift A c |w|^2 (n' - c w/|w|)   (k = 0.5 rho C).
+    With N = (b - a) x (c - a) (|N| = 2A) these are drag = k_drag/2 |N.w| w and
+    lift = k_lift/2 (N.w) |w|/|N| (N - (N.w)/|w|^2 w): one square root per triangle. Explicit drag
+    is unstable once it would more than stop the triangle within a step: |F| is capped at m |w| / h.
     """
-    for t in prange(tris.shape[0]):
+    wx = wind[0] - ((x[a, 0] - xp[a, 0]) + (x[b, 0] - xp[b, 0]) + (x[c, 0] - xp[c, 0]) + 3.0 * s * d_prev[0]) / (3.0 * h)
+    wy = wind[1] - ((x[a, 1] - xp[a, 1]) + (x[b, 1] - xp[b, 1]) + (x[c, 1] - xp[c, 1]) + 3.0 * s * d_prev[1]) / (3.0 * h)
+    wz = wind[2] - ((x[a, 2] - xp[a, 2]) + (x[b, 2] - xp[b, 2]) + (x[c, 2] - xp[c, 2]) + 3.0 * s * d_prev[2]) / (3.0 * h)
+    e1x = x[b, 0] - x[a, 0]
+    e1y = x[b, 1] - x[a, 1]
+    e1z = x[b, 2] - x[a, 2]
+    e2x = x[c, 0] - x[a, 0]
+    e2y = x[c, 1] - x[a, 1]
+    e2z = x[c, 2] - x[a, 2]
+    nx = e1y * e2z - e1z * e2y
+    ny = e1z * e2x - e1x * e2z
+    nz = e1x * e2y - e1y * e2x
+    n2 = nx * nx + ny * ny + nz * nz
+    w2 = wx * wx + wy * wy + wz * wz
+    if n2 <= 1e-40 or w2 <= 1e-20:
+        return 0.0, 0.0, 0.0
+    nw = nx * wx + ny * wy + nz * wz
+    fd = 0.5 * k_drag * abs(nw)
+    fl = 0.5 * k_lift * nw * math.sqrt(w2 / n2)
+    g = nw / w2
+    fx = fd * wx + fl * (nx - g * wx)
+    fy = fd * wy + fl * (ny - g * wy)
+    fz = fd * wz + fl * (nz - g * wz)
+    f2 = fx * fx + fy * fy + fz * fz
+    mt = tri_mass[t]
+    cap2 = mt * mt * w2 / (h * h)
+    if mt > 0.0 and f2 > cap2:
+        k = math.sqrt(cap2 / f2)
+        fx *= k
+        fy *= k
+        fz *= k
+    return fx, fy, fz
+
+
+@njit(cache=True)
+def aero_forces(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, out):
+    """(T, 3) per-triangle aerodynamic forces into out (see _tri_aero). tri_mass (T,): the mass of
+    the triangle's free vertices (a third of each free vertex's lumped mass), kg."""
+    for t in range(tris.shape[0]):
+        fx, fy, fz = _tri_aero(x, xp, tri_mass, t, tris[t, 0], tris[t, 1], tris[t, 2], h, s, d_prev, wind,
+                               k_drag, k_lift)
+        out[t, 0] = fx
+        out[t, 1] = fy
+        out[t, 2] = fz
+
+
+@njit(cache=True)
+def aero_accumulate(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, force):
+    """force (N, 3) = sum over each vertex's triangles of the triangle's force / 3 (triangle order)."""
+    force[:] = 0.0
+    for t in range(tris.shape[0]):
         a = tris[t, 0]
         b = tris[t, 1]
         c = tris[t, 2]
-        wx = wind[0] - ((x[a, 0] - xp[a, 0]) + (x[b, 0] - xp[b, 0]) + (x[c, 0] - xp[c, 0])) / (3.0 * h) - s * d_prev[0] / h
-        wy = wind[1] - ((x[a, 1] - xp[a, 1]) + (x[b, 1] - xp[b, 1]) + (x[c, 1] - xp[c, 1])) / (3.0 * h) - s * d_prev[1] / h
-        wz = wind[2] - ((x[a, 2] - xp[a, 2]) + (x[b, 2] - xp[b, 2]) + (x[c, 2] - xp[c, 2])) / (3.0 * h) - s * d_prev[2] / h
-        e1x = x[b, 0] - x[a, 0]
-        e1y = x[b, 1] - x[a, 1]
-        e1z = x[b, 2] - x[a, 2]
-        e2x = x[c, 0] - x[a, 0]
-        e2y = x[c, 1] - x[a, 1]
-        e2z = x[c, 2] - x[a, 2]
-        nx = e1y * e2z - e1z * e2y
-        ny = e1z * e2x - e1x * e2z
-        nz = e1x * e2y - e1y * e2x
-        n2 = math.sqrt(nx * nx + ny * ny + nz * nz)   # = 2 area
-        w2 = wx * wx + wy * wy + wz * wz
-        if n2 <= 1e-20 or w2 <= 1e-20:
-            out[t, 0] = 0.0
-            out[t, 1] = 0.0
-            out[t, 2] = 0.0
-            continue
-        wn = math.sqrt(w2)
-        area = 0.5 * n2
-        nx /= n2
-        ny /= n2
-        nz /= n2
-        cs = (nx * wx + ny * wy + nz * wz) / wn
-        if cs < 0.0:
-            nx = -nx
-            ny = -ny
-            nz = -nz
-            cs = -cs
-        fd = k_drag * area * cs * w2 / wn
-        fl = k_lift * area * cs * w2
-        # explicit drag is unstable once it would more than stop the triangle within one step:
-        # cap the force at (triangle mass) |w| / h
-        mt = 0.0
+        fx, fy, fz = _tri_aero(x, xp, tri_mass, t, a, b, c, h, s, d_prev, wind, k_drag, k_lift)
+        fx /= 3.0
+        fy /= 3.0
+        fz /= 3.0
         for v in (a, b, c):
-            if inv_mass[v] > 0.0:
-                mt += 1.0 / (3.0 * inv_mass[v])
-        fmax = mt * wn / h
-        ftot = math.sqrt(fd * fd * w2 + fl * fl * (1.0 - cs * cs))
-        if mt > 0.0 and ftot > fmax:
-            fd *= fmax / ftot
-            fl *= fmax / ftot
-        out[t, 0] = fd * wx + fl * (nx - cs * wx / wn)
-        out[t, 1] = fd * wy + fl * (ny - cs * wy / wn)
-        out[t, 2] = fd * wz + fl * (nz - cs * wz / wn)
+            force[v, 0] += fx
+            force[v, 1] += fy
+            force[v, 2] += fz
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True)
 def integrate(x, xp, inv_mass, attach_joint, attach_local, fwd, h, gravity, damping, s, d_prev, d_next,
-              use_aero, tri_force, vt_start, vt_tri):
+              use_aero, force):
     """Verlet step of every particle; attached particles follow their bone, pinned ones stay.
 
-    x_new = x + (1 - damping) (x - xp + s d_prev) - s d_next + a h^2, a = g + F_aero / m,
+    x_new = x + (1 - damping) (x - xp + s d_prev) - s d_next + a h^2, a = g + force / m,
     then xp <- x, x <- x_new. d_prev / d_next: root translation over the previous / this step.
+    force (N, 3): external force per vertex (aerodynamics), read only when use_aero.
     """
     hh = h * h
     keep = 1.0 - damping
-    for i in prange(x.shape[0]):
+    gx = gravity[0] * hh
+    gy = gravity[1] * hh
+    gz = gravity[2] * hh
+    # root-translation terms shared by every free particle
+    rx = keep * s * d_prev[0] - s * d_next[0]
+    ry = keep * s * d_prev[1] - s * d_next[1]
+    rz = keep * s * d_prev[2] - s * d_next[2]
+    for i in range(x.shape[0]):
         ox = x[i, 0]
         oy = x[i, 1]
         oz = x[i, 2]
@@ -143,24 +194,16 @@ def integrate(x, xp, inv_mass, attach_joint, attach_local, fwd, h, gravity, damp
             ny = oy
             nz = oz
         else:
-            ax = gravity[0]
-            ay = gravity[1]
-            az = gravity[2]
+            ax = gx
+            ay = gy
+            az = gz
             if use_aero:
-                fx = 0.0
-                fy = 0.0
-                fz = 0.0
-                for k in range(vt_start[i], vt_start[i + 1]):
-                    t = vt_tri[k]
-                    fx += tri_force[t, 0]
-                    fy += tri_force[t, 1]
-                    fz += tri_force[t, 2]
-                ax += fx * w / 3.0
-                ay += fy * w / 3.0
-                az += fz * w / 3.0
-            nx = ox + keep * (ox - xp[i, 0] + s * d_prev[0]) - s * d_next[0] + ax * hh
-            ny = oy + keep * (oy - xp[i, 1] + s * d_prev[1]) - s * d_next[1] + ay * hh
-            nz = oz + keep * (oz - xp[i, 2] + s * d_prev[2]) - s * d_next[2] + az * hh
+                ax += force[i, 0] * w * hh
+                ay += force[i, 1] * w * hh
+                az += force[i, 2] * w * hh
+            nx = ox + keep * (ox - xp[i, 0]) + rx + ax
+            ny = oy + keep * (oy - xp[i, 1]) + ry + ay
+            nz = oz + keep * (oz - xp[i, 2]) + rz + az
         xp[i, 0] = ox
         xp[i, 1] = oy
         xp[i, 2] = oz
@@ -170,74 +213,36 @@ def integrate(x, xp, inv_mass, attach_joint, attach_local, fwd, h, gravity, damp
 
 
 # -- springs --------------------------------------------------------------------------------------
-@njit(cache=True, inline="always")
-def _correct_range(x, si, sj, rest, wi, wj, k0, k1):
-    """Gauss-Seidel position correction of springs k0..k1-1 in order (stretch and compression)."""
-    for k in range(k0, k1):
-        i = si[k]
-        j = sj[k]
-        dx = x[j, 0] - x[i, 0]
-        dy = x[j, 1] - x[i, 1]
-        dz = x[j, 2] - x[i, 2]
-        d2 = dx * dx + dy * dy + dz * dz
-        if d2 <= 1e-24:
-            continue
-        c = 1.0 - rest[k] / math.sqrt(d2)
-        a = wi[k] * c
-        b = wj[k] * c
-        x[i, 0] += a * dx
-        x[i, 1] += a * dy
-        x[i, 2] += a * dz
-        x[j, 0] -= b * dx
-        x[j, 1] -= b * dy
-        x[j, 2] -= b * dz
-
-
-@njit(cache=True, parallel=True)
-def _correct_parts(x, si, sj, rest, wi, wj, part_start, n_parts):
-    for p in prange(n_parts):
-        _correct_range(x, si, sj, rest, wi, wj, part_start[p], part_start[p + 1])
-
-
 @njit(cache=True)
-def correct_springs(x, si, sj, rest, wi, wj, part_start, iterations):
-    """`iterations` rounds; each: the partitions in parallel (disjoint particles), then the springs
-    crossing partitions (last block of part_start) sequentially.
-
-    wi, wj: per spring, stiffness * w_i / (w_i + w_j) and stiffness * w_j / (w_i + w_j).
-    """
-    n_parts = part_start.size - 2
+def correct_springs(x, si, sj, rest, wi, wj, iterations):
+    """`iterations` Gauss-Seidel rounds of position correction over the springs in array order
+    (stretch and compression). wi, wj: per spring, stiffness * w_i / (w_i + w_j) and
+    stiffness * w_j / (w_i + w_j)."""
     for _ in range(iterations):
-        if n_parts > 1:
-            _correct_parts(x, si, sj, rest, wi, wj, part_start, n_parts)
-        else:
-            _correct_range(x, si, sj, rest, wi, wj, part_start[0], part_start[1])
-        _correct_range(x, si, sj, rest, wi, wj, part_start[n_parts], part_start[n_parts + 1])
+        for k in range(si.size):
+            i = si[k]
+            j = sj[k]
+            dx = x[j, 0] - x[i, 0]
+            dy = x[j, 1] - x[i, 1]
+            dz = x[j, 2] - x[i, 2]
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 <= 1e-24:
+                continue
+            c = 1.0 - rest[k] / math.sqrt(d2)
+            a = wi[k] * c
+            b = wj[k] * c
+            x[i, 0] += a * dx
+            x[i, 1] += a * dy
+            x[i, 2] += a * dz
+            x[j, 0] -= b * dx
+            x[j, 1] -= b * dy
+            x[j, 2] -= b * dz
 
 
-def partition_springs(positions: np.ndarray, springs: np.ndarray, n_parts: int = 2):
-    """Order springs for `correct_springs`: (order, part_start).
-
-    Particles are split at the median of their longest axis into n_parts slabs; a spring whose two
-    particles lie in one slab goes to that slab's block, the rest to the last (sequential) block.
-    Inside a block springs are ordered by colour (spring_colours), then input order.
-    """
-    n = positions.shape[0]
-    if n_parts < 2 or n < 64:
-        n_parts = 1
-    if n_parts == 1:
-        block = np.zeros(springs.shape[0], np.int64)
-    else:
-        axis = int(np.argmax(np.ptp(positions, axis=0)))
-        rank = np.empty(n, np.int64)
-        rank[np.argsort(positions[:, axis], kind="stable")] = np.arange(n)
-        part = (rank * n_parts) // n
-        pa, pb = part[springs[:, 0]], part[springs[:, 1]]
-        block = np.where(pa == pb, pa, n_parts)
-    colour = spring_colours(springs.astype(np.int64), n)
-    order = np.lexsort((np.arange(springs.shape[0]), colour, block))
-    part_start = np.searchsorted(block[order], np.arange(n_parts + 2)).astype(np.int64)
-    return order, part_start
+def order_springs(springs: np.ndarray, n: int) -> np.ndarray:
+    """Order for `correct_springs`: by colour (spring_colours), then input order."""
+    colour = spring_colours(np.ascontiguousarray(springs, dtype=np.int64), n)
+    return np.lexsort((np.arange(springs.shape[0]), colour))
 
 
 @njit(cache=True)
@@ -261,227 +266,528 @@ def spring_colours(springs, n):
 
 # -- collisions -----------------------------------------------------------------------------------
 @njit(cache=True)
-def build_bins(fwd, col_joint, col_bcenter, col_bradius, cw, bin_start, bin_items, bin_range):
-    """World bounding spheres of the colliders (cw (C, 4): centre, radius^2) and the y slabs.
+def collider_frames(fwd, inv, inv0, m, col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center,
+                    tq, tq0, fq, cw):
+    """Per collider c, for one step: tq[c] / tq0[c] (12,) the 3x4 map world (end / start of the step)
+    -> query frame, fq[c] query frame -> world (end), cw[c] = world bounding sphere (centre, r, r^2).
 
-    bin_range (2,): y of the first slab and the slab height. bin_start (N_BINS + 1,), bin_items
-    (C * N_BINS,): CSR list of the colliders whose sphere overlaps each slab.
-    """
-    nc = col_joint.size
-    lo = np.inf
-    hi = -np.inf
-    for c in range(nc):
-        px, py, pz = _apply(fwd[col_joint[c]], col_bcenter[c, 0], col_bcenter[c, 1], col_bcenter[c, 2])
-        r = col_bradius[c]
+    Query frame: hulls, the OBB-local frame of the maps (q = axes (inv p - center)); spheres, bone-local
+    shifted so the sphere's centre is the origin. The bounding radius grows with the pose's largest
+    axis scale (scaled rigs)."""
+    for c in range(col_joint.size):
+        j = col_joint[c]
+        if col_kind[c] == KIND_HULL:
+            h = col_index[c]
+            r = m.axes[h]
+            ctr = m.center[h]
+        else:
+            r = _EYE3
+            ctr = sph_center[col_index[c]]
+        for dst, src in ((tq, inv[j]), (tq0, inv0[j])):
+            for a in range(3):
+                for b in range(3):
+                    dst[c, 4 * a + b] = r[a, 0] * src[0, b] + r[a, 1] * src[1, b] + r[a, 2] * src[2, b]
+                dst[c, 4 * a + 3] = (r[a, 0] * (src[0, 3] - ctr[0]) + r[a, 1] * (src[1, 3] - ctr[1])
+                                     + r[a, 2] * (src[2, 3] - ctr[2]))
+        f = fwd[j]
+        for a in range(3):
+            for b in range(3):
+                fq[c, 4 * a + b] = f[a, 0] * r[b, 0] + f[a, 1] * r[b, 1] + f[a, 2] * r[b, 2]
+            fq[c, 4 * a + 3] = f[a, 0] * ctr[0] + f[a, 1] * ctr[1] + f[a, 2] * ctr[2] + f[a, 3]
+        px, py, pz = _apply(f, col_bcenter[c, 0], col_bcenter[c, 1], col_bcenter[c, 2])
+        sc = 0.0
+        for b in range(3):
+            sc = max(sc, f[0, b] * f[0, b] + f[1, b] * f[1, b] + f[2, b] * f[2, b])
+        rad = col_bradius[c] * math.sqrt(sc) * (1.0 + 1e-9)
         cw[c, 0] = px
         cw[c, 1] = py
         cw[c, 2] = pz
-        cw[c, 3] = r * r
-        lo = min(lo, py - r)
-        hi = max(hi, py + r)
+        cw[c, 3] = rad
+        cw[c, 4] = rad * rad
+
+
+@njit(cache=True)
+def build_bins(cw, bin_start, bin_items, bin_range):
+    """Horizontal slabs over the colliders' world bounding spheres cw (C, 5).
+
+    bin_range (2,): y of the first slab and the slab height. bin_start (N_BINS + 1,), bin_items
+    (C * N_BINS,): CSR list of the colliders whose sphere overlaps each slab (ascending c).
+    """
+    nc = cw.shape[0]
     nb = bin_start.size - 1
     if nc == 0:
         bin_start[:] = 0
         bin_range[0] = 0.0
         bin_range[1] = 1.0
         return
+    lo = np.inf
+    hi = -np.inf
+    for c in range(nc):
+        lo = min(lo, cw[c, 1] - cw[c, 3])
+        hi = max(hi, cw[c, 1] + cw[c, 3])
     bh = (hi - lo) / nb + 1e-12
     bin_range[0] = lo
     bin_range[1] = bh
-    counts = np.zeros(nb, np.int64)
+    bin_start[:] = 0
     for c in range(nc):
-        r = col_bradius[c]
-        b0 = max(0, int((cw[c, 1] - r - lo) / bh))
-        b1 = min(nb - 1, int((cw[c, 1] + r - lo) / bh))
+        b0 = max(0, int((cw[c, 1] - cw[c, 3] - lo) / bh))
+        b1 = min(nb - 1, int((cw[c, 1] + cw[c, 3] - lo) / bh))
         for b in range(b0, b1 + 1):
-            counts[b] += 1
-    bin_start[0] = 0
+            bin_start[b + 1] += 1
     for b in range(nb):
-        bin_start[b + 1] = bin_start[b] + counts[b]
-    fill = bin_start[:-1].copy()
-    for c in range(nc):
-        r = col_bradius[c]
-        b0 = max(0, int((cw[c, 1] - r - lo) / bh))
-        b1 = min(nb - 1, int((cw[c, 1] + r - lo) / bh))
+        bin_start[b + 1] += bin_start[b]
+    for c in range(nc):   # fill slab b from bin_start[b]; bin_start[b] is restored below
+        b0 = max(0, int((cw[c, 1] - cw[c, 3] - lo) / bh))
+        b1 = min(nb - 1, int((cw[c, 1] + cw[c, 3] - lo) / bh))
         for b in range(b0, b1 + 1):
-            bin_items[fill[b]] = c
-            fill[b] += 1
+            bin_items[bin_start[b]] = c
+            bin_start[b] += 1
+    for b in range(nb, 0, -1):
+        bin_start[b] = bin_start[b - 1]
+    bin_start[0] = 0
 
 
-@njit(cache=True)
-def _hull_normal(m, h, x, y, z):
-    """Bone-local outward unit normal of the face of hull h whose plane is nearest in front of /
-    least behind the bone-local point (x, y, z) (the face a surface point lies on)."""
-    c = m.center[h]
-    r = m.axes[h]
-    dx = x - c[0]
-    dy = y - c[1]
-    dz = z - c[2]
-    q0 = r[0, 0] * dx + r[0, 1] * dy + r[0, 2] * dz
-    q1 = r[1, 0] * dx + r[1, 1] * dy + r[1, 2] * dz
-    q2 = r[2, 0] * dx + r[2, 1] * dy + r[2, 2] * dz
-    best = -np.inf
-    bf = m.face_start[h]
-    for f in range(m.face_start[h], m.face_start[h + 1]):
-        pl = m.planes[f]
-        s = pl[0] * q0 + pl[1] * q1 + pl[2] * q2 - pl[3]
-        if s > best:
-            best = s
-            bf = f
-    pl = m.planes[bf]
-    return (r[0, 0] * pl[0] + r[1, 0] * pl[1] + r[2, 0] * pl[2],
-            r[0, 1] * pl[0] + r[1, 1] * pl[1] + r[2, 1] * pl[2],
-            r[0, 2] * pl[0] + r[1, 2] * pl[1] + r[2, 2] * pl[2])
+# -- hull queries over unpacked map arrays ---------------------------------------------------------
+# The same arithmetic as stages.maps.kernels (slab point location, the map ray), but taking the
+# MapArrays fields as plain arguments: reading fields of the named tuple inside the per-particle loop
+# cost ~200 ns per query in reference counting, more than the query itself.
+@njit(cache=True, inline="always")
+def _locate_a(loc_base, loc_x, loc_start, loc_y, loc_face, k, x, y):
+    """Face of planar mesh k (= 2h + side) containing (x, y); -1 outside the outline, -2 in a gap."""
+    b0 = loc_base[k]
+    b1 = loc_base[k + 1]
+    if x < loc_x[b0] or x > loc_x[b1 - 1]:
+        return -1
+    lo = b0
+    n = b1 - 1 - b0
+    while n > 1:
+        half = n >> 1
+        lo = lo + half if loc_x[lo + half] <= x else lo
+        n -= half
+    xl = loc_x[lo]
+    f = (x - xl) / (loc_x[lo + 1] - xl)
+    e0 = loc_start[lo]
+    e1 = loc_start[lo + 1]
+    if e1 <= e0:
+        return -2
+    if loc_y[e0, 0] + f * (loc_y[e0, 1] - loc_y[e0, 0]) > y:
+        return -1
+    lo = e0
+    n = e1 - e0
+    while n > 1:
+        half = n >> 1
+        k = lo + half
+        lo = k if loc_y[k, 0] + f * (loc_y[k, 1] - loc_y[k, 0]) <= y else lo
+        n -= half
+    if y > loc_y[lo, 2] + f * (loc_y[lo, 3] - loc_y[lo, 2]):
+        return -1 if lo == e1 - 1 else -2
+    return loc_face[lo]
 
 
 @njit(cache=True, inline="always")
-def _collide_one(m, kind, idx, method, sph_center, sph_radius, lx, ly, lz):
-    """(inside, qx, qy, qz): the response of one collider in its bone-local frame."""
-    if kind == KIND_SPHERE:
-        cx = sph_center[idx, 0]
-        cy = sph_center[idx, 1]
-        cz = sph_center[idx, 2]
+def _hull_hit(planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start,
+              cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, h, method, q0, q1, q2):
+    """(hit, r0, r1, r2, face): inside test and response of hull h for an OBB-local point q, as
+    stages.maps.kernels.hull_collide, plus the face the response point lies on (its plane's normal
+    is the contact normal). METHOD_PAPER: OBB, slab location, two planes; the map ray through q's
+    cell list. METHOD_BRUTE: every plane; the ray against every face. METHOD_NEAREST_PLANE: push to
+    the least penetrated plane."""
+    f0 = face_start[h]
+    f1 = face_start[h + 1]
+    brute = method == METHOD_BRUTE
+    if method == METHOD_PAPER:
+        if abs(q0) > half[h, 0] or abs(q1) > half[h, 1] or abs(q2) > half[h, 2]:
+            return False, q0, q1, q2, -1
+        fu = _locate_a(loc_base, loc_x, loc_start, loc_y, loc_face, 2 * h, q1, q2)
+        if fu == -1:
+            return False, q0, q1, q2, -1
+        fl = _locate_a(loc_base, loc_x, loc_start, loc_y, loc_face, 2 * h + 1, q1, q2)
+        if fl == -1:
+            return False, q0, q1, q2, -1
+        if fu == -2 or fl == -2:             # a numerical gap in a planar mesh: answer exactly
+            brute = True
+        elif (planes[fu, 0] * q0 + planes[fu, 1] * q1 + planes[fu, 2] * q2 - planes[fu, 3] > 0.0
+              or planes[fl, 0] * q0 + planes[fl, 1] * q1 + planes[fl, 2] * q2 - planes[fl, 3] > 0.0):
+            return False, q0, q1, q2, -1
+    # nearest plane (the baseline response, the brute inside test and the ray's fallback)
+    best = -np.inf
+    bf = f0
+    if method != METHOD_PAPER or brute:
+        for f in range(f0, f1):
+            d = planes[f, 0] * q0 + planes[f, 1] * q1 + planes[f, 2] * q2 - planes[f, 3]
+            if d > best:
+                best = d
+                bf = f
+        if best > 0.0:
+            return False, q0, q1, q2, -1
+        if method == METHOD_NEAREST_PLANE:
+            return True, q0 - best * planes[bf, 0], q1 - best * planes[bf, 1], q2 - best * planes[bf, 2], bf
+        brute = method == METHOD_BRUTE
+    # the map ray (stages.maps.kernels._ray_exit_local), keeping the exit face
+    if mkind[h] == KIND_CYLINDER:
+        s0 = q0
+        d0 = 0.0
+    else:
+        s0 = 0.0
+        d0 = q0
+    d1 = q1
+    d2 = q2
+    dn = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    tmin = np.inf
+    ef = -1
+    if dn > ZERO_DIR * half[h, 0]:
+        d0 /= dn
+        d1 /= dn
+        d2 /= dn
+        if brute:
+            for f in range(f0, f1):
+                nd = planes[f, 0] * d0 + planes[f, 1] * d1 + planes[f, 2] * d2
+                if nd > 0.0:
+                    t = (planes[f, 3] - planes[f, 0] * s0) / nd
+                    if t < tmin:
+                        tmin = t
+                        ef = f
+        else:
+            # the cell of the direction (stages.maps.kernels._cell_of)
+            nt = n_theta[h]
+            ns = n_second[h]
+            th = math.atan2(d2, d1)
+            if th < 0.0:
+                th += TWO_PI
+            it = int(math.floor(th * nt / TWO_PI))
+            if it >= nt:
+                it = nt - 1
+            v = q0 if mkind[h] == KIND_CYLINDER else math.atan2(math.sqrt(d1 * d1 + d2 * d2), d0)
+            lo = second_lo[h]
+            js = int(math.floor((v - lo) / (second_hi[h] - lo) * ns))
+            if js < 0:
+                js = 0
+            elif js >= ns:
+                js = ns - 1
+            cell = cell_base[h] + it * ns + js
+            for e in range(cell_start[cell], cell_start[cell + 1]):
+                f = cell_tris[e]
+                nd = planes[f, 0] * d0 + planes[f, 1] * d1 + planes[f, 2] * d2
+                if nd > 0.0:
+                    t = (planes[f, 3] - planes[f, 0] * s0) / nd
+                    if t < tmin:
+                        tmin = t
+                        ef = f
+    if ef >= 0:
+        return True, s0 + tmin * d0, tmin * d1, tmin * d2, ef
+    # no usable ray (q on the source, or no listed face facing along it): nearest plane
+    if best == -np.inf:
+        for f in range(f0, f1):
+            d = planes[f, 0] * q0 + planes[f, 1] * q1 + planes[f, 2] * q2 - planes[f, 3]
+            if d > best:
+                best = d
+                bf = f
+    return True, q0 - best * planes[bf, 0], q1 - best * planes[bf, 1], q2 - best * planes[bf, 2], bf
+
+
+@njit(cache=True, inline="always")
+def _query(c, col_kind, col_index, sph_radius, method,
+           planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+           q0, q1, q2):
+    """(hit, r0, r1, r2, n0, n1, n2): inside test, response point and outward unit contact normal
+    of collider c, all in its query frame."""
+    idx = col_index[c]
+    if col_kind[c] == KIND_SPHERE:
         r = sph_radius[idx]
-        dx = lx - cx
-        dy = ly - cy
-        dz = lz - cz
-        d2 = dx * dx + dy * dy + dz * dz
+        d2 = q0 * q0 + q1 * q1 + q2 * q2
         if d2 >= r * r:                   # paper eq. 5: inside iff |x - c| < r
-            return False, lx, ly, lz
+            return False, q0, q1, q2, 0.0, 0.0, 0.0
         d = math.sqrt(d2)
         if d < 1e-12:                     # at the centre: no direction, push up (deterministic)
-            return True, cx, cy + r, cz
+            return True, 0.0, r, 0.0, 0.0, 1.0, 0.0
         f = r / d                         # paper eq. 6: c + r (x - c) / |x - c|
-        return True, cx + f * dx, cy + f * dy, cz + f * dz
-    return hull_collide(m, idx, (lx, ly, lz), method)
+        return True, f * q0, f * q1, f * q2, q0 / d, q1 / d, q2 / d
+    # OBB rejection first (most particles near a hull are outside its OBB)
+    if method != METHOD_NEAREST_PLANE and (abs(q0) > half[idx, 0] or abs(q1) > half[idx, 1] or abs(q2) > half[idx, 2]):
+        return False, q0, q1, q2, 0.0, 0.0, 0.0
+    hit, r0, r1, r2, face = _hull_hit(planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                                      idx, method, q0, q1, q2)
+    if not hit:
+        return False, q0, q1, q2, 0.0, 0.0, 0.0
+    return True, r0, r1, r2, planes[face, 0], planes[face, 1], planes[face, 2]
 
 
-@njit(cache=True, parallel=True)
-def collide(x, xp, inv_mass, fwd, inv, inv0, m, method, col_joint, col_kind, col_index, sph_center, sph_radius,
-            cw, bin_start, bin_items, bin_range, friction, passes, corrected, inside, speed2, h):
+@njit(cache=True, inline="always")
+def _inside_any(col_kind, col_index, sph_radius, method, tq, cw, skip,
+                planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                px, py, pz):
+    """True if the world point is inside any collider except `skip` (with a real push)."""
+    for c in range(cw.shape[0]):
+        if c == skip:
+            continue
+        dx = px - cw[c, 0]
+        dy = py - cw[c, 1]
+        dz = pz - cw[c, 2]
+        if dx * dx + dy * dy + dz * dz >= cw[c, 4]:
+            continue
+        q0, q1, q2 = _apply12(tq, c, px, py, pz)
+        hit, r0, r1, r2, n0, n1, n2 = _query(c, col_kind, col_index, sph_radius, method,
+                                             planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                                             q0, q1, q2)
+        if hit and (r0 - q0) ** 2 + (r1 - q1) ** 2 + (r2 - q2) ** 2 >= TOUCH_EPS * TOUCH_EPS:
+            return True
+    return False
+
+
+@njit(cache=True, inline="always")
+def _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i, friction):
+    """(pushed, px, py, pz): the world position after collider c's response r (query frame, contact
+    normal n) to the point q, with Coulomb friction; moves xp[i] for a fully inelastic contact."""
+    u0 = r0 - q0
+    u1 = r1 - q1
+    u2 = r2 - q2
+    dn = math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+    if dn < TOUCH_EPS:
+        return False, 0.0, 0.0, 0.0
+    depth = u0 * n0 + u1 * n1 + u2 * n2            # the push's normal part: the "normal force"
+    e = PUSH_EPS / dn                              # nudge along the push, strictly outside
+    r0 += e * u0
+    r1 += e * u1
+    r2 += e * u2
+    # displacement relative to the collider over the step (start-of-step position in its frame now)
+    o0, o1, o2 = _apply12(tq0, c, xp[i, 0], xp[i, 1], xp[i, 2])
+    v0 = r0 - o0
+    v1 = r1 - o1
+    v2 = r2 - o2
+    vn = v0 * n0 + v1 * n1 + v2 * n2
+    if friction > 0.0:
+        # Coulomb: the tangential travel loses friction * depth (all of it if shorter: static).
+        # Sliding along the contact plane keeps the point outside (convex collider).
+        t0 = v0 - vn * n0
+        t1 = v1 - vn * n1
+        t2 = v2 - vn * n2
+        tl = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        if tl > 0.0:
+            k = min(1.0, friction * max(depth, 0.0) / tl)
+            r0 -= k * t0
+            r1 -= k * t1
+            r2 -= k * t2
+    px, py, pz = _apply12(fq, c, r0, r1, r2)
+    if vn > 0.0:
+        # fully inelastic: the push-out must not become an outward Verlet velocity,
+        # so move xp along the (world) normal by the outward relative travel
+        w0, w1, w2 = _rotate12(fq, c, n0, n1, n2)
+        xp[i, 0] += vn * w0
+        xp[i, 1] += vn * w1
+        xp[i, 2] += vn * w2
+    return True, px, py, pz
+
+
+@njit(cache=True)
+def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
+            bin_start, bin_items, bin_range, friction, passes, corrected, inside, speed2, h):
     """Collision detection and response of every free particle against every collider.
 
-    Per particle: up to `passes` passes over the colliders whose world bounding sphere holds it
-    (found through the y slabs); each collider inside test and response runs in the collider's
-    bone-local frame (spheres: paper eq. 5-6; hulls: stages.maps.kernels.hull_collide, `method`
-    METHOD_PAPER = map ray, METHOD_NEAREST_PLANE = baseline). A responded particle is nudged
-    PUSH_EPS outward and gets friction: its displacement relative to the collider (bone-local now
-    minus bone-local of xp at the step start) loses `friction` of its tangential part. Passes stop
-    when nothing moved; if the last pass still moved the particle, one more check decides whether
-    it is still inside a collider.
-    corrected[i] |= 1 if the particle was moved; inside[i] = 1 if it is still inside after the
-    passes; speed2[i] = |x - xp|^2 / h^2 at the end (divergence check).
+    Per particle: the colliders of its y slab whose world bounding sphere holds it are tested in
+    their query frame (spheres: paper eq. 5-6; hulls: OBB rejection, then the maps' inside test and
+    `method` response, see _hull_hit). After a push by collider c the particle is outside c (by
+    PUSH_EPS; friction slides it along the contact plane); the other colliders are then visited
+    cyclically (world sphere test first) until every one has been checked at the current position
+    without a push, at most `passes` rounds over the colliders. The response gets Coulomb friction
+    relative to the collider: its tangential travel over the step loses up to `friction` times the
+    push's normal depth.
+    corrected[i] |= 1 if the particle was pushed; inside[i] = 1 if it is still inside a collider at
+    the end; speed2[i] = |x - xp|^2 / h^2 at the end (divergence check).
     """
+    planes = m.planes
+    face_start = m.face_start
+    half = m.half
+    mkind = m.kind
+    n_theta = m.n_theta
+    n_second = m.n_second
+    second_lo = m.second_lo
+    second_hi = m.second_hi
+    cell_base = m.cell_base
+    cell_start = m.cell_start
+    cell_tris = m.cell_tris
+    loc_base = m.loc_base
+    loc_x = m.loc_x
+    loc_start = m.loc_start
+    loc_y = m.loc_y
+    loc_face = m.loc_face
     y0 = bin_range[0]
     bh = bin_range[1]
     nb = bin_start.size - 1
-    for i in prange(x.shape[0]):
+    nc = cw.shape[0]
+    ih2 = 1.0 / (h * h)
+    for i in range(x.shape[0]):
         px = x[i, 0]
         py = x[i, 1]
         pz = x[i, 2]
         inside[i] = 0
-        if inv_mass[i] > 0.0:
-            moved = False
-            for ps in range(passes + 1):
-                b = int(math.floor((py - y0) / bh))
-                if b < 0 or b >= nb:
-                    moved = False
-                    break
-                moved = False
+        if inv_mass[i] > 0.0 and nc > 0:
+            b = int(math.floor((py - y0) / bh))
+            if 0 <= b < nb:
+                last = -1
                 for e in range(bin_start[b], bin_start[b + 1]):
                     c = bin_items[e]
                     dx = px - cw[c, 0]
                     dy = py - cw[c, 1]
                     dz = pz - cw[c, 2]
-                    if dx * dx + dy * dy + dz * dz >= cw[c, 3]:
+                    if dx * dx + dy * dy + dz * dz >= cw[c, 4]:
                         continue
-                    j = col_joint[c]
-                    lx, ly, lz = _apply(inv[j], px, py, pz)
-                    hit, qx, qy, qz = _collide_one(m, col_kind[c], col_index[c], method, sph_center, sph_radius, lx, ly, lz)
-                    if not hit:
-                        continue
-                    nx = qx - lx
-                    ny = qy - ly
-                    nz = qz - lz
-                    dn = math.sqrt(nx * nx + ny * ny + nz * nz)
-                    if dn < TOUCH_EPS:
-                        continue
-                    if ps == passes:          # verification pass: still inside, leave it
-                        inside[i] = 1
-                        break
-                    nx /= dn
-                    ny /= dn
-                    nz /= dn
-                    qx += PUSH_EPS * nx
-                    qy += PUSH_EPS * ny
-                    qz += PUSH_EPS * nz
-                    if col_kind[c] == KIND_HULL:  # the ray is not the surface normal: use the exit face's
-                        nx, ny, nz = _hull_normal(m, col_index[c], qx, qy, qz)
-                    ox, oy, oz = _apply(inv0[j], xp[i, 0], xp[i, 1], xp[i, 2])
-                    ux = qx - ox
-                    uy = qy - oy
-                    uz = qz - oz
-                    un = ux * nx + uy * ny + uz * nz
-                    if friction > 0.0:
-                        qx -= friction * (ux - un * nx)
-                        qy -= friction * (uy - un * ny)
-                        qz -= friction * (uz - un * nz)
-                    px, py, pz = _apply(fwd[j], qx, qy, qz)
-                    if un > 0.0:
-                        # fully inelastic: the push-out must not become an outward Verlet velocity,
-                        # so move xp along the (world) normal by the outward relative travel
-                        f = fwd[j]
-                        wx = f[0, 0] * nx + f[0, 1] * ny + f[0, 2] * nz
-                        wy = f[1, 0] * nx + f[1, 1] * ny + f[1, 2] * nz
-                        wz = f[2, 0] * nx + f[2, 1] * ny + f[2, 2] * nz
-                        xp[i, 0] += un * wx
-                        xp[i, 1] += un * wy
-                        xp[i, 2] += un * wz
-                    moved = True
+                    q0, q1, q2 = _apply12(tq, c, px, py, pz)
+                    hit, r0, r1, r2, n0, n1, n2 = _query(c, col_kind, col_index, sph_radius, method,
+                                                         planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                                                         q0, q1, q2)
+                    if hit:
+                        pushed, wx, wy, wz = _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i, friction)
+                        if pushed:
+                            px = wx
+                            py = wy
+                            pz = wz
+                            last = c
+                if last >= 0:
                     corrected[i] = 1
-                if not moved or inside[i]:
-                    break
-            x[i, 0] = px
-            x[i, 1] = py
-            x[i, 2] = pz
+                    if nc > 1:
+                        # every other collider must see the final position once without pushing
+                        streak = 1
+                        c = last
+                        budget = passes * nc
+                        while streak < nc:
+                            c = c + 1 if c + 1 < nc else 0
+                            budget -= 1
+                            if budget < 0:
+                                inside[i] = _inside_any(col_kind, col_index, sph_radius, method, tq, cw, last,
+                                                        planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                                                        px, py, pz)
+                                break
+                            dx = px - cw[c, 0]
+                            dy = py - cw[c, 1]
+                            dz = pz - cw[c, 2]
+                            if dx * dx + dy * dy + dz * dz < cw[c, 4]:
+                                q0, q1, q2 = _apply12(tq, c, px, py, pz)
+                                hit, r0, r1, r2, n0, n1, n2 = _query(c, col_kind, col_index, sph_radius, method,
+                                                                     planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                                                                     q0, q1, q2)
+                                if hit:
+                                    pushed, wx, wy, wz = _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i,
+                                                               friction)
+                                    if pushed:
+                                        px = wx
+                                        py = wy
+                                        pz = wz
+                                        last = c
+                                        streak = 1
+                                        continue
+                            streak += 1
+                    x[i, 0] = px
+                    x[i, 1] = py
+                    x[i, 2] = pz
         vx = px - xp[i, 0]
         vy = py - xp[i, 1]
         vz = pz - xp[i, 2]
-        speed2[i] = (vx * vx + vy * vy + vz * vz) / (h * h)
+        speed2[i] = (vx * vx + vy * vy + vz * vz) * ih2
 
 
-# -- one frame -------------------------------------------------------------------------------------
 @njit(cache=True)
-def run_steps(x, xp, inv_mass, attach_joint, attach_local,
-              si, sj, rest, wi, wj, part_start, iterations,
-              tris, vt_start, vt_tri, tri_force, use_aero,
-              h, gravity, damping, wind, k_drag, k_lift, s, d_prev, d_next,
-              fwd, inv, inv0, m, method, col_joint, col_kind, col_index, col_bcenter, col_bradius,
-              sph_center, sph_radius, friction, passes,
-              cw, bin_start, bin_items, bin_range, corrected, inside, speed2, timers):
-    """Steps k = 0..K-1 of one frame in the paper's order: forces, Verlet (+ attachments), spring
-    corrections, collisions. Per step k: fwd[k] / inv[k] (J, 4, 4) the pose at its end, inv0[k] at
-    its start; d_prev[k] / d_next[k] (3,) the root translation over the previous / this step.
-    timers (3,) int64 accumulate cycles of integrate / constraints / collisions.
-    """
-    for k in range(fwd.shape[0]):
+def count_inside(x, inv_mass, m, method, col_kind, col_index, sph_radius, tq, cw, inside):
+    """inside[i] = 1 if free particle i is inside any collider (no response)."""
+    planes = m.planes
+    face_start = m.face_start
+    half = m.half
+    mkind = m.kind
+    n_theta = m.n_theta
+    n_second = m.n_second
+    second_lo = m.second_lo
+    second_hi = m.second_hi
+    cell_base = m.cell_base
+    cell_start = m.cell_start
+    cell_tris = m.cell_tris
+    loc_base = m.loc_base
+    loc_x = m.loc_x
+    loc_start = m.loc_start
+    loc_y = m.loc_y
+    loc_face = m.loc_face
+    for i in range(x.shape[0]):
+        inside[i] = 0
+        if inv_mass[i] > 0.0:
+            inside[i] = _inside_any(col_kind, col_index, sph_radius, method, tq, cw, -1,
+                                    planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                                    x[i, 0], x[i, 1], x[i, 2])
+
+
+# -- steps and frames ------------------------------------------------------------------------------
+@njit(cache=True)
+def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, k0, k1, flags, timers):
+    """Steps k0..k1-1 in the paper's order: forces, Verlet (+ attachments), spring corrections,
+    collisions. Per step k: fwd[k] / inv[k] (J, 4, 4) the pose at its end, inv0[k] at its start;
+    d_prev[k] / d_next[k] (3,) the root translation over the previous / this step.
+    timers (3,) int64 accumulate cycles of integrate / constraints / collisions."""
+    x, xp, inv_mass, attach_joint, attach_local, si, sj, rest, wi, wj, tris, tri_mass, force = cloth
+    (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
+     tq, tq0, fq, cw, bin_start, bin_items, bin_range) = cols
+    h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method = prm
+    corrected, inside, speed2 = flags
+    for k in range(k0, k1):
         t0 = cycles()
         if use_aero:
-            aero_forces(x, xp, inv_mass, tris, h, s, d_prev[k], wind, k_drag, k_lift, tri_force)
+            aero_accumulate(x, xp, tri_mass, tris, h, s, d_prev[k], wind, k_drag, k_lift, force)
         integrate(x, xp, inv_mass, attach_joint, attach_local, fwd[k], h, gravity, damping, s,
-                  d_prev[k], d_next[k], use_aero, tri_force, vt_start, vt_tri)
+                  d_prev[k], d_next[k], use_aero, force)
         t1 = cycles()
-        correct_springs(x, si, sj, rest, wi, wj, part_start, iterations)
+        correct_springs(x, si, sj, rest, wi, wj, iterations)
         t2 = cycles()
-        build_bins(fwd[k], col_joint, col_bcenter, col_bradius, cw, bin_start, bin_items, bin_range)
-        collide(x, xp, inv_mass, fwd[k], inv[k], inv0[k], m, method, col_joint, col_kind, col_index,
-                sph_center, sph_radius, cw, bin_start, bin_items, bin_range, friction, passes,
-                corrected, inside, speed2, h)
+        collider_frames(fwd[k], inv[k], inv0[k], m, col_joint, col_kind, col_index, col_bcenter, col_bradius,
+                        sph_center, tq, tq0, fq, cw)
+        build_bins(cw, bin_start, bin_items, bin_range)
+        collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
+                bin_start, bin_items, bin_range, friction, passes, corrected, inside, speed2, h)
         t3 = cycles()
         timers[T_INTEGRATE] += t1 - t0
         timers[T_CONSTRAINTS] += t2 - t1
         timers[T_COLLISIONS] += t3 - t2
 
+
+@njit(cache=True)
+def record_frame(x, flags, max_speed2, goff, pos, pen, counts):
+    """Store one frame: pos (N, 3) float32 <- x; pen (G,) particles inside a collider per garment
+    (garment g = goff[g]..goff[g+1]); counts = (corrected particles, max speed^2).
+    Returns False (storing nothing) if a particle is non-finite or faster than sqrt(max_speed2)."""
+    corrected, inside, speed2 = flags
+    vmax = 0.0
+    for i in range(x.shape[0]):
+        v = speed2[i]
+        if not (v <= max_speed2) or not (np.isfinite(x[i, 0]) and np.isfinite(x[i, 1]) and np.isfinite(x[i, 2])):
+            return False
+        vmax = max(vmax, v)
+    nc = 0
+    for g in range(goff.size - 1):
+        n_in = 0
+        for i in range(goff[g], goff[g + 1]):
+            pos[i, 0] = x[i, 0]
+            pos[i, 1] = x[i, 1]
+            pos[i, 2] = x[i, 2]
+            n_in += inside[i]
+            nc += corrected[i]
+        pen[g] = n_in
+    counts[0] = nc
+    counts[1] = vmax
+    return True
+
+
+@njit(cache=True)
+def run_frames(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, substeps, max_speed2,
+               goff, pos, pen, counts, step_cycles, flags, timers):
+    """Frames 0..F-1 of a chunk (F = pos.shape[0]), `substeps` steps each (pose arrays: F * substeps),
+    each recorded with record_frame into pos[f], pen[f], counts[f]; step_cycles[f] the frame's
+    stepping cycles (recording excluded). Returns the number of frames done: F, or the index of the
+    first frame that diverged (not recorded; the state is left as it diverged)."""
+    corrected = flags[0]
+    for f in range(pos.shape[0]):
+        corrected[:] = 0
+        c0 = cycles()
+        run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next,
+                  f * substeps, (f + 1) * substeps, flags, timers)
+        step_cycles[f] = cycles() - c0
+        if not record_frame(cloth[0], flags, max_speed2, goff, pos[f], pen[f], counts[f]):
+            return f
+    return pos.shape[0]
 
 # -- body penetration audit: generalised winding number ------------------------------------------
 @njit(cache=True, inline="always")

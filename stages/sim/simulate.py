@@ -40,6 +40,7 @@ from stages.sim import kernels as K
 from stages.sim.types import GarmentTrack, SimParams, SimResult, SimulationDiverged
 
 _CYCLES_PER_S = None
+FRAME_CHUNK = 32     # frames per kernel call (bounds the pose arrays; progress is reported per chunk)
 
 
 def cycles_per_second() -> float:
@@ -95,7 +96,7 @@ class _System:
         live = wsum > 0
         springs, rest, kinds, wsum = springs[live], rest[live], kinds[live], wsum[live]
         stiff = np.where(kinds == BEND, params.bend_stiffness, params.stretch_stiffness)
-        order, self.part_start = K.partition_springs(self.x, springs, n_parts=2)
+        order = K.order_springs(springs, n)
         springs, rest, stiff, wsum = springs[order], rest[order], stiff[order], wsum[order]
         self.si = np.ascontiguousarray(springs[:, 0], dtype=np.int32)
         self.sj = np.ascontiguousarray(springs[:, 1], dtype=np.int32)
@@ -104,14 +105,22 @@ class _System:
         self.wj = np.ascontiguousarray(stiff * w[self.sj] / wsum)
         self.tris = np.ascontiguousarray(np.concatenate([g.triangles + o for g, o in zip(garments, self.offsets)]),
                                          dtype=np.int32)
-        flat = self.tris.ravel()
-        o = np.argsort(flat, kind="stable")
-        self.vt_tri = (o // 3).astype(np.int32)
-        self.vt_start = np.searchsorted(flat[o], np.arange(n + 1)).astype(np.int64)
-        self.tri_force = np.zeros((self.tris.shape[0], 3))
+        # mass of each triangle's free vertices (a third of each lumped mass; aerodynamic force cap)
+        third = np.where(w > 0, 1.0 / (3.0 * np.where(w > 0, w, 1.0)), 0.0)
+        self.tri_mass = np.ascontiguousarray(third[self.tris].sum(axis=1))
+        self.force = np.zeros((n, 3))
         self.corrected = np.zeros(n, np.uint8)
         self.inside = np.zeros(n, np.uint8)
         self.speed2 = np.zeros(n)
+        self.goff = np.ascontiguousarray(self.offsets, dtype=np.int64)
+
+    def cloth(self) -> tuple:
+        """The kernels' `cloth` tuple (see stages/sim/kernels.py)."""
+        return (self.x, self.xp, self.inv_mass, self.attach_joint, self.attach_local, self.si, self.sj, self.rest,
+                self.wi, self.wj, self.tris, self.tri_mass, self.force)
+
+    def flags(self) -> tuple:
+        return (self.corrected, self.inside, self.speed2)
 
     def split(self, a: np.ndarray) -> list:
         return [a[self.offsets[i]:self.offsets[i + 1]] for i in range(len(self.names))]
@@ -157,10 +166,18 @@ class _Colliders:
         self.bradius = np.array(br, np.float64)
         self.sph_center = np.array([s.center for s in spheres], np.float64).reshape(len(spheres), 3)
         self.sph_radius = np.array([s.radius for s in spheres], np.float64)
-        self.cw = np.zeros((nc, 4))
+        self.tq = np.zeros((nc, 12))
+        self.tq0 = np.zeros((nc, 12))
+        self.fq = np.zeros((nc, 12))
+        self.cw = np.zeros((nc, 5))
         self.bin_start = np.zeros(K.N_BINS + 1, np.int64)
         self.bin_items = np.zeros(max(nc * K.N_BINS, 1), np.int32)
         self.bin_range = np.zeros(2)
+
+    def cols(self) -> tuple:
+        """The kernels' `cols` tuple (see stages/sim/kernels.py)."""
+        return (self.joint, self.kind, self.index, self.bcenter, self.bradius, self.sph_center, self.sph_radius,
+                self.tq, self.tq0, self.fq, self.cw, self.bin_start, self.bin_items, self.bin_range)
 
 
 def _is_rigid(m: np.ndarray) -> bool:
@@ -196,6 +213,35 @@ def _frame_poses(motion, f: int, substeps: int):
     inv = np.linalg.inv(fwd)
     inv0 = np.concatenate([np.linalg.inv(a)[None], inv[:-1]])
     return np.ascontiguousarray(fwd), np.ascontiguousarray(inv), np.ascontiguousarray(inv0)
+
+
+def _chunk_poses(motion, f0: int, f1: int, substeps: int, s: float, d_last):
+    """Pose and root-translation arrays of the steps of frames f0..f1-1 (frame f steps from f-1 to f).
+
+    Returns fwd, inv, inv0 ((f1 - f0) * substeps, J, 4, 4), d_prev, d_next ((f1 - f0) * substeps, 3),
+    tr (substeps + 1, 3) the root translation at the step boundaries of frame f1 - 1 (relative to
+    world, for obstacles), and the last step's d_next (the next chunk's d_prev).
+    """
+    root = motion.root_translation
+    jw = motion.joint_world
+    if substeps == 1:
+        fwd = jw[f0:f1]
+        inv_all = np.linalg.inv(jw[f0 - 1:f1])
+        inv, inv0 = inv_all[1:], inv_all[:-1]
+    else:
+        parts = [_frame_poses(motion, f, substeps) for f in range(f0, f1)]
+        fwd, inv, inv0 = (np.concatenate([p[k] for p in parts]) for k in range(3))
+    u = np.arange(substeps + 1) / substeps
+    tr = root[f0 - 1:f1 - 1, None, :] + (root[f0:f1] - root[f0 - 1:f1 - 1])[:, None, :] * u[None, :, None]
+    if s > 0:
+        d_next = np.diff(tr, axis=1).reshape(-1, 3)
+    else:
+        d_next = np.zeros(((f1 - f0) * substeps, 3))
+    d_prev = np.empty_like(d_next)
+    d_prev[1:] = d_next[:-1]
+    d_prev[0] = d_next[0] if d_last is None else d_last
+    c = np.ascontiguousarray
+    return c(fwd), c(inv), c(inv0), c(d_prev), c(d_next), tr[-1], d_next[-1].copy()
 
 
 # -- body audit -------------------------------------------------------------------------------------
@@ -313,90 +359,95 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
         audit = BodyAudit(character)
         from stages.rig.skinning import skin
 
-    pos = [np.zeros((nf, g.n_particles, 3), np.float32) for g in garments]
+    rel = np.zeros((nf, n, 3), np.float32)       # relative frame; root translation added at the end
     pen_col = np.zeros((nf, len(garments)), np.int32)
     pen_body = np.full((nf, len(garments)), -1, np.int32)
-    corrected = np.zeros(nf, np.int32)
-    max_speed = np.zeros(nf)
-    step_ms = np.zeros(nf)
+    counts = np.zeros((nf, 2))                    # corrected particles, max speed^2
+    step_cycles = np.zeros(nf, np.int64)
+    prm = (h, float(params.damping), s, k_drag, k_lift, float(params.friction), use_aero, int(params.iterations),
+           int(params.collision_passes), method)
+    cloth, cols, flags = sysm.cloth(), col.cols(), sysm.flags()
+    max2 = float(params.max_speed) ** 2
 
-    def record(f):
-        for gi, part in enumerate(sysm.split(sysm.x)):
-            pos[gi][f] = part + root[f]
-        pen_col[f] = [int(a.sum()) for a in sysm.split(sysm.inside)]
-        if audit is not None:
-            t0 = time.perf_counter()
-            verts = skin(character, motion, frames=[f])[0]
-            ins = audit.inside(verts, sysm.x)
+    def audit_frames(f0, f1):
+        if audit is None:
+            return
+        t0 = time.perf_counter()
+        verts = skin(character, motion, frames=list(range(f0, f1)))
+        for k, f in enumerate(range(f0, f1)):
+            ins = audit.inside(verts[k], rel[f])
             pen_body[f] = [int(a.sum()) for a in sysm.split(ins)]
-            timings["audit"] += time.perf_counter() - t0
+        timings["audit"] += time.perf_counter() - t0
 
-    def partial(f_end):
-        return _result(garments, pos, pen_col, pen_body, corrected, max_speed, step_ms, motion.times, timings,
-                       timers, (f_end - 1) * ss, params, notes, f_end)
+    def result(f_end):
+        pos = [rel[:f_end, o0:o1] + root[:f_end, None, :].astype(np.float32)
+               for o0, o1 in zip(sysm.offsets[:-1], sysm.offsets[1:])]
+        step_ms = step_cycles[:f_end] / cycles_per_second() * 1e3 / ss
+        return _result(garments, pos, pen_col, pen_body, counts[:, 0].astype(np.int32),
+                       np.sqrt(counts[:, 1]), step_ms, motion.times, timings, timers, max(f_end - 1, 0) * ss,
+                       params, notes, f_end)
+
+    def diverged(f):
+        sp2 = sysm.speed2
+        bad = ~(np.isfinite(sp2) & (sp2 <= max2)) | ~np.isfinite(sysm.x).all(axis=1)
+        idx = np.flatnonzero(bad)
+        gname = [names[int(sysm.particle_garment[i])] for i in idx]
+        local = idx - sysm.offsets[sysm.particle_garment[idx]]
+        fin = sp2[np.isfinite(sp2)]
+        audit_frames(0, f)
+        return SimulationDiverged(f, local, gname, float(np.sqrt(fin.max())) if fin.size else float("nan"),
+                                  partial=result(f) if f > 0 else None)
 
     # frame 0: the initial state; count particles starting inside a collider (no response)
     fwd0 = np.ascontiguousarray(motion.joint_world[0])
     inv_0 = np.ascontiguousarray(np.linalg.inv(fwd0))
-    K.build_bins(fwd0, col.joint, col.bcenter, col.bradius, col.cw, col.bin_start, col.bin_items, col.bin_range)
-    K.collide(sysm.x.copy(), sysm.xp, sysm.inv_mass, fwd0, inv_0, inv_0, col.m, method, col.joint, col.kind,
-              col.index, col.sph_center, col.sph_radius, col.cw, col.bin_start, col.bin_items, col.bin_range,
-              0.0, 0, sysm.corrected, sysm.inside, sysm.speed2, h)
-    record(0)
+    K.collider_frames(fwd0, inv_0, inv_0, col.m, col.joint, col.kind, col.index, col.bcenter, col.bradius,
+                      col.sph_center, col.tq, col.tq0, col.fq, col.cw)
+    K.count_inside(sysm.x, sysm.inv_mass, col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.cw,
+                   sysm.inside)
+    sysm.corrected[:] = 0
+    sysm.speed2[:] = 0.0
+    K.record_frame(sysm.x, flags, np.inf, sysm.goff, rel[0], pen_col[0], counts[0])
+    audit_frames(0, 1)
     if progress is not None:
         progress(1, nf)
 
     d_last = None
-    for f in range(1, nf):
+    f0 = 1
+    while f0 < nf:
+        f1 = min(nf, f0 + (1 if ocol is not None else FRAME_CHUNK))
         t0 = time.perf_counter()
-        fwd, inv, inv0 = _frame_poses(motion, f, ss)
-        tr = root[f - 1][None, :] + (root[f] - root[f - 1])[None, :] * (np.arange(ss + 1) / ss)[:, None]
-        d_next = np.diff(tr, axis=0) if s > 0 else np.zeros((ss, 3))
-        d_prev = np.empty_like(d_next)
-        d_prev[1:] = d_next[:-1]
-        d_prev[0] = d_next[0] if d_last is None else d_last
-        d_last = d_next[-1].copy()
-        d_next = np.ascontiguousarray(d_next)
-        t1 = time.perf_counter()
-        timings["poses"] += t1 - t0
-        sysm.corrected[:] = 0
-        chunks = [(0, ss)] if ocol is None else [(k, k + 1) for k in range(ss)]
-        for k0, k1 in chunks:
-            K.run_steps(sysm.x, sysm.xp, sysm.inv_mass, sysm.attach_joint, sysm.attach_local,
-                        sysm.si, sysm.sj, sysm.rest, sysm.wi, sysm.wj, sysm.part_start, params.iterations,
-                        sysm.tris, sysm.vt_start, sysm.vt_tri, sysm.tri_force, use_aero,
-                        h, gravity, params.damping, wind, k_drag, k_lift, s, d_prev[k0:k1], d_next[k0:k1],
-                        fwd[k0:k1], inv[k0:k1], inv0[k0:k1], col.m, method, col.joint, col.kind, col.index,
-                        col.bcenter, col.bradius, col.sph_center, col.sph_radius, params.friction,
-                        params.collision_passes, col.cw, col.bin_start, col.bin_items, col.bin_range,
-                        sysm.corrected, sysm.inside, sysm.speed2, timers)
-            if ocol is not None:
+        fwd, inv, inv0, d_prev, d_next, tr, d_last = _chunk_poses(motion, f0, f1, ss, s, d_last)
+        timings["poses"] += time.perf_counter() - t0
+        if ocol is None:
+            done = K.run_frames(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, ss, max2,
+                                sysm.goff, rel[f0:f1], pen_col[f0:f1], counts[f0:f1], step_cycles[f0:f1], flags,
+                                timers)
+            if done < f1 - f0:
+                raise diverged(f0 + done)
+        else:   # paper B obstacles live in world: hand over world positions after every step
+            f = f0
+            sysm.corrected[:] = 0
+            c0 = K.read_cycles()
+            for k in range(ss):
+                K.run_steps(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, k, k + 1,
+                            flags, timers)
                 to = time.perf_counter()
-                ta = motion.times[f - 1] + k0 * h
-                # obstacles live in world: hand over world positions, take the responded ones back
-                xpw, xw = sysm.xp + tr[k0], sysm.x + tr[k1]
+                ta = motion.times[f - 1] + k * h
+                xpw, xw = sysm.xp + tr[k], sysm.x + tr[k + 1]
                 ocol.collide(xpw, xw, sysm.inv_mass, ta, ta + h)
-                sysm.xp[:] = xpw - tr[k0]
-                sysm.x[:] = xw - tr[k1]
+                sysm.xp[:] = xpw - tr[k]
+                sysm.x[:] = xw - tr[k + 1]
                 timings["obstacles"] += time.perf_counter() - to
-        step_ms[f] = (time.perf_counter() - t1) * 1e3 / ss
-        sp2 = sysm.speed2
-        bad = ~(np.isfinite(sp2) & (sp2 <= params.max_speed ** 2)) | ~np.isfinite(sysm.x).all(axis=1)
-        if bad.any():
-            idx = np.flatnonzero(bad)
-            gname = [names[int(sysm.particle_garment[i])] for i in idx]
-            local = idx - sysm.offsets[sysm.particle_garment[idx]]
-            fin = sp2[np.isfinite(sp2)]
-            raise SimulationDiverged(f, local, gname, float(np.sqrt(fin.max())) if fin.size else float("nan"),
-                                     partial=partial(f) if f > 0 else None)
-        max_speed[f] = float(np.sqrt(sp2.max()))
-        corrected[f] = int(sysm.corrected.sum())
-        record(f)
+            step_cycles[f] = K.read_cycles() - c0
+            if not K.record_frame(sysm.x, flags, max2, sysm.goff, rel[f], pen_col[f], counts[f]):
+                raise diverged(f)
+        audit_frames(f0, f1)
         if progress is not None:
-            progress(f + 1, nf)
+            progress(f1, nf)
+        f0 = f1
     timings["total"] = time.perf_counter() - t_start
-    return _result(garments, pos, pen_col, pen_body, corrected, max_speed, step_ms, motion.times, timings,
-                   timers, (nf - 1) * ss, params, notes, nf)
+    return result(nf)
 
 
 def _result(garments, pos, pen_col, pen_body, corrected, max_speed, step_ms, times, timings, timers, steps,
