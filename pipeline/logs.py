@@ -70,7 +70,7 @@ def log_scalar_series(rec: rr.RecordingStream, entity: str, values: np.ndarray, 
 
 
 def world_joint_matrices(character: Character, motion: Motion) -> np.ndarray:
-    """(F, J, 4, 4) world transforms of the bone-local frames (skinning matrices + root translation)."""
+    """(F, J, 4, 4) world transforms of the bone-local frames (joint globals + root translation)."""
     m = motion.joint_world.copy()
     m[:, :, :3, 3] += motion.root_translation[:, None, :]
     return m
@@ -90,9 +90,8 @@ def log_rig(rec: rr.RecordingStream, character: Character, split: RegionSplit, m
         vertex_positions=character.vertices.astype(np.float32),
         vertex_normals=vertex_normals(character.vertices, character.triangles).astype(np.float32),
         triangle_indices=character.triangles.astype(np.uint32), vertex_colors=region_color), static=True)
-    # skeleton: one segment per parent-child pair; joint world position = (M @ inv(IBM)) origin
-    bind_world = np.linalg.inv(character.inverse_bind)
-    joints = np.einsum("fjab,jbc->fjac", world_joint_matrices(character, motion), bind_world)[:, :, :3, 3]
+    # skeleton: one segment per parent-child pair; a joint's position is its global transform's origin
+    joints = world_joint_matrices(character, motion)[:, :, :3, 3]
     kids = np.flatnonzero(character.parents >= 0)
     segs = np.stack([joints[:, character.parents[kids]], joints[:, kids]], axis=2)  # (F, S, 2, 3)
     f, s = segs.shape[:2]
@@ -234,7 +233,8 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result) -> dict:
         log_scalar_series(rec, "sim/penetrations/body", result.penetrations_body, result.times,
                           name="inside the body mesh", color=(150, 60, 200))
     log_scalar_series(rec, "sim/step_ms", result.step_ms, result.times, name="step (ms)", color=(60, 160, 90))
-    log_scalar_series(rec, "sim/corrected", result.corrected, result.times, name="particles corrected", color=(90, 90, 90))
+    log_scalar_series(rec, "sim/contacts/colliders", result.corrected, result.times,
+                      name="particles moved by a collider", color=(90, 90, 90))
     p = result.params
     log_text(rec, "sim/params", "| parameter | value |\n| --- | --- |\n" + "\n".join(
         f"| {k} | {v} |" for k, v in p.__dict__.items()))

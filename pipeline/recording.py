@@ -92,6 +92,7 @@ def atomic_recording(path: Path, *, scene_name: str, scene_text: str, seed: int)
     rec.save(tmp, default_blueprint=blueprint())
     ok = False
     try:
+        rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Y_UP, static=True)  # the pipeline is Y up, metres
         rec.log("meta/scene", rr.TextDocument(f"```yaml\n{scene_text}\n```", media_type="text/markdown"), static=True)
         rec.log("meta/provenance", rr.TextDocument(
             "## Package versions\n" + package_versions() + "\n\n## Asset attributions\n" + ASSET_ATTRIBUTIONS,

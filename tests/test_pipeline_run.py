@@ -94,3 +94,30 @@ def test_failed_run_keeps_the_earlier_recording(default_run, tmp_path):
         run_scene(bad, output=out, frames=2, progress=False)
     assert out.read_bytes() == before
     assert sorted(p.name for p in out.parent.iterdir()) == [out.name]
+
+
+def test_skeleton_and_colliders_sit_inside_the_skinned_body(default_run):
+    """Joints and hull regions logged in world must coincide with the skinned mesh of the frame."""
+    scene, out, _ = default_run
+    mesh = rows(out, "rig/mesh", "Mesh3D:vertex_positions")
+    joints = rows(out, "rig/joints", "Points3D:positions")
+    for f in (0, FRAMES - 1):
+        lo, hi = mesh[f][1].min(0), mesh[f][1].max(0)
+        j = joints[f][1]
+        assert ((j >= lo - 0.02) & (j <= hi + 0.02)).all(), f
+    # a hull's region points, moved by the logged per-frame transform, are skinned mesh vertices
+    from stages.rig.regions import split_regions
+    character = load_character(scene)
+    split = split_regions(character, threshold=scene["colliders"]["rigid_threshold"])
+    bone = split.hull_bones[0]
+    name = character.joint_names[bone]
+    t = rows(out, f"colliders/hulls/{name}", "Transform3D:translation")
+    r = rows(out, f"colliders/hulls/{name}", "Transform3D:mat3x3")
+    region = rows(out, f"colliders/hulls/{name}/region", "Points3D:positions")[0][1]
+    f = FRAMES - 1
+    rot = np.asarray(r[f][1], dtype=np.float64).reshape(3, 3).T   # rerun stores column-major
+    moved = region @ rot.T + np.asarray(t[f][1]).reshape(3)
+    idx = split.rigid_vertices(bone)
+    err = np.linalg.norm(moved - mesh[f][1][idx], axis=1)
+    # "rigid" allows up to (1 - threshold) of the weight on other bones, hence mm-level drift
+    assert np.median(err) < 1e-4 and err.max() < 0.01
