@@ -280,7 +280,8 @@ def _select(att: Attachment, x0: np.ndarray, triangles: np.ndarray, remap: np.nd
 def _repair(name: str, x: np.ndarray, rest: np.ndarray, tri: np.ndarray):
     """Weld coincident vertices, drop degenerate / repeated triangles and unused vertices.
 
-    Returns (x, rest, tri, remap) with remap: original vertex index -> new index (-1 = removed).
+    Returns (x, rest, tri, remap, kept) with remap: original vertex index -> new index (-1 = removed)
+    and kept: indices of the input triangles kept, in output order.
     """
     n = x.shape[0]
     scale = max(float(np.ptp(rest, axis=0).max()), 1e-12)
@@ -298,6 +299,7 @@ def _repair(name: str, x: np.ndarray, rest: np.ndarray, tri: np.ndarray):
     a, b, c = rest[tri[:, 0]], rest[tri[:, 1]], rest[tri[:, 2]]
     area2 = np.linalg.norm(np.cross(b - a, c - a), axis=1)
     bad = (tri[:, 0] == tri[:, 1]) | (tri[:, 1] == tri[:, 2]) | (tri[:, 0] == tri[:, 2]) | (area2 <= 1e-12 * scale * scale)
+    kept = np.flatnonzero(~bad)
     if bad.any():
         warnings.warn(f"garment {name!r}: dropped {int(bad.sum())} degenerate (zero-area) triangles", stacklevel=3)
         tri = tri[~bad]
@@ -305,6 +307,7 @@ def _repair(name: str, x: np.ndarray, rest: np.ndarray, tri: np.ndarray):
     if keep.size < tri.shape[0]:
         warnings.warn(f"garment {name!r}: dropped {tri.shape[0] - keep.size} repeated triangles", stacklevel=3)
         tri = tri[np.sort(keep)]
+        kept = kept[np.sort(keep)]
     if tri.shape[0] == 0:
         raise InputError(f"garment {name!r}", "no non-degenerate triangle")
     used = np.unique(tri)
@@ -314,11 +317,12 @@ def _repair(name: str, x: np.ndarray, rest: np.ndarray, tri: np.ndarray):
     new = np.full(n, -1, np.int64)
     new[used] = np.arange(used.size)
     remap = new[weld]
-    return x[used], rest[used], new[tri].astype(np.int32), remap
+    return x[used], rest[used], new[tri].astype(np.int32), remap, kept
 
 
 def build_garment(name: str, positions, triangles, *, rest_positions=None, density: float = 0.2,
-                  attachments=(), bind: BindPose | None = None) -> Garment:
+                  attachments=(), bind: BindPose | None = None, triangle_rest=None, extra_springs=None,
+                  extra_rest_lengths=None) -> Garment:
     """A Garment from a triangle mesh.
 
     positions: (N, 3) initial positions, metres, relative frame at frame 0.
@@ -327,6 +331,13 @@ def build_garment(name: str, positions, triangles, *, rest_positions=None, densi
     density: area density, kg/m^2 (lumped: each triangle gives a third of its mass to each vertex).
     attachments: Attachment selectors; each chosen particle gets inverse mass 0 and follows its
         bone rigidly. `bind` (see `bind_pose`) is required when there are attachments.
+    triangle_rest: optional (T, 3) rest lengths, metres, of each triangle's edges (edge k joins
+        vertex k and k+1 mod 3), for meshes whose rest state is not one embedding (a sewn garment:
+        each triangle keeps its flat-panel shape). Stretch rest lengths are then the mean over the
+        edge's triangles, bend rest lengths the distance of the hinge unfolded flat, masses from the
+        triangles' areas (Heron); rest_positions are only used for welding.
+    extra_springs: optional (K, 2) vertex index pairs added as stretch springs (e.g. seam springs
+        pulling panel edges together while sewing), with extra_rest_lengths (K,) metres > 0.
     """
     where = f"garment {name!r}"
     x = np.asarray(positions, dtype=np.float64)
@@ -344,8 +355,15 @@ def build_garment(name: str, positions, triangles, *, rest_positions=None, densi
         raise InputError(where, "non-finite vertex position")
     if not (np.isfinite(density) and density > 0):
         raise InputError(where, f"density must be positive, got {density}")
-    x, rest, tri, remap = _repair(name, x, rest, tri.astype(np.int64))
+    t_in = tri.shape[0]
+    x, rest, tri, remap, kept = _repair(name, x, rest, tri.astype(np.int64))
     n = x.shape[0]
+    tri_rest = None
+    if triangle_rest is not None:
+        tri_rest = np.asarray(triangle_rest, dtype=np.float64)
+        if tri_rest.shape != (t_in, 3) or not np.isfinite(tri_rest).all() or np.any(tri_rest <= 0):
+            raise InputError(where, f"triangle_rest must be ({t_in}, 3) positive lengths, got {tri_rest.shape}")
+        tri_rest = tri_rest[kept]
 
     # stretch/shear: unique edges; count the triangles on each edge for manifoldness
     e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
@@ -369,12 +387,30 @@ def build_garment(name: str, positions, triangles, *, rest_positions=None, densi
         bend = bend[~np.isin(bend[:, 0] * n + bend[:, 1], ecode)]
     springs = np.concatenate([edges, bend]).astype(np.int32)
     kinds = np.concatenate([np.full(len(edges), STRETCH, np.int8), np.full(len(bend), BEND, np.int8)])
-    rest_len = np.linalg.norm(rest[springs[:, 1]] - rest[springs[:, 0]], axis=1)
+    if tri_rest is None:
+        rest_len = np.linalg.norm(rest[springs[:, 1]] - rest[springs[:, 0]], axis=1)
+        a, b, c = rest[tri[:, 0]], rest[tri[:, 1]], rest[tri[:, 2]]
+        area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    else:
+        rest_len, area = _rest_from_triangles(tri, tri_rest, edges, bend, n)
+    if extra_springs is not None:
+        es = np.asarray(extra_springs, dtype=np.int64).reshape(-1, 2)
+        el = np.asarray(extra_rest_lengths if extra_rest_lengths is not None else [], dtype=np.float64).ravel()
+        if el.shape != (es.shape[0],) or not (np.isfinite(el).all() and np.all(el > 0)):
+            raise InputError(where, "extra_rest_lengths must give one positive length per extra spring")
+        if es.size and (es.min() < 0 or es.max() >= remap.size):
+            raise InputError(where, "extra spring index out of range")
+        es = remap[es]
+        if np.any(es < 0):
+            raise InputError(where, "an extra spring uses a vertex no triangle uses")
+        ok = es[:, 0] != es[:, 1]
+        es, el = np.sort(es[ok], axis=1), el[ok]
+        springs = np.concatenate([springs, es]).astype(np.int32)
+        kinds = np.concatenate([kinds, np.full(len(es), STRETCH, np.int8)])
+        rest_len = np.concatenate([rest_len, el])
     if np.any(rest_len <= 0):
         raise InputError(where, "a spring has zero rest length (coincident rest vertices)")
 
-    a, b, c = rest[tri[:, 0]], rest[tri[:, 1]], rest[tri[:, 2]]
-    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
     mass = np.bincount(tri.ravel(), weights=np.repeat(area * density / 3.0, 3), minlength=n)
     inv_mass = 1.0 / mass
 
@@ -392,6 +428,51 @@ def build_garment(name: str, positions, triangles, *, rest_positions=None, densi
         inv_mass[attach_joint >= 0] = 0.0
     return Garment(name, np.ascontiguousarray(x), np.ascontiguousarray(rest), np.ascontiguousarray(tri),
                    springs, rest_len, kinds, inv_mass, attach_joint, attach_local, float(density))
+
+
+def _rest_from_triangles(tri, tri_rest, edges, bend, n):
+    """Rest lengths of stretch and bend springs and triangle areas from per-triangle edge lengths."""
+    e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    le = np.concatenate([tri_rest[:, 0], tri_rest[:, 1], tri_rest[:, 2]])
+    code = np.sort(e, axis=1) @ np.array([n, 1])
+    ecode = edges[:, 0] * n + edges[:, 1]
+    idx = np.searchsorted(ecode, code)
+    stretch = np.bincount(idx, weights=le, minlength=len(edges)) / np.bincount(idx, minlength=len(edges))
+    l0, l1, l2 = tri_rest[:, 0], tri_rest[:, 1], tri_rest[:, 2]
+    s = 0.5 * (l0 + l1 + l2)
+    area = np.sqrt(np.maximum(s * (s - l0) * (s - l1) * (s - l2), 0.0))
+    if not len(bend):
+        return stretch, area
+    # bend: unfold the two triangles of every interior edge into a plane (shared edge on the x axis)
+    t_of = np.concatenate([np.arange(len(tri))] * 3)
+    k_of = np.repeat([0, 1, 2], len(tri))
+    order = np.argsort(code, kind="stable")
+    sc = code[order]
+    first = np.flatnonzero(np.r_[True, sc[1:] != sc[:-1]])
+    pos = {}
+    for f in first:
+        if f + 1 < len(sc) and sc[f + 1] == sc[f]:
+            o1, o2 = order[f], order[f + 1]
+            t1, k1, t2, k2 = t_of[o1], k_of[o1], t_of[o2], k_of[o2]
+            c1, c2 = tri[t1, (k1 + 2) % 3], tri[t2, (k2 + 2) % 3]
+            base = 0.5 * (tri_rest[t1, k1] + tri_rest[t2, k2])
+            # apex of triangle t (edge k = a-b of length base) at distances da (from a), db (from b)
+            p1 = _apex(base, tri_rest[t1, (k1 + 2) % 3], tri_rest[t1, (k1 + 1) % 3])
+            # triangle t2 walks the shared edge in the other direction: its 'a' is t1's 'b'
+            q = _apex(base, tri_rest[t2, (k2 + 2) % 3], tri_rest[t2, (k2 + 1) % 3])
+            same = tri[t2, k2] == tri[t1, k1]   # inconsistently oriented neighbours walk it the same way
+            if same:
+                q = _apex(base, tri_rest[t2, (k2 + 1) % 3], tri_rest[t2, (k2 + 2) % 3])
+            p2 = np.array([q[0] if same else base - q[0], -q[1]])
+            pos[(min(c1, c2), max(c1, c2))] = float(np.linalg.norm(p1 - p2))
+    bl = np.array([pos.get((int(a), int(b)), np.nan) for a, b in bend])
+    return np.concatenate([stretch, bl]), area
+
+
+def _apex(base, da, db):
+    """Apex (x, y >= 0) of a triangle with base (0,0)-(base,0) and sides da (from 0), db (from base)."""
+    x = (da * da - db * db + base * base) / (2 * base)
+    return np.array([x, np.sqrt(max(da * da - x * x, 0.0))])
 
 
 def edge_strain(garment: Garment, positions: np.ndarray) -> np.ndarray:
