@@ -1,0 +1,284 @@
+"""Placement: wrap flat panels onto generalised cylinders / cones around body parts in the bind pose.
+
+Each body part has an axis in the bind pose (frame 0 of the motion, relative frame): origin O,
+direction A (the panel's v direction), reference radial direction Q (angle 0) and P = A x Q
+(angle 90). At axis coordinate t the cross-section is an ellipse centred on the axis with
+semi-axes (a, b) along (P, Q): the smallest axis-aligned ellipse (of the slab's aspect ratio)
+containing the part's skinned vertices within a few cm of t, plus the panel's offset; torso
+cross-sections also cover the arms' roots, 'hips' cross-sections never shrink downwards (a skirt
+hangs over the legs). A panel point (u, v) goes to t = v + shift and to the ellipse point whose
+arc length from the panel's angle is u / (W(v) / 2) times half the arc the panel spans (W: the
+outline's width at v, frozen above wrap_until); the ellipse is enlarged when the panel is wider
+than that arc, so panels are never compressed. Outward normals: (u, v) counter-clockwise maps to
+normals pointing away from the axis.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stages.errors import InputError
+from stages.garments.patterns import Pattern, Placement
+from stages.garments.triangulate import FlatPattern
+
+SLAB = 0.03        # m, half height of the body slab measured for one cross-section level
+LEVEL_STEP = 0.01  # m, spacing of cross-section levels along the axis
+
+
+@dataclass(frozen=True)
+class BodyAxis:
+    """A body part's axis in the bind pose: origin O (3,), unit A, Q, P (3,), metres / relative frame."""
+
+    origin: np.ndarray
+    a: np.ndarray
+    q: np.ndarray
+    p: np.ndarray
+
+
+def _mirror(name: str) -> str:
+    for a, b in (("_l", "_r"), ("Left", "Right"), ("_L", "_R"), ("left", "right"), ("L_", "R_")):
+        if a in name:
+            return name.replace(a, b)
+    return name
+
+
+def _chain(character, kind: str, side: str):
+    """Joint indices (upper, lower, end) of a limb chain found by name, or None."""
+    from stages.rig.procedural import _ARM_CHAINS, _LEG_CHAINS
+    names = character.joint_names
+    for chain in (_ARM_CHAINS if kind == "arm" else _LEG_CHAINS):
+        c = chain if side == "l" else tuple(_mirror(n) for n in chain)
+        if all(n in names for n in c):
+            return [names.index(n) for n in c]
+    return None
+
+
+def _subtree(parents: np.ndarray, j: int) -> set:
+    out = {j}
+    for k in range(j + 1, len(parents)):
+        if parents[k] in out:
+            out.add(k)
+    return out
+
+
+def part_joints(character, part: str, joint_origins: np.ndarray) -> set:
+    """Joints whose dominant vertices make up a body part."""
+    parents = np.asarray(character.parents)
+    root = character.root_joint
+    legs = set()
+    for c in np.flatnonzero(parents == root):
+        if joint_origins[c, 1] < joint_origins[root, 1] - 1e-3:
+            legs |= _subtree(parents, int(c))
+    arms = set()
+    for side in ("l", "r"):
+        ch = _chain(character, "arm", side)
+        if ch is not None:
+            arms |= _subtree(parents, ch[0])
+    if part == "hips":
+        return (legs | {root}) - arms
+    if part == "torso":
+        return set(range(len(parents))) - legs - arms
+    kind, side = part.split("_")
+    ch = _chain(character, kind, side)
+    if ch is None:
+        raise InputError(f"placement {part!r}", f"no {kind} chain found in {character.name!r}: expected joints named "
+                         "like upperarm_l/forearm_l/hand_l, LeftArm/LeftForeArm/LeftHand (or thigh/shin/foot)")
+    return {ch[0]}
+
+
+def body_axis(character, part: str, joint_origins: np.ndarray) -> BodyAxis:
+    y, z = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    if part in ("torso", "hips"):
+        o = joint_origins[character.root_joint].copy()
+        o[1] = 0.0
+        return BodyAxis(o, y, z, np.cross(y, z))
+    kind, side = part.split("_")
+    ch = _chain(character, kind, side)
+    if ch is None:
+        part_joints(character, part, joint_origins)  # raises the explanation
+    o = joint_origins[ch[0]]
+    d = joint_origins[ch[1]] - o
+    a = -d / np.linalg.norm(d)
+    ref = y if kind == "arm" else z
+    q = ref - (ref @ a) * a
+    if np.linalg.norm(q) < 1e-6:
+        q = z - (z @ a) * a
+    q /= np.linalg.norm(q)
+    return BodyAxis(o, a, q, np.cross(a, q))
+
+
+def _outline_width(boundary_uv: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Width (max u - min u) of the closed outline at heights v (0 where the line misses it)."""
+    a, b = boundary_uv, np.roll(boundary_uv, -1, axis=0)
+    lo, hi = np.minimum(a[:, 1], b[:, 1]), np.maximum(a[:, 1], b[:, 1])
+    vv = v[:, None]
+    hit = (vv >= lo[None]) & (vv <= hi[None]) & (hi > lo)[None]
+    tt = (vv - a[None, :, 1]) / np.where(hi > lo, b[:, 1] - a[:, 1], 1.0)[None]
+    u = a[None, :, 0] + tt * (b[:, 0] - a[:, 0])[None]
+    umax = np.where(hit, u, -np.inf).max(axis=1)
+    umin = np.where(hit, u, np.inf).min(axis=1)
+    return np.where(np.isfinite(umax), umax - umin, 0.0)
+
+
+def _cross_sections(points: np.ndarray, axis: BodyAxis, levels: np.ndarray, offset: float, monotone_down: bool):
+    """(L, 2) ellipse semi-axes (along P, Q) at axis coordinates `levels`."""
+    rel = points - axis.origin
+    t, p, q = rel @ axis.a, rel @ axis.p, rel @ axis.q
+    ab = np.full((levels.size, 2), np.nan)
+    for k, lv in enumerate(levels):
+        m = np.abs(t - lv) <= SLAB
+        if not m.any():
+            continue
+        hp, hq = max(np.abs(p[m]).max(), 0.01), max(np.abs(q[m]).max(), 0.01)
+        s = max(1.0, float(np.sqrt((p[m] / hp) ** 2 + (q[m] / hq) ** 2).max()))
+        ab[k] = (s * hp, s * hq)
+    have = np.flatnonzero(~np.isnan(ab[:, 0]))
+    if have.size == 0:
+        ab[:] = 0.05
+    else:
+        for c in range(2):
+            ab[:, c] = np.interp(np.arange(levels.size), have, ab[have, c])
+    # running max over neighbouring levels: clearance between the measured slabs
+    pad = np.pad(ab, ((2, 2), (0, 0)), mode="edge")
+    ab = np.max(np.stack([pad[i:i + levels.size] for i in range(5)]), axis=0)
+    if monotone_down:   # levels ascend with t (= up): a level is at least as wide as any above it
+        ab = np.maximum.accumulate(ab[::-1], axis=0)[::-1]
+    return ab + offset
+
+
+def _arc_table(a: float, b: float, phi0: float, n: int = 721):
+    phi = phi0 + np.linspace(-np.pi, np.pi, n)
+    pts = np.stack([a * np.sin(phi), b * np.cos(phi)], axis=1)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    return phi, s - s[n // 2]
+
+
+def collider_points(colliders, joint_world0: np.ndarray):
+    """[(joint, (K, 3) surface points in the relative frame at frame 0)] of every collider."""
+    out = []
+    if colliders is None:
+        return out
+    for h in colliders.hulls:
+        m = joint_world0[h.bone]
+        out.append((h.bone, h.simplified.vertices @ m[:3, :3].T + m[:3, 3]))
+    k = np.arange(96) + 0.5
+    phi = np.arccos(1 - 2 * k / 96)
+    th = np.pi * (1 + 5 ** 0.5) * k
+    dirs = np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], axis=1)
+    for sp in colliders.spheres:
+        m = joint_world0[sp.joint]
+        out.append((sp.joint, (sp.center + sp.radius * dirs) @ m[:3, :3].T + m[:3, 3]))
+    return out
+
+
+def _collider_joints(character, part: str, joint_origins: np.ndarray) -> set:
+    """Joints whose colliders a panel on `part` must clear."""
+    if part in ("torso", "hips"):
+        arms = set()
+        keep = set()
+        for side in ("l", "r"):
+            ch = _chain(character, "arm", side)
+            if ch is not None:
+                arms |= _subtree(np.asarray(character.parents), ch[0])
+                if part == "torso":
+                    keep.add(ch[0])
+        return (set(range(character.n_joints)) - arms) | keep
+    return part_joints(character, part, joint_origins)
+
+
+def place_panel(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, character, joint_origins: np.ndarray,
+                skinned: np.ndarray, dominant: np.ndarray, col_points=()) -> np.ndarray:
+    """(N, 3) positions of one panel's vertices (see the module docstring)."""
+    if pl.body == "plane":
+        n = np.asarray(pl.normal, dtype=np.float64)
+        n = n / np.linalg.norm(n)
+        up = np.array([0.0, 1.0, 0.0]) if abs(n[1]) < 0.99 else np.array([0.0, 0.0, -1.0])
+        av = up - (up @ n) * n
+        av /= np.linalg.norm(av)
+        pu = np.cross(av, n)
+        return np.asarray(pl.center, dtype=np.float64) + uv[:, :1] * pu + uv[:, 1:] * av
+    axis = body_axis(character, pl.body, joint_origins)
+    joints = part_joints(character, pl.body, joint_origins)
+    pts = skinned[np.isin(dominant, list(joints))]
+    cj = _collider_joints(character, pl.body, joint_origins)
+    extra = [p for j, p in col_points if j in cj]
+    if extra:
+        pts = np.concatenate([pts] + extra)
+    t = uv[:, 1] + pl.shift
+    levels = np.arange(t.min() - LEVEL_STEP, t.max() + 2 * LEVEL_STEP, LEVEL_STEP)
+    ab = _cross_sections(pts, axis, levels, pl.offset, pl.body == "hips")
+    v_lv = levels - pl.shift
+    vcap = v_lv if pl.wrap_until is None else np.minimum(v_lv, pl.wrap_until)
+    width = _outline_width(boundary_uv, vcap)
+    if np.any(width <= 0):   # levels beyond the outline: nearest valid width
+        ok = np.flatnonzero(width > 0)
+        width = np.interp(np.arange(width.size), ok, width[ok])
+    phi0 = np.radians(pl.angle_deg)
+    span = np.radians(pl.span_deg)
+    level = np.clip(np.round((t - levels[0]) / LEVEL_STEP).astype(int), 0, levels.size - 1)
+    out = np.empty((uv.shape[0], 3))
+    for k in np.unique(level):
+        a, b = ab[k]
+        phi, s = _arc_table(a, b, phi0)
+        half_arc = 0.5 * (np.interp(phi0 + span / 2, phi, s) - np.interp(phi0 - span / 2, phi, s))
+        grow = max(1.0, 0.5 * width[k] / half_arc)
+        a, b = a * grow, b * grow
+        phi, s = _arc_table(a, b, phi0)
+        half_arc *= grow
+        m = level == k
+        target = uv[m, 0] / (0.5 * width[k]) * half_arc
+        ph = np.interp(target, s, phi)
+        out[m] = (axis.origin + t[m, None] * axis.a + (a * np.sin(ph))[:, None] * axis.p
+                  + (b * np.cos(ph))[:, None] * axis.q)
+    return out
+
+
+def bind_geometry(character, motion):
+    """(skinned vertices at frame 0 (V, 3), joint origins at frame 0 (J, 3), dominant joint (V,))."""
+    from stages.rig.skinning import skin
+    skinned = skin(character, motion, frames=[0])[0]
+    origins = motion.joint_world[0][:, :3, 3]
+    dominant = character.skin_joints[np.arange(character.skin_joints.shape[0]), np.argmax(character.skin_weights, axis=1)]
+    return skinned, origins, dominant
+
+
+def inside_body(character, skinned: np.ndarray, points: np.ndarray, colliders=None, bind=None) -> np.ndarray:
+    """(N,) bool: points inside the skinned body mesh (winding number >= 0.5) or inside a collider."""
+    from stages.sim import winding_number
+    ins = winding_number(skinned, character.triangles, points) >= 0.5
+    if colliders is not None and bind is not None and (colliders.hulls or colliders.spheres):
+        from stages.garments.types import _collider_distances
+        d, _, _ = _collider_distances(bind, points)
+        ins |= (d < 0).any(axis=0)
+    return ins
+
+
+def place_pattern(pattern: Pattern, flat: FlatPattern, character, motion, colliders=None, *, max_tries: int = 15):
+    """(N, 3) placed positions of all panels (concatenated as in `flat`), relative frame at frame 0,
+    and {panel: final Placement} after clearance fixes: a panel with vertices inside the body or a
+    collider is moved out 1 cm at a time (limbs: along the limb, outwards; others: more offset)."""
+    from dataclasses import replace
+
+    from stages.garments.types import bind_pose
+    skinned, origins, dominant = bind_geometry(character, motion)
+    bind = bind_pose(character, motion, colliders) if colliders is not None else None
+    cp = collider_points(colliders, motion.joint_world[0])
+    out, used = [], {}
+    for panel, fp in zip(pattern.panels, flat.panels):
+        pl = panel.placement
+        for attempt in range(max_tries + 1):
+            x = place_panel(fp.uv, fp.uv[:fp.n_boundary], pl, character, origins, skinned, dominant, cp)
+            bad = inside_body(character, skinned, x, colliders, bind)
+            if not bad.any() or pl.body == "plane":
+                break
+            if attempt == max_tries:
+                raise InputError(f"pattern {pattern.name!r} panel {panel.name!r}",
+                                 f"{int(bad.sum())} vertices still inside the body after {max_tries} cm of clearance moves")
+            if pl.body.startswith(("arm", "leg")):
+                pl = replace(pl, shift=pl.shift - 0.01)
+            else:
+                pl = replace(pl, offset=pl.offset + 0.01)
+        out.append(x)
+        used[panel.name] = pl
+    return np.concatenate(out), used

@@ -1,0 +1,165 @@
+"""Sewing ('collision sewing' under micro-gravity, paper A §3.3): seam springs pull matched vertex
+pairs of the placed panels together through the public simulation stage (gravity reduced,
+collisions on), until every seam gap is below a tolerance; then sewn pairs are merged into one
+mesh whose rest lengths come from the flat panels.
+
+Each sewing iteration is one short `stages.sim.simulate` call on the bind pose held still, with the
+seam pairs as extra stretch springs of (almost) zero rest length; the panels' own springs keep their
+flat rest lengths. Attachments are applied only to the sewn garment (pins would hold seam ends apart).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from stages.checks import ContractError
+from stages.garments.types import Garment, build_garment
+
+
+@dataclass(frozen=True)
+class SewParams:
+    """Sewing settings.
+
+    tolerance: m, largest seam gap accepted. max_iterations: simulate calls at most.
+    frames_per_iteration: frames per call. dt, substeps, iterations: simulation step settings
+    (iterations = spring correction rounds). gravity_scale: share of g applied (micro-gravity).
+    damping, friction: as in SimParams. seam_rest: m, rest length of the seam springs (> 0).
+    log_every: keep the positions of every k-th iteration in the log (plus the first and last).
+    """
+
+    tolerance: float = 0.002
+    max_iterations: int = 40
+    frames_per_iteration: int = 10
+    dt: float = 1.0 / 30.0
+    substeps: int = 2
+    iterations: int = 8
+    gravity_scale: float = 0.02
+    damping: float = 0.2
+    friction: float = 0.0
+    seam_rest: float = 1e-4
+    log_every: int = 2
+
+    def __post_init__(self):
+        if not (self.tolerance > 0 and self.seam_rest > 0 and self.max_iterations >= 1 and
+                self.frames_per_iteration >= 2 and self.log_every >= 1 and 0 <= self.gravity_scale <= 1):
+            raise ContractError(f"SewParams: invalid settings {self}")
+
+
+@dataclass(frozen=True)
+class SewingLog:
+    """What the sewing did.
+
+    gap_max, gap_mean: (I,) float64, m, seam gaps after each iteration (index 0: placed, before
+    sewing). positions: (K, N, 3) float32, m, unsewn-mesh positions at iterations `logged`
+    (K,) int32. triangles: (T, 3) int32 of the unsewn mesh. seconds: wall time of the sewing loop.
+    converged: every gap below the tolerance. penetrations: particles inside a collider after the
+    last iteration (from the simulation's count).
+    """
+
+    gap_max: np.ndarray
+    gap_mean: np.ndarray
+    positions: np.ndarray
+    logged: np.ndarray
+    triangles: np.ndarray
+    seconds: float
+    converged: bool
+    penetrations: int
+    notes: tuple = field(default_factory=tuple)
+
+    @property
+    def iterations(self) -> int:
+        return int(self.gap_max.size - 1)
+
+
+def hold_motion(motion, n_frames: int, dt: float):
+    """The motion's first frame held still for n_frames (root translation 0)."""
+    from stages.rig.types import Motion
+    jw = np.broadcast_to(motion.joint_world[0], (n_frames,) + motion.joint_world.shape[1:]).copy()
+    return Motion("sewing", np.arange(n_frames, dtype=np.float64) * dt, jw, np.zeros((n_frames, 3)))
+
+
+def seam_gaps(x: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    if pairs.size == 0:
+        return np.zeros(0)
+    return np.linalg.norm(x[pairs[:, 0]] - x[pairs[:, 1]], axis=1)
+
+
+def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: np.ndarray, pairs: np.ndarray,
+        character, motion, colliders, maps, params: SewParams = SewParams(), *, density: float = 0.2,
+        flat_positions=None):
+    """Sew the placed panels. Returns (sewn positions of the UNSEWN mesh (N, 3), SewingLog).
+
+    positions: (N, 3) placed panels; triangles (T, 3); triangle_rest (T, 3) flat edge lengths;
+    pairs (K, 2) seam vertex pairs; flat_positions: (N, 3) panels laid out flat side by side (keeps
+    coincident seam vertices from being welded before sewing).
+    """
+    from stages.sim import SimParams, simulate
+    from stages.sim.types import SimulationDiverged
+
+    t0 = time.perf_counter()
+    x = np.ascontiguousarray(positions, dtype=np.float64)
+    g = build_garment(name, x, triangles, rest_positions=flat_positions, density=density, triangle_rest=triangle_rest,
+                      extra_springs=pairs, extra_rest_lengths=np.full(len(pairs), params.seam_rest))
+    if g.n_particles != x.shape[0]:
+        raise ContractError(f"sew {name!r}: the unsewn mesh must be clean (got {g.n_particles} of {x.shape[0]} vertices)")
+    sp = SimParams(dt=params.dt, substeps=params.substeps, iterations=params.iterations,
+                   gravity=(0.0, -9.81 * params.gravity_scale, 0.0), damping=params.damping, drag=0.0, lift=0.0,
+                   friction=params.friction, body_audit=False)
+    hold = hold_motion(motion, params.frames_per_iteration, params.dt)
+    gaps = seam_gaps(x, pairs)
+    gmax, gmean = [float(gaps.max(initial=0.0))], [float(gaps.mean()) if gaps.size else 0.0]
+    logged, snaps = [0], [x.astype(np.float32)]
+    pen, notes = 0, []
+    it = 0
+    while gmax[-1] > params.tolerance and it < params.max_iterations:
+        it += 1
+        try:
+            r = simulate(character, hold, colliders, maps, [g], sp, threads=1)
+        except SimulationDiverged as exc:
+            raise ContractError(f"sew {name!r}: the sewing simulation diverged at iteration {it}: {exc}") from None
+        x = r.garments[0].positions[-1].astype(np.float64)
+        pen = int(r.penetrations_colliders[-1])
+        g = replace(g, positions=x)
+        gaps = seam_gaps(x, pairs)
+        gmax.append(float(gaps.max()))
+        gmean.append(float(gaps.mean()))
+        if it % params.log_every == 0:
+            logged.append(it)
+            snaps.append(x.astype(np.float32))
+    if logged[-1] != it:
+        logged.append(it)
+        snaps.append(x.astype(np.float32))
+    converged = gmax[-1] <= params.tolerance
+    if not converged:
+        notes.append(f"seam gaps did not fall below {params.tolerance} m in {it} iterations (max {gmax[-1]:.4f} m)")
+    log = SewingLog(np.array(gmax), np.array(gmean), np.stack(snaps), np.array(logged, np.int32),
+                    np.ascontiguousarray(triangles, dtype=np.int32), time.perf_counter() - t0, bool(converged), pen,
+                    tuple(notes))
+    return x, log
+
+
+def merge_pairs(n: int, pairs: np.ndarray) -> np.ndarray:
+    """(n,) new index of every vertex after merging the pairs' connected groups (union-find)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    if pairs.size == 0:
+        return np.arange(n)
+    adj = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    _, label = connected_components(adj, directed=False)
+    # number groups in order of their first vertex (deterministic, keeps panel order)
+    first = np.full(label.max() + 1, n)
+    np.minimum.at(first, label, np.arange(n))
+    rank = np.empty_like(first)
+    rank[np.argsort(first, kind="stable")] = np.arange(first.size)
+    return rank[label]
+
+
+def merged_mesh(x: np.ndarray, triangles: np.ndarray, pairs: np.ndarray):
+    """(positions (M, 3): group means, triangles (T, 3) int32, remap (N,)) of the sewn mesh."""
+    remap = merge_pairs(x.shape[0], pairs)
+    m = remap.max() + 1
+    cnt = np.bincount(remap, minlength=m).astype(np.float64)
+    pos = np.stack([np.bincount(remap, weights=x[:, k], minlength=m) for k in range(3)], axis=1) / cnt[:, None]
+    return pos, remap[triangles].astype(np.int32), remap
