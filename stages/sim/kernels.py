@@ -99,9 +99,10 @@ def _tri_aero(x, xp, tri_mass, t, a, b, c, h, s, d_prev, wind, k_drag, k_lift):
     lift = k_lift/2 (N.w) |w|/|N| (N - (N.w)/|w|^2 w): one square root per triangle. Explicit drag
     is unstable once it would more than stop the triangle within a step: |F| is capped at m |w| / h.
     """
-    wx = wind[0] - ((x[a, 0] - xp[a, 0]) + (x[b, 0] - xp[b, 0]) + (x[c, 0] - xp[c, 0]) + 3.0 * s * d_prev[0]) / (3.0 * h)
-    wy = wind[1] - ((x[a, 1] - xp[a, 1]) + (x[b, 1] - xp[b, 1]) + (x[c, 1] - xp[c, 1]) + 3.0 * s * d_prev[1]) / (3.0 * h)
-    wz = wind[2] - ((x[a, 2] - xp[a, 2]) + (x[b, 2] - xp[b, 2]) + (x[c, 2] - xp[c, 2]) + 3.0 * s * d_prev[2]) / (3.0 * h)
+    ih = 1.0 / (3.0 * h)
+    wx = wind[0] - ((x[a, 0] - xp[a, 0]) + (x[b, 0] - xp[b, 0]) + (x[c, 0] - xp[c, 0]) + 3.0 * s * d_prev[0]) * ih
+    wy = wind[1] - ((x[a, 1] - xp[a, 1]) + (x[b, 1] - xp[b, 1]) + (x[c, 1] - xp[c, 1]) + 3.0 * s * d_prev[1]) * ih
+    wz = wind[2] - ((x[a, 2] - xp[a, 2]) + (x[b, 2] - xp[b, 2]) + (x[c, 2] - xp[c, 2]) + 3.0 * s * d_prev[2]) * ih
     e1x = x[b, 0] - x[a, 0]
     e1y = x[b, 1] - x[a, 1]
     e1z = x[b, 2] - x[a, 2]
@@ -145,7 +146,7 @@ def aero_forces(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, out):
         out[t, 2] = fz
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def aero_accumulate(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, force):
     """force (N, 3) = sum over each vertex's triangles of the triangle's force / 3 (triangle order)."""
     force[:] = 0.0
@@ -154,13 +155,18 @@ def aero_accumulate(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, f
         b = tris[t, 1]
         c = tris[t, 2]
         fx, fy, fz = _tri_aero(x, xp, tri_mass, t, a, b, c, h, s, d_prev, wind, k_drag, k_lift)
-        fx /= 3.0
-        fy /= 3.0
-        fz /= 3.0
-        for v in (a, b, c):
-            force[v, 0] += fx
-            force[v, 1] += fy
-            force[v, 2] += fz
+        fx *= 1.0 / 3.0
+        fy *= 1.0 / 3.0
+        fz *= 1.0 / 3.0
+        force[a, 0] += fx
+        force[a, 1] += fy
+        force[a, 2] += fz
+        force[b, 0] += fx
+        force[b, 1] += fy
+        force[b, 2] += fz
+        force[c, 0] += fx
+        force[c, 1] += fy
+        force[c, 2] += fz
 
 
 @njit(cache=True)
@@ -213,7 +219,7 @@ def integrate(x, xp, inv_mass, attach_joint, attach_local, fwd, h, gravity, damp
 
 
 # -- springs --------------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, fastmath=True)
 def correct_springs(x, si, sj, rest, wi, wj, iterations):
     """`iterations` Gauss-Seidel rounds of position correction over the springs in array order
     (stretch and compression). wi, wj: per spring, stiffness * w_i / (w_i + w_j) and
@@ -349,8 +355,12 @@ def build_bins(cw, bin_start, bin_items, bin_range):
 
 # -- hull queries over unpacked map arrays ---------------------------------------------------------
 # The same arithmetic as stages.maps.kernels (slab point location, the map ray), but taking the
-# MapArrays fields as plain arguments: reading fields of the named tuple inside the per-particle loop
-# cost ~200 ns per query in reference counting, more than the query itself.
+# MapArrays fields as plain arguments and returning the response's face. Why not call the maps
+# kernels: numba increments / decrements the reference count of every array argument of a function
+# inlined into a big loop (an atomic operation each); with the 18-array named tuple that cost
+# ~300 ns per query, more than the query. So: no array-taking inline helpers in the collision loop;
+# the sphere test and the OBB rejection are written out in it, and only points inside an OBB call
+# _hull_hit (a plain call, no reference counting).
 @njit(cache=True, inline="always")
 def _locate_a(loc_base, loc_x, loc_start, loc_y, loc_face, k, x, y):
     """Face of planar mesh k (= 2h + side) containing (x, y); -1 outside the outline, -2 in a gap."""
@@ -384,7 +394,7 @@ def _locate_a(loc_base, loc_x, loc_start, loc_y, loc_face, k, x, y):
     return loc_face[lo]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False)
 def _hull_hit(planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start,
               cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, h, method, q0, q1, q2):
     """(hit, r0, r1, r2, face): inside test and response of hull h for an OBB-local point q, as
@@ -486,23 +496,28 @@ def _hull_hit(planes, face_start, half, mkind, n_theta, n_second, second_lo, sec
 
 
 @njit(cache=True, inline="always")
-def _query(c, col_kind, col_index, sph_radius, method,
-           planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
-           q0, q1, q2):
+def _sphere_hit(rad, q0, q1, q2):
+    """(hit, r0, r1, r2, n0, n1, n2) of a sphere of radius rad at the origin of the query frame:
+    paper eq. 5 (inside iff |q| < r) and eq. 6 (response r q / |q|), outward normal q / |q|."""
+    d2 = q0 * q0 + q1 * q1 + q2 * q2
+    if d2 >= rad * rad:
+        return False, q0, q1, q2, 0.0, 0.0, 0.0
+    d = math.sqrt(d2)
+    if d < 1e-12:                     # at the centre: no direction, push up (deterministic)
+        return True, 0.0, rad, 0.0, 0.0, 1.0, 0.0
+    f = rad / d
+    return True, f * q0, f * q1, f * q2, q0 / d, q1 / d, q2 / d
+
+
+@njit(cache=True, _nrt=False)
+def _collider_hit(c, col_kind, col_index, sph_radius, method,
+                  planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                  q0, q1, q2):
     """(hit, r0, r1, r2, n0, n1, n2): inside test, response point and outward unit contact normal
-    of collider c, all in its query frame."""
+    of collider c, all in its query frame (the slow-path form of the test written out in collide)."""
     idx = col_index[c]
     if col_kind[c] == KIND_SPHERE:
-        r = sph_radius[idx]
-        d2 = q0 * q0 + q1 * q1 + q2 * q2
-        if d2 >= r * r:                   # paper eq. 5: inside iff |x - c| < r
-            return False, q0, q1, q2, 0.0, 0.0, 0.0
-        d = math.sqrt(d2)
-        if d < 1e-12:                     # at the centre: no direction, push up (deterministic)
-            return True, 0.0, r, 0.0, 0.0, 1.0, 0.0
-        f = r / d                         # paper eq. 6: c + r (x - c) / |x - c|
-        return True, f * q0, f * q1, f * q2, q0 / d, q1 / d, q2 / d
-    # OBB rejection first (most particles near a hull are outside its OBB)
+        return _sphere_hit(sph_radius[idx], q0, q1, q2)
     if method != METHOD_NEAREST_PLANE and (abs(q0) > half[idx, 0] or abs(q1) > half[idx, 1] or abs(q2) > half[idx, 2]):
         return False, q0, q1, q2, 0.0, 0.0, 0.0
     hit, r0, r1, r2, face = _hull_hit(planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
@@ -512,7 +527,7 @@ def _query(c, col_kind, col_index, sph_radius, method,
     return True, r0, r1, r2, planes[face, 0], planes[face, 1], planes[face, 2]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False)
 def _inside_any(col_kind, col_index, sph_radius, method, tq, cw, skip,
                 planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
                 px, py, pz):
@@ -526,15 +541,15 @@ def _inside_any(col_kind, col_index, sph_radius, method, tq, cw, skip,
         if dx * dx + dy * dy + dz * dz >= cw[c, 4]:
             continue
         q0, q1, q2 = _apply12(tq, c, px, py, pz)
-        hit, r0, r1, r2, n0, n1, n2 = _query(c, col_kind, col_index, sph_radius, method,
-                                             planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
-                                             q0, q1, q2)
+        hit, r0, r1, r2, n0, n1, n2 = _collider_hit(c, col_kind, col_index, sph_radius, method,
+                                                    planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                                                    q0, q1, q2)
         if hit and (r0 - q0) ** 2 + (r1 - q1) ** 2 + (r2 - q2) ** 2 >= TOUCH_EPS * TOUCH_EPS:
             return True
     return False
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False)
 def _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i, friction):
     """(pushed, px, py, pz): the world position after collider c's response r (query frame, contact
     normal n) to the point q, with Coulomb friction; moves xp[i] for a fully inelastic contact."""
@@ -578,7 +593,7 @@ def _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i, friction):
     return True, px, py, pz
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
             bin_start, bin_items, bin_range, friction, passes, corrected, inside, speed2, h):
     """Collision detection and response of every free particle against every collider.
@@ -620,72 +635,85 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
         py = x[i, 1]
         pz = x[i, 2]
         inside[i] = 0
-        if inv_mass[i] > 0.0 and nc > 0:
-            b = int(math.floor((py - y0) / bh))
-            if 0 <= b < nb:
-                last = -1
-                for e in range(bin_start[b], bin_start[b + 1]):
-                    c = bin_items[e]
-                    dx = px - cw[c, 0]
-                    dy = py - cw[c, 1]
-                    dz = pz - cw[c, 2]
-                    if dx * dx + dy * dy + dz * dz >= cw[c, 4]:
-                        continue
-                    q0, q1, q2 = _apply12(tq, c, px, py, pz)
-                    hit, r0, r1, r2, n0, n1, n2 = _query(c, col_kind, col_index, sph_radius, method,
-                                                         planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
-                                                         q0, q1, q2)
-                    if hit:
-                        pushed, wx, wy, wz = _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i, friction)
-                        if pushed:
-                            px = wx
-                            py = wy
-                            pz = wz
-                            last = c
-                if last >= 0:
-                    corrected[i] = 1
-                    if nc > 1:
-                        # every other collider must see the final position once without pushing
-                        streak = 1
+        b = int(math.floor((py - y0) / bh)) if nc > 0 else -1
+        if inv_mass[i] > 0.0 and 0 <= b < nb:
+            # one visiting loop (a single inlined query site keeps the loop small):
+            # stage 0, the slab's colliders; stage 1, after a push, the others cyclically until all
+            # were seen without a push; stage 2, the budget spent: only detect (no push).
+            e = bin_start[b]
+            e1 = bin_start[b + 1]
+            stage = 0
+            last = -1
+            streak = 0
+            budget = passes * nc
+            c = 0
+            while True:
+                if stage == 0:
+                    if e == e1:
+                        if last < 0 or nc == 1:
+                            break
+                        stage = 1
                         c = last
-                        budget = passes * nc
-                        while streak < nc:
-                            c = c + 1 if c + 1 < nc else 0
-                            budget -= 1
-                            if budget < 0:
-                                inside[i] = _inside_any(col_kind, col_index, sph_radius, method, tq, cw, last,
-                                                        planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
-                                                        px, py, pz)
+                        streak = 1
+                        continue
+                    c = bin_items[e]
+                    e += 1
+                else:
+                    if streak >= nc:
+                        break
+                    c = c + 1 if c + 1 < nc else 0
+                    if stage == 1:
+                        budget -= 1
+                        if budget < 0:
+                            stage = 2
+                            streak = 1      # `last` is left outside by its own push
+                            c = last
+                            continue
+                dx = px - cw[c, 0]
+                dy = py - cw[c, 1]
+                dz = pz - cw[c, 2]
+                if dx * dx + dy * dy + dz * dz < cw[c, 4]:
+                    q0, q1, q2 = _apply12(tq, c, px, py, pz)
+                    idx = col_index[c]
+                    hit = False
+                    r0 = r1 = r2 = n0 = n1 = n2 = 0.0
+                    if col_kind[c] == KIND_SPHERE:
+                        hit, r0, r1, r2, n0, n1, n2 = _sphere_hit(sph_radius[idx], q0, q1, q2)
+                    elif method == METHOD_NEAREST_PLANE or (abs(q0) <= half[idx, 0] and abs(q1) <= half[idx, 1]
+                                                            and abs(q2) <= half[idx, 2]):
+                        hit, r0, r1, r2, face = _hull_hit(planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                                                          idx, method, q0, q1, q2)
+                        if hit:
+                            n0 = planes[face, 0]
+                            n1 = planes[face, 1]
+                            n2 = planes[face, 2]
+                    if hit:
+                        if stage == 2:
+                            if (r0 - q0) ** 2 + (r1 - q1) ** 2 + (r2 - q2) ** 2 >= TOUCH_EPS * TOUCH_EPS:
+                                inside[i] = 1
                                 break
-                            dx = px - cw[c, 0]
-                            dy = py - cw[c, 1]
-                            dz = pz - cw[c, 2]
-                            if dx * dx + dy * dy + dz * dz < cw[c, 4]:
-                                q0, q1, q2 = _apply12(tq, c, px, py, pz)
-                                hit, r0, r1, r2, n0, n1, n2 = _query(c, col_kind, col_index, sph_radius, method,
-                                                                     planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
-                                                                     q0, q1, q2)
-                                if hit:
-                                    pushed, wx, wy, wz = _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i,
-                                                               friction)
-                                    if pushed:
-                                        px = wx
-                                        py = wy
-                                        pz = wz
-                                        last = c
-                                        streak = 1
-                                        continue
-                            streak += 1
-                    x[i, 0] = px
-                    x[i, 1] = py
-                    x[i, 2] = pz
+                        else:
+                            pushed, wx, wy, wz = _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i, friction)
+                            if pushed:
+                                px = wx
+                                py = wy
+                                pz = wz
+                                last = c
+                                streak = 1
+                                continue
+                streak += 1
+            if last >= 0:
+                corrected[i] = 1
+                x[i, 0] = px
+                x[i, 1] = py
+                x[i, 2] = pz
         vx = px - xp[i, 0]
         vy = py - xp[i, 1]
         vz = pz - xp[i, 2]
         speed2[i] = (vx * vx + vy * vy + vz * vz) * ih2
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def count_inside(x, inv_mass, m, method, col_kind, col_index, sph_radius, tq, cw, inside):
     """inside[i] = 1 if free particle i is inside any collider (no response)."""
     planes = m.planes
