@@ -58,7 +58,7 @@ def _need(meas: dict, *keys):
             raise InputError("garment measurements", f"missing or NaN {k!r} (have {sorted(meas)})")
 
 
-def _torso_panel(name, hw, sw, nw, ha, hs, hn, neck_depth, angle):
+def _torso_panel(name, hw, sw, nw, ha, hs, hn, neck_depth, angle, hem_y):
     """Front / back T-shirt body: hem at v = 0, armpits at ha, shoulder points at hs, neck points at hn."""
     dy = hs - ha
     edges = (
@@ -71,7 +71,8 @@ def _torso_panel(name, hw, sw, nw, ha, hs, hn, neck_depth, angle):
         cubic("armhole_r", (-sw, ha + 0.5 * dy), (-sw - 0.4 * (hw - sw), ha), (-hw, ha)),
         line("side_r", (-hw, 0.0)),
     )
-    return Panel(name, edges, Placement("torso", angle_deg=angle, span_deg=180.0, offset=0.02, wrap_until=ha))
+    return Panel(name, edges, Placement("torso", angle_deg=angle, span_deg=180.0, shift=hem_y, offset=0.02,
+                                       wrap_until=ha))
 
 
 def tshirt(meas: dict, *, ease: float = 0.12, length_below_waist: float | None = None, sleeve_length: float | None = None,
@@ -90,8 +91,8 @@ def tshirt(meas: dict, *, ease: float = 0.12, length_below_waist: float | None =
     lam = sleeve_circ / 2   # wanted armhole length (front = back)
     depth = np.sqrt(max(lam ** 2 / 1.1 ** 2 - (hw - sw) ** 2, (0.08 * h) ** 2))
     ha = hs - depth
-    front = _torso_panel("front", hw, sw, nw, ha, hs, hn, 0.06 * h * 0.6, 0.0)
-    back = _torso_panel("back", hw, sw, nw, ha, hs, hn, 0.012 * h, 180.0)
+    front = _torso_panel("front", hw, sw, nw, ha, hs, hn, 0.06 * h * 0.6, 0.0, hem_y)
+    back = _torso_panel("back", hw, sw, nw, ha, hs, hn, 0.012 * h, 180.0, hem_y)
     lam = 0.5 * (front.edge_length(front.edge_index("armhole_l")) + back.edge_length(back.edge_index("armhole_l")))
     sl = 0.12 * h if sleeve_length is None else sleeve_length
     panels = [front, back]
@@ -149,7 +150,7 @@ def cape(meas: dict, *, length: float | None = None, edge_length: float = 0.03, 
     top = meas["shoulder_half"] + 0.02
     bottom = top + 0.25 * L
     edges = (line("hem", (bottom, 0.0)), line("side_l", (top, L)), line("top", (-top, L)), line("side_r", (-bottom, 0.0)))
-    p = Panel("cape", edges, Placement("torso", angle_deg=180.0, span_deg=180.0,
+    p = Panel("cape", edges, Placement("torso", angle_deg=180.0, span_deg=120.0,
                                        shift=meas["shoulder_y"] + 0.03 * h - L, offset=0.03, wrap_until=L))
     atts = (PatternAttachment("cape", "top", at=(0.0, 1.0)),)
     return Pattern(name, (p,), (), edge_length, atts)

@@ -145,11 +145,11 @@ class Panel:
         if len(set(names)) != len(names):
             raise ContractError(f"{o}.edges: edge names must be unique, got {names}")
         poly = self.polyline(64)
+        if _self_intersects(poly):
+            raise ContractError(f"{o}: the outline intersects itself")
         if polygon_area(poly) <= 0:
             raise ContractError(f"{o}: the outline must be counter-clockwise with positive area "
                                 f"(signed area {polygon_area(poly):.4g} m^2)")
-        if _self_intersects(poly):
-            raise ContractError(f"{o}: the outline intersects itself")
 
     def edge_index(self, name: str) -> int:
         for i, e in enumerate(self.edges):

@@ -269,7 +269,9 @@ def place_pattern(pattern: Pattern, flat: FlatPattern, character, motion, collid
         pl = panel.placement
         for attempt in range(max_tries + 1):
             x = place_panel(fp.uv, fp.uv[:fp.n_boundary], pl, character, origins, skinned, dominant, cp)
-            bad = inside_body(character, skinned, x, colliders, bind)
+            # the body mesh must be clear; particles starting inside an (inflated) collider are
+            # pushed out by the sewing simulation's collision response
+            bad = inside_body(character, skinned, x)
             if not bad.any() or pl.body == "plane":
                 break
             if attempt == max_tries:

@@ -1,0 +1,69 @@
+"""Garment meshes from files (OBJ / PLY / GLB / ... through trimesh), scaled and placed.
+
+Repairs with a warning: non-triangle faces (triangulated by trimesh), duplicate vertices (merged),
+degenerate and duplicate faces (dropped), unused vertices (removed). Refused with InputError: a
+missing or unreadable file, no triangles left, non-finite vertices, non-manifold edges (shared by
+more than two faces).
+"""
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from stages.errors import InputError
+
+
+def import_garment_mesh(path, *, scale: float = 1.0, transform=None):
+    """(vertices (N, 3) float64 metres, triangles (T, 3) int32) of the mesh file at `path`,
+    multiplied by `scale`, then by the (4, 4) `transform` (default identity)."""
+    import trimesh
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(p, "file not found")
+    if not (np.isfinite(scale) and scale > 0):
+        raise InputError(p, f"scale must be positive, got {scale}")
+    m4 = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
+    if m4.shape != (4, 4) or not np.isfinite(m4).all():
+        raise InputError(p, "transform must be a finite 4x4 matrix")
+    try:
+        loaded = trimesh.load(p, force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many kinds for corrupt files
+        raise InputError(p, f"cannot read the mesh ({type(exc).__name__}: {exc})") from None
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise InputError(p, "no triangle faces in the file")
+    v = np.asarray(loaded.vertices, dtype=np.float64)
+    f = np.asarray(loaded.faces, dtype=np.int64)
+    if not np.isfinite(v).all():
+        raise InputError(p, "non-finite vertex coordinates")
+    notes = []
+    mesh = trimesh.Trimesh(v, f, process=False)
+    n0, f0 = len(mesh.vertices), len(mesh.faces)
+    mesh.merge_vertices()
+    if len(mesh.vertices) < n0:
+        notes.append(f"merged {n0 - len(mesh.vertices)} duplicate vertices")
+    ok = mesh.nondegenerate_faces() if hasattr(mesh, "nondegenerate_faces") else mesh.remove_degenerate_faces()
+    if ok is not None and not np.all(ok):
+        mesh.update_faces(ok)
+    uniq = mesh.unique_faces()
+    if len(uniq) < len(mesh.faces):
+        mesh.update_faces(uniq)
+    if len(mesh.faces) < f0:
+        notes.append(f"dropped {f0 - len(mesh.faces)} degenerate or duplicate faces")
+    n1 = len(mesh.vertices)
+    mesh.remove_unreferenced_vertices()
+    if len(mesh.vertices) < n1:
+        notes.append(f"removed {n1 - len(mesh.vertices)} unused vertices")
+    if len(mesh.faces) == 0:
+        raise InputError(p, "no non-degenerate triangle left")
+    e = np.sort(mesh.edges, axis=1)
+    _, cnt = np.unique(e, axis=0, return_counts=True)
+    if np.any(cnt > 2):
+        raise InputError(p, f"non-manifold: {int(np.sum(cnt > 2))} edges shared by more than two faces")
+    if notes:
+        warnings.warn(f"{p}: " + "; ".join(notes), stacklevel=2)
+    x = np.asarray(mesh.vertices, dtype=np.float64) * scale
+    x = x @ m4[:3, :3].T + m4[:3, 3]
+    return np.ascontiguousarray(x), np.ascontiguousarray(mesh.faces, dtype=np.int32)

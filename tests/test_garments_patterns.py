@@ -1,0 +1,130 @@
+"""Sewing patterns: triangulation quality, seam matching, sizes, mesh import (no simulation)."""
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from stages.checks import ContractError
+from stages.errors import InputError
+from stages.garments.importer import import_garment_mesh
+from stages.garments.library import library_pattern
+from stages.garments.patterns import Panel, Pattern, Placement, Seam, SeamSide, arc, cubic, line, quad
+from stages.garments.triangulate import triangulate_pattern
+
+MEAS = {"height": 1.75, "chest": 0.89, "waist": 0.80, "hips": 0.99, "chest_y": 1.26, "waist_y": 1.085,
+        "hips_y": 0.93, "arm_length": 0.58, "leg_length": 0.84, "shoulder_y": 1.42, "shoulder_half": 0.18,
+        "neck_y": 1.43, "arm_girth": 0.37, "floor_y": 0.0}
+
+
+def _edge_lengths(fp):
+    t = fp.triangles
+    e = np.unique(np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1), axis=0)
+    return np.linalg.norm(fp.uv[e[:, 0]] - fp.uv[e[:, 1]], axis=1)
+
+
+def _two_panel(w, h, bulge, L):
+    def panel(name, angle):
+        return Panel(name, (line("hem", (w, 0)), line("side_l", (w, h)), arc("top", (0, h + bulge), (-w, h)),
+                            line("side_r", (-w, 0))), Placement("hips", angle_deg=angle))
+    return Pattern("p", (panel("front", 0), panel("back", 180)),
+                   (Seam(SeamSide("front", "side_l"), SeamSide("back", "side_r")),
+                    Seam(SeamSide("back", "side_l"), SeamSide("front", "side_r"))), edge_length=L)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.floats(0.2, 0.4), st.floats(0.3, 0.6), st.floats(0.0, 0.1), st.floats(0.015, 0.03))
+def test_triangulation_edge_lengths_area_and_seam_counts(w, h, bulge, L):
+    p = _two_panel(w, h, bulge, L)
+    flat = triangulate_pattern(p)
+    for fp, panel in zip(flat.panels, p.panels):
+        r = _edge_lengths(fp) / L
+        assert abs(r.mean() - 1) < 0.15
+        assert np.mean(np.abs(r - 1) <= 0.3) > 0.93       # corners of the outline make a few diagonals
+        assert r.min() > 0.4 and r.max() < 1.75
+        assert fp.area == pytest.approx(panel.area, rel=0.02)
+        a, b, c = (fp.uv[fp.triangles[:, k]] for k in range(3))
+        assert np.all((b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0] > 0)   # counter-clockwise
+        assert np.allclose(fp.uv[:fp.n_boundary].min(axis=0), [-w, 0], atol=1e-9)
+    # both sides of each seam: same vertex count, same heights (mirror panels)
+    for k in range(2):
+        pr = flat.seam_pairs[flat.seam_index == k]
+        uv = flat.uv
+        assert len(pr) >= 2 and np.allclose(uv[pr[:, 0], 1], uv[pr[:, 1], 1])
+        assert np.allclose(uv[pr[:, 0], 0], -uv[pr[:, 1], 0])
+
+
+def test_curves_sampled_on_the_curve():
+    pan = Panel("x", (line("a", (1, 0)), quad("b", (1.5, 0.5), (1, 1)), cubic("c", (0.6, 1.4), (0.3, 1.4), (0, 1)),
+                      arc("d", (-0.5, 0.5), (0, 0))), Placement("plane"))
+    pts = pan.sample_edge(3, 20)                         # the arc through (-0.5, 0.5): circle at (0, 0.5), r 0.5
+    assert np.allclose(np.linalg.norm(pts - [0, 0.5], axis=1), 0.5)
+    q = pan.sample_edge(1, 10)
+    t = np.linspace(0, 1, 400)[:, None]
+    ref = (1 - t) ** 2 * [1, 0] + 2 * (1 - t) * t * [1.5, 0.5] + t ** 2 * [1, 1]
+    assert np.min(np.linalg.norm(q[:, None] - ref[None], axis=2), axis=1).max() < 2e-3
+
+
+def test_pattern_validation_errors():
+    with pytest.raises(ContractError, match="counter-clockwise"):
+        Panel("cw", (line("a", (0, 1)), line("b", (1, 1)), line("c", (1, 0)), line("d", (0, 0))), Placement("plane"))
+    with pytest.raises(ContractError, match="intersects"):
+        Panel("bow", (line("a", (1, 1)), line("b", (1, 0)), line("c", (0, 1)), line("d", (0, 0))), Placement("plane"))
+    p = _two_panel(0.2, 0.3, 0.0, 0.03)
+    with pytest.raises(ContractError, match="already in a seam"):
+        Pattern("p", p.panels, p.seams + (Seam(SeamSide("front", "side_l"), SeamSide("back", "hem")),))
+    with pytest.raises(ContractError, match="no edge"):
+        Pattern("p", p.panels, (Seam(SeamSide("front", "nope"), SeamSide("back", "hem")),))
+    with pytest.raises(InputError, match="unknown kind"):
+        library_pattern("poncho", MEAS)
+
+
+@pytest.mark.parametrize("kind", ["tshirt", "short_skirt", "long_skirt", "cape", "square"])
+def test_library_sizes_follow_measurements(kind):
+    small = library_pattern(kind, MEAS)
+    big_meas = {k: (v * 1.2 if k in ("chest", "waist", "hips", "arm_girth", "shoulder_half") else v) for k, v in MEAS.items()}
+    big = library_pattern(kind, big_meas)
+    wa = sum(p.area for p in small.panels)
+    wb = sum(p.area for p in big.panels)
+    if kind == "square":
+        assert wa == pytest.approx(1.0, rel=1e-3) and wb == pytest.approx(wa)
+    else:
+        assert wb > wa * 1.05
+    if kind in ("short_skirt", "long_skirt"):
+        waist = sum(2 * p.edges[p.edge_index("waist")].points[0][0] * -1 for p in small.panels)
+        assert waist == pytest.approx(MEAS["waist"] + 0.2, rel=1e-6)     # waist girth + ease
+    if kind == "tshirt":
+        f = small.panel("front")
+        assert 2 * 2 * f.edges[f.edge_index("hem")].points[0][0] == pytest.approx(MEAS["hips"] + 0.12)
+        # sleeve top = front + back armholes, so the armhole seams can match
+        s = small.panel("sleeve_l")
+        cap = s.edge_length(s.edge_index("cap_front")) + s.edge_length(s.edge_index("cap_back"))
+        holes = f.edge_length(f.edge_index("armhole_l")) + small.panel("back").edge_length(1 + 1)
+        assert cap == pytest.approx(holes, rel=0.02)
+    flat = triangulate_pattern(small)
+    for k, s in enumerate(small.seams):
+        assert np.count_nonzero(flat.seam_index == k) >= 2
+
+
+def test_import_repairs_with_warning_and_refuses_bad_files(tmp_path):
+    q = tmp_path / "quad.obj"
+    q.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 0\nf 1 2 3 4\nf 1 2 5\n")
+    m = np.eye(4)
+    m[:3, 3] = [0, 1, 0]
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        v, t = import_garment_mesh(q, scale=2.0, transform=m)
+    msg = " ".join(str(x.message) for x in w)
+    assert "merged 1 duplicate" in msg and "dropped 1 degenerate" in msg
+    assert t.shape == (2, 3) and t.dtype == np.int32
+    assert np.allclose(np.sort(v[:, 0]), [0, 0, 2, 2]) and np.allclose(v[:, 1].min(), 1.0)
+    nm = tmp_path / "fan.obj"
+    nm.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 2 5\n")
+    with pytest.raises(InputError, match="non-manifold"):
+        import_garment_mesh(nm)
+    bad = tmp_path / "bad.ply"
+    bad.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 99\n")
+    with pytest.raises(InputError):
+        import_garment_mesh(bad)
+    with pytest.raises(InputError, match="not found"):
+        import_garment_mesh(tmp_path / "missing.obj")
