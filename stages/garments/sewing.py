@@ -29,13 +29,13 @@ class SewParams:
     log_every: keep the positions of every k-th iteration in the log (plus the first and last).
     """
 
-    tolerance: float = 0.002
+    tolerance: float = 0.004
     max_iterations: int = 40
     frames_per_iteration: int = 10
     dt: float = 1.0 / 30.0
     substeps: int = 2
     iterations: int = 8
-    gravity_scale: float = 0.02
+    gravity_scale: float = 0.005
     damping: float = 0.2
     friction: float = 0.0
     seam_rest: float = 1e-4

@@ -1,0 +1,69 @@
+"""Sewing on the built-in character: sewn garments are one oriented manifold, clear of the body."""
+import numpy as np
+import pytest
+
+from stages.garments.library import garment_measurements, library_pattern, make_garment
+from stages.garments.sewing import merge_pairs
+from stages.garments.types import STRETCH, boundary_loops
+
+
+@pytest.fixture(scope="module")
+def scene():
+    from stages.hulls import fit_colliders
+    from stages.maps.build import build_maps
+    from stages.rig.procedural import BodyParams, procedural_character
+    from stages.rig.regions import split_regions
+    from stages.rig.skinning import sample_motion, skin
+    c = procedural_character(BodyParams())
+    m = sample_motion(c, "walk", np.arange(4) / 30.0)
+    cols = fit_colliders(c, split_regions(c, threshold=0.9), delta=0.01, min_triangles=40, max_offset=0.02)
+    return c, m, cols, build_maps(cols), skin(c, m, frames=[0])[0]
+
+
+def _check_manifold(tri, n):
+    e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    key = np.sort(e, axis=1)
+    _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    assert cnt.max() <= 2
+    # consistent orientation: each interior edge is walked once in each direction
+    _, dcnt = np.unique(e, axis=0, return_counts=True)
+    assert dcnt.max() == 1
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    ncomp, _ = connected_components(coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)), directed=False)
+    assert ncomp == 1
+    assert np.unique(tri).size == n
+
+
+@pytest.mark.parametrize("kind,openings", [("short_skirt", 2), ("long_skirt", 2), ("cape", 1)])
+def test_sewn_garment_is_clean_and_clear_of_the_body(scene, kind, openings):
+    from stages.sim import winding_number
+    c, m, cols, maps, body = scene
+    p = library_pattern(kind, garment_measurements(c), edge_length=0.03)
+    g, log, build = make_garment(p, c, m, cols, maps)
+    _check_manifold(g.triangles, g.n_particles)
+    assert len(boundary_loops(g.triangles)) == openings           # waist + hem; the cape's outline
+    assert log.converged and log.gap_max[-1] <= 0.004
+    assert np.all(winding_number(body, c.triangles, g.positions) < 0.5)
+    # rest lengths come from the flat panels: a sewn skirt keeps the pattern's size
+    stretch = g.kinds == STRETCH
+    assert np.median(g.rest_lengths[stretch]) == pytest.approx(0.03, rel=0.15)
+    assert (1 / g.inverse_mass[g.inverse_mass > 0]).sum() < p.density * sum(x.area for x in p.panels)
+    assert abs(g.rest_lengths.sum() - g.rest_lengths.sum()) == 0
+    assert g.attached.size > 0                                     # waistband / cape corners pinned
+    # the sewing log: iteration 0 is the placed state; positions subsampled
+    assert log.positions.shape[1] == build.placed_positions.shape[0] and log.logged[0] == 0
+
+
+def test_merge_pairs_groups_chains():
+    r = merge_pairs(6, np.array([[0, 3], [3, 5], [1, 2]]))
+    assert r[0] == r[3] == r[5] and r[1] == r[2] and len(set(r.tolist())) == 3 and r.max() == 2
+
+
+@pytest.mark.xfail(reason="T-shirt placement over the shoulders does not sew below tolerance yet (gap ~2 cm)",
+                   strict=False)
+def test_tshirt_sews(scene):
+    c, m, cols, maps, body = scene
+    g, log, _ = make_garment(library_pattern("tshirt", garment_measurements(c)), c, m, cols, maps)
+    assert log.converged
+    assert len(boundary_loops(g.triangles)) == 4
