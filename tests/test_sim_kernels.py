@@ -36,7 +36,9 @@ def test_springs_match_python_gauss_seidel():
     wi = k * w[s[:, 0]] / (w[s[:, 0]] + w[s[:, 1]])
     wj = k * w[s[:, 1]] / (w[s[:, 0]] + w[s[:, 1]])
     x = x0.copy()
-    K.correct_springs(x, s[:, 0].astype(np.int32), s[:, 1].astype(np.int32), rest, wi, wj, 3)
+    # tethers: particle 7 may be at most 0.05 from particle 0, particle 9 at most 1.0 from 3
+    ti, ta, tl = np.array([7, 9], np.int32), np.array([0, 3], np.int32), np.array([0.05, 1.0])
+    K.correct_springs(x, s[:, 0].astype(np.int32), s[:, 1].astype(np.int32), rest, wi, wj, ti, ta, tl, 3)
     ref = x0.copy()
     for _ in range(3):
         for q in range(len(s)):
@@ -45,7 +47,12 @@ def test_springs_match_python_gauss_seidel():
             c = 1 - rest[q] / np.linalg.norm(d)
             ref[i] += wi[q] * c * d
             ref[j] -= wj[q] * c * d
+        for i, a, length in zip(ti, ta, tl):
+            d = ref[i] - ref[a]
+            if np.linalg.norm(d) > length:
+                ref[i] = ref[a] + d * length / np.linalg.norm(d)
     np.testing.assert_allclose(x, ref, atol=1e-13)
+    assert np.linalg.norm(x[7] - x[0]) <= 0.05 + 1e-12
 
 
 def test_spring_order_is_by_colour_and_colours_are_matchings():

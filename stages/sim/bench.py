@@ -13,7 +13,7 @@ import numpy as np
 
 from stages.garments.simple import rectangle_cloth, tube_skirt
 from stages.garments.types import attach_top_loop, bind_pose, build_garment, edge_strain
-from stages.sim.simulate import simulate
+from stages.sim.simulate import particles_inside_colliders, simulate
 from stages.sim.types import SimParams
 
 
@@ -80,14 +80,24 @@ def walk_scene(frames: int = 90):
         sel = (v[:, 1] > y0) & (v[:, 1] < y1) & (np.abs(v[:, 0]) < 0.2)
         return float(np.linalg.norm(v[sel][:, [0, 2]] - [jo["pelvis"][0], jo["pelvis"][2]], axis=1).max())
 
+    def clear_of_colliders(make, r):  # grow the tube (up to 2 cm) until no particle starts inside a
+        for _ in range(5):             # collider; the sleeveless shirt always cuts the hanging arms
+            x, t = make(r)
+            if not particles_inside_colliders(x, cs, maps, motion.joint_world[0]).any():
+                break
+            r += 0.005
+        return x, t
+
     top = jo["chest"][1] + 0.08
-    r_shirt = girth(top - 0.05, top + 0.02) + 0.02
-    xs, ts = tube_skirt(r_shirt, r_shirt + 0.04, top - jo["pelvis"][1] + 0.02, 48, 32,
-                        center=(jo["chest"][0], top, jo["chest"][2]))
+    length = top - jo["pelvis"][1] + 0.02
+    xs, ts = clear_of_colliders(lambda r: tube_skirt(r, r + 0.04, length, 48, 32,
+                                                     center=(jo["chest"][0], top, jo["chest"][2])),
+                                girth(top - 0.05, top + 0.02) + 0.02)
     shirt = build_garment("tshirt", xs, ts, attachments=[attach_top_loop("chest")], bind=bind)
     waist = jo["pelvis"][1] + 0.04
-    r_skirt = girth(waist - 0.03, waist + 0.03) + 0.015
-    xk, tk = tube_skirt(r_skirt, r_skirt + 0.14, 0.38, 48, 35, center=(jo["pelvis"][0], waist, jo["pelvis"][2]))
+    xk, tk = clear_of_colliders(lambda r: tube_skirt(r, r + 0.14, 0.38, 48, 35,
+                                                     center=(jo["pelvis"][0], waist, jo["pelvis"][2])),
+                                girth(waist - 0.03, waist + 0.03) + 0.015)
     skirt = build_garment("skirt", xk, tk, attachments=[attach_top_loop("pelvis")], bind=bind)
     return ch, motion, cs, maps, [shirt, skirt]
 

@@ -14,7 +14,8 @@ test, the hull response reports its exit face (the contact normal, no face scan)
 re-checked only against colliders whose world sphere holds its new position.
 
 Cloth-side argument tuples (built once by simulate.py, unpacked for free inside njit):
-    cloth = (x, xp, inv_mass, attach_joint, attach_local, si, sj, rest, wi, wj, tris, tri_mass, force)
+    cloth = (x, xp, inv_mass, attach_joint, attach_local, si, sj, rest, wi, wj, ti, ta, tl, tris, tri_mass,
+             force)
     cols  = (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
              tq, tq0, fq, cw, bin_start, bin_items, bin_range)
     prm   = (h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method)
@@ -219,11 +220,17 @@ def integrate(x, xp, inv_mass, attach_joint, attach_local, fwd, h, gravity, damp
 
 
 # -- springs --------------------------------------------------------------------------------------
-@njit(cache=True, fastmath=True)
-def correct_springs(x, si, sj, rest, wi, wj, iterations):
+@njit(cache=True, fastmath=True, _nrt=False)
+def correct_springs(x, si, sj, rest, wi, wj, ti, ta, tl, iterations):
     """`iterations` Gauss-Seidel rounds of position correction over the springs in array order
-    (stretch and compression). wi, wj: per spring, stiffness * w_i / (w_i + w_j) and
-    stiffness * w_j / (w_i + w_j)."""
+    (stretch and compression), each followed by the tethers. wi, wj: per spring,
+    stiffness * w_i / (w_i + w_j) and stiffness * w_j / (w_i + w_j).
+
+    Tethers (long-range attachments, Kim, Chentanez & Mueller 2012): free particle ti[k] is put
+    back on the sphere of radius tl[k] around its anchor ta[k] (an attached / pinned particle) when
+    it is farther; a one-sided constraint that stops hanging cloth from stretching far more than
+    a few Gauss-Seidel rounds can correct.
+    """
     for _ in range(iterations):
         for k in range(si.size):
             i = si[k]
@@ -243,6 +250,18 @@ def correct_springs(x, si, sj, rest, wi, wj, iterations):
             x[j, 0] -= b * dx
             x[j, 1] -= b * dy
             x[j, 2] -= b * dz
+        for k in range(ti.size):
+            i = ti[k]
+            a = ta[k]
+            dx = x[i, 0] - x[a, 0]
+            dy = x[i, 1] - x[a, 1]
+            dz = x[i, 2] - x[a, 2]
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 > tl[k] * tl[k]:
+                f = tl[k] / math.sqrt(d2)
+                x[i, 0] = x[a, 0] + f * dx
+                x[i, 1] = x[a, 1] + f * dy
+                x[i, 2] = x[a, 2] + f * dz
 
 
 def order_springs(springs: np.ndarray, n: int) -> np.ndarray:
@@ -747,7 +766,7 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
     collisions. Per step k: fwd[k] / inv[k] (J, 4, 4) the pose at its end, inv0[k] at its start;
     d_prev[k] / d_next[k] (3,) the root translation over the previous / this step.
     timers (3,) int64 accumulate cycles of integrate / constraints / collisions."""
-    x, xp, inv_mass, attach_joint, attach_local, si, sj, rest, wi, wj, tris, tri_mass, force = cloth
+    x, xp, inv_mass, attach_joint, attach_local, si, sj, rest, wi, wj, ti, ta, tl, tris, tri_mass, force = cloth
     (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
      tq, tq0, fq, cw, bin_start, bin_items, bin_range) = cols
     h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method = prm
@@ -759,7 +778,7 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
         integrate(x, xp, inv_mass, attach_joint, attach_local, fwd[k], h, gravity, damping, s,
                   d_prev[k], d_next[k], use_aero, force)
         t1 = cycles()
-        correct_springs(x, si, sj, rest, wi, wj, iterations)
+        correct_springs(x, si, sj, rest, wi, wj, ti, ta, tl, iterations)
         t2 = cycles()
         collider_frames(fwd[k], inv[k], inv0[k], m, col_joint, col_kind, col_index, col_bcenter, col_bradius,
                         sph_center, tq, tq0, fq, cw)

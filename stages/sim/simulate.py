@@ -33,7 +33,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from stages.checks import ContractError
-from stages.garments.types import BEND, Garment
+from stages.garments.types import BEND, STRETCH, Garment
 from stages.maps.kernels import METHOD_NEAREST_PLANE, METHOD_PAPER
 from stages.maps.types import MapArrays
 from stages.sim import kernels as K
@@ -66,7 +66,38 @@ def empty_map_arrays() -> MapArrays:
                      loc_y=np.zeros((0, 4)), loc_face=i)
 
 
-# -- setup ----------------------------------------------------------------------------------------
+# -- setup ------------------------------------------------------------------------------------------
+def tethers(garments, offsets, inv_mass):
+    """Long-range attachments: (particle, anchor, length) arrays (int32, int32, float64), global
+    indices. Per garment with fixed particles (inverse mass 0: attached or pinned), every free particle
+    connected to one gets the nearest fixed particle along the rest mesh edges (multi-source Dijkstra)
+    and that edge-path length (>= the geodesic distance, so the tether never pulls at rest)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    ti, ta, tl = [], [], []
+    for g, o in zip(garments, offsets[:-1]):
+        w = inv_mass[o:o + g.n_particles]
+        fixed = np.flatnonzero(w == 0)
+        if fixed.size == 0 or fixed.size == w.size:
+            continue
+        e = g.springs[g.kinds == STRETCH]
+        r = g.rest_lengths[g.kinds == STRETCH]
+        graph = coo_matrix((np.concatenate([r, r]), (np.concatenate([e[:, 0], e[:, 1]]),
+                                                      np.concatenate([e[:, 1], e[:, 0]]))),
+                           shape=(g.n_particles, g.n_particles)).tocsr()
+        dist, _, src = dijkstra(graph, indices=fixed, min_only=True, return_predecessors=True)
+        free = np.flatnonzero((w > 0) & np.isfinite(dist))
+        ti.append(free + o)
+        ta.append(src[free] + o)
+        tl.append(dist[free])
+    if not ti:
+        return np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0)
+    return (np.concatenate(ti).astype(np.int32), np.concatenate(ta).astype(np.int32),
+            np.ascontiguousarray(np.concatenate(tl), dtype=np.float64))
+
+
+# -- system ----------------------------------------------------------------------------------------
 class _System:
     """All garments concatenated into one particle system (flat arrays for the kernels)."""
 
@@ -113,11 +144,13 @@ class _System:
         self.inside = np.zeros(n, np.uint8)
         self.speed2 = np.zeros(n)
         self.goff = np.ascontiguousarray(self.offsets, dtype=np.int64)
+        self.ti, self.ta, self.tl = tethers(garments, self.offsets, w) if params.tethers else (
+            np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0))
 
     def cloth(self) -> tuple:
         """The kernels' `cloth` tuple (see stages/sim/kernels.py)."""
         return (self.x, self.xp, self.inv_mass, self.attach_joint, self.attach_local, self.si, self.sj, self.rest,
-                self.wi, self.wj, self.tris, self.tri_mass, self.force)
+                self.wi, self.wj, self.ti, self.ta, self.tl, self.tris, self.tri_mass, self.force)
 
     def flags(self) -> tuple:
         return (self.corrected, self.inside, self.speed2)
@@ -178,6 +211,20 @@ class _Colliders:
         """The kernels' `cols` tuple (see stages/sim/kernels.py)."""
         return (self.joint, self.kind, self.index, self.bcenter, self.bradius, self.sph_center, self.sph_radius,
                 self.tq, self.tq0, self.fq, self.cw, self.bin_start, self.bin_items, self.bin_range)
+
+
+def particles_inside_colliders(points, colliders, maps, pose, method: int = METHOD_PAPER) -> np.ndarray:
+    """(N,) bool: which points (relative frame) are inside a collider of `colliders` posed by
+    `pose` (J, 4, 4) joint transforms (e.g. motion.joint_world[f]); maps None: built with defaults."""
+    col = _Colliders(colliders, maps)
+    fwd = np.ascontiguousarray(pose, dtype=np.float64)
+    inv = np.ascontiguousarray(np.linalg.inv(fwd))
+    K.collider_frames(fwd, inv, inv, col.m, col.joint, col.kind, col.index, col.bcenter, col.bradius,
+                      col.sph_center, col.tq, col.tq0, col.fq, col.cw)
+    p = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    out = np.zeros(p.shape[0], np.uint8)
+    K.count_inside(p, np.ones(p.shape[0]), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.cw, out)
+    return out.astype(bool)
 
 
 def _is_rigid(m: np.ndarray) -> bool:

@@ -22,10 +22,15 @@ class SimParams:
     gravity: (3,) m/s^2. damping: fraction of the Verlet displacement removed per step, [0, 1).
     wind: (3,) air velocity, m/s, world. air_density: kg/m^3. drag, lift: aerodynamic coefficients
         of the per-triangle model (0 disables the term).
-    friction: [0, 1], share of the tangential displacement relative to a collider removed at contact.
+    friction: Coulomb coefficient, [0, 10]: at a contact the tangential travel relative to the
+        collider over the step is reduced by up to friction x the push's normal depth (all of it when
+        shorter: static friction). Consistent with stages.obstacles.
     inertia_scale: [0, 1]. 0 = the paper's relative simulation (the cloth does not feel the root
         translation), 1 = plain world-space simulation (see simulate.py for the formula).
     stretch_stiffness, bend_stiffness: share of each spring correction applied, [0, 1] (paper: 1).
+    tethers: long-range attachments (not in the paper): a free particle of a garment with attached or
+        pinned particles is kept within its rest distance along the mesh of the nearest one. Without
+        them 3 correction rounds let hanging cloth stretch by up to several times its length.
     thickness: m, extra margin around every collider (colliders are already inflated by delta).
     hull_response: 'ray' (paper: map-volume ray cast) or 'nearest_plane' (push to the nearest face plane).
     collision_passes: passes over the colliders per particle and step, so a push out of one
@@ -47,6 +52,7 @@ class SimParams:
     inertia_scale: float = 0.0
     stretch_stiffness: float = 1.0
     bend_stiffness: float = 1.0
+    tethers: bool = True
     thickness: float = 0.0
     hull_response: str = "ray"
     collision_passes: int = 4
@@ -75,12 +81,14 @@ class SimParams:
         rng("air_density", 0.0, 1e3)
         rng("drag", 0.0, 1e3)
         rng("lift", 0.0, 1e3)
-        rng("friction", 0.0, 1.0)
+        rng("friction", 0.0, 10.0)
         rng("inertia_scale", 0.0, 1.0)
         rng("stretch_stiffness", 0.0, 1.0, lo_open=True)
         rng("bend_stiffness", 0.0, 1.0)
         rng("thickness", 0.0, 1.0)
         rng("max_speed", 0.0, 1e6, lo_open=True)
+        if not isinstance(self.tethers, (bool, np.bool_)):
+            raise ContractError(f"{o}.tethers: expected a bool, got {self.tethers!r}")
         if self.hull_response not in ("ray", "nearest_plane"):
             raise ContractError(f"{o}.hull_response: expected 'ray' or 'nearest_plane', got {self.hull_response!r}")
 
