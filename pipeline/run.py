@@ -114,7 +114,7 @@ def check_references(scene: Scene, character) -> None:
     names = set(character.joint_names)
     for i, g in enumerate(scene["garments"]):
         refs = [("at_joint", g.get("at_joint"))]
-        if g["pin"] is not None:
+        if g.get("pin") is not None:
             refs.append(("pin.collider", g["pin"]["collider"]))
         for key, name in refs:
             if name is not None and name not in names:
@@ -132,15 +132,64 @@ def sample_scene_motion(scene: Scene, character, times: np.ndarray):
     return sample_motion(character, clip, times)
 
 
-def build_scene_garments(scene: Scene, character, motion, colliders):
-    """Garments of the scene, placed in the relative frame at frame 0."""
+def pattern_options(kind: str) -> tuple[str, ...]:
+    """The size options a built-in pattern kind accepts (its generator's keyword arguments)."""
+    import inspect
+
+    from stages.garments import library
+    gen = {"short_skirt": "skirt", "long_skirt": "skirt"}.get(kind, kind)
+    fn = getattr(library, gen, None)
+    if fn is None:
+        return ()
+    return tuple(p for p in inspect.signature(fn).parameters if p not in ("meas", "measurements", "edge_length", "name"))
+
+
+def build_pattern_garment(scene: Scene, index: int, character, motion, colliders, maps):
+    """A sewn garment from a built-in pattern: (Garment, SewingLog, GarmentBuild)."""
+    from stages.garments.library import KINDS, garment_measurements, library_pattern, make_garment
+    from stages.garments.sewing import SewParams
+    g = scene["garments"][index]
+    src = scene.path or "<scene>"
+    if g["kind"] not in KINDS:
+        raise SceneError(f"{src}: garments[{index}].kind: {g['kind']!r} is not in this build's pattern "
+                         f"library; available: {', '.join(KINDS)}")
+    allowed = pattern_options(g["kind"])
+    for key in g["options"]:
+        if key not in allowed:
+            raise SceneError(f"{src}: garments[{index}].options.{key}: not an option of kind {g['kind']!r}; "
+                             f"options: {', '.join(allowed) or 'none'}")
+    pattern = library_pattern(g["kind"], garment_measurements(character), edge_length=g["edge_length"],
+                              name=g["name"], **{k: float(v) for k, v in g["options"].items()})
+    sw = g["sewing"]
+    sew = SewParams(tolerance=sw["tolerance"], max_iterations=sw["max_iterations"],
+                    gravity_scale=sw["gravity_scale"], iterations=sw["iterations"])
+    return make_garment(pattern, character, motion, colliders, maps, sew_params=sew)
+
+
+def build_scene_garments(scene: Scene, character, motion, colliders, maps):
+    """Garments of the scene, placed in the relative frame at frame 0.
+
+    Returns (garments, builds): builds maps a pattern garment's name to (SewingLog, GarmentBuild).
+    """
+    from stages.garments.importer import import_garment_mesh
     from stages.garments.simple import rectangle_cloth, tube_skirt
     from stages.garments.types import (attach_indices, attach_near, attach_top_loop, bind_pose,
                                        build_garment)
     bind = bind_pose(character, motion, colliders)
-    out = []
-    for g in scene["garments"]:
-        if g["type"] == "rectangle":
+    out, builds = [], {}
+    for i, g in enumerate(scene["garments"]):
+        if g["type"] == "pattern":
+            garment, log, build = build_pattern_garment(scene, i, character, motion, colliders, maps)
+            out.append(garment)
+            builds[g["name"]] = (log, build)
+            continue
+        if g["type"] == "mesh":
+            from scipy.spatial.transform import Rotation
+            m = np.eye(4)
+            m[:3, :3] = Rotation.from_euler("xyz", g["rotate_deg"], degrees=True).as_matrix()
+            m[:3, 3] = g["translate"]
+            x, tri = import_garment_mesh(g["path"], scale=g["scale"], transform=m)
+        elif g["type"] == "rectangle":
             nx, ny = g["resolution"]
             axis = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}[g["normal"]]
             x, tri = rectangle_cloth(g["width"], g["height"], nx, ny, center=g["center"], normal=axis)
@@ -158,10 +207,8 @@ def build_scene_garments(scene: Scene, character, motion, colliders):
                 atts.append(attach_near(pin["collider"], pin["within"]))
             if pin["boundary"] == "top":
                 atts.append(attach_top_loop(pin["collider"]))
-            elif pin["boundary"] == "bottom":
-                raise SceneError(f"{scene.path}: garment {g['name']!r}: pin.boundary 'bottom' is not supported yet")
         out.append(build_garment(g["name"], x, tri, density=g["density"], attachments=atts, bind=bind))
-    return out
+    return out, builds
 
 
 def build_scene_obstacles(scene: Scene, duration: float):
@@ -257,8 +304,13 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
         if s["garments"]:
             say("garments")
             with _Timer(summary, "garments") as r:
-                garments = build_scene_garments(scene, character, motion, colliders)
+                garments, builds = build_scene_garments(scene, character, motion, colliders, maps)
                 r.sizes.update(particles=sum(g.n_particles for g in garments))
+                for name, (log, _) in builds.items():
+                    r.sizes[f"{name} sewing"] = (f"{log.iterations} it in {log.seconds:.2f} s, gap {log.gap_max[-1] * 1000:.1f} mm, "
+                                                 f"{'converged' if log.converged else 'NOT converged'}")
+            for name, (log, build) in builds.items():
+                logs.log_sewing(rec, name, log, build, next(g for g in garments if g.name == name))
             say("simulation")
             from stages.sim import SimParams, simulate
             sp = s["simulation"]

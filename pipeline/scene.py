@@ -22,7 +22,7 @@ def _pin_fields():
         "indices": Field("list", None, "particle indices to pin", item=Field("int", lo=0)),
         "collider": Field("str", None, "joint name: pin particles near this joint's collider (bind pose)"),
         "within": Field("float", 0.03, "distance (m) to the collider surface / joint for `collider`", lo=0.0),
-        "boundary": Field("str", None, "pin a whole boundary loop", choices=("top", "bottom")),
+        "boundary": Field("str", None, "pin the whole top boundary loop", choices=("top",)),
     }
 
 
@@ -63,6 +63,40 @@ GARMENT = Field("union", REQUIRED, "a garment", variants={
         "offset": Field("vec3", [0.0, 0.0, 0.0], "added to the top centre, m"),
     },
 })
+
+_PATTERN_KINDS = ("tshirt", "short_skirt", "long_skirt", "shorts", "trousers", "cape", "square")
+
+def _check_options(o):
+    if not isinstance(o, dict):
+        return f"expected a mapping of option names to numbers, got {o!r}"
+    for k, v in o.items():
+        if not isinstance(k, str) or isinstance(v, bool) or not isinstance(v, (int, float)) or v != v:
+            return f"option {k!r}: expected a number, got {v!r}"
+    return None
+
+
+GARMENT.variants["pattern"] = {
+    "name": _GARMENT_COMMON["name"],
+    "density": _GARMENT_COMMON["density"],
+    "kind": Field("str", REQUIRED, "a built-in sewing pattern, sized from the character's measurements",
+                  choices=_PATTERN_KINDS),
+    "edge_length": Field("float", 0.025, "target mean edge length of the flat panels, m", lo=0.005, hi=0.2),
+    "options": Field("any", {}, "pattern options of the kind (e.g. ease, length, flare, sleeve_length), m",
+                     check=_check_options),
+    "sewing": Field("section", {}, "sewing under micro-gravity", fields={
+        "tolerance": Field("float", 0.004, "largest seam gap accepted, m", lo=0.0, lo_open=True),
+        "max_iterations": Field("int", 40, "sewing simulation rounds at most", lo=1, hi=10000),
+        "gravity_scale": Field("float", 0.005, "share of gravity while sewing", lo=0.0, hi=1.0),
+        "iterations": Field("int", 8, "spring correction rounds while sewing", lo=1, hi=1000),
+    }),
+}
+GARMENT.variants["mesh"] = {
+    **_GARMENT_COMMON,
+    "path": Field("path", REQUIRED, "OBJ / PLY / GLB garment mesh, relative to the scene file"),
+    "scale": Field("float", 1.0, lo=0.0, lo_open=True),
+    "translate": Field("vec3", [0.0, 0.0, 0.0], "m, relative frame at frame 0"),
+    "rotate_deg": Field("vec3", [0.0, 0.0, 0.0], "XYZ Euler angles, degrees"),
+}
 
 _OBSTACLE_COMMON = {
     "name": Field("str", REQUIRED, "obstacle name (entity path obstacles/<name>)"),

@@ -26,6 +26,7 @@ def test_every_stage_is_logged(default_run):
     scene, out, summary = default_run
     assert summary.output == out and out.is_file()
     assert [s.name for s in summary.stages] == ["rig", "colliders", "maps", "garments", "simulation"]
+    assert "converged" in summary.stages[3].sizes["skirt sewing"]
     paths = entity_paths(out)
     for p in ["/rig/mesh", "/rig/skeleton", "/rig/joints", "/rig/regions", "/colliders/report", "/maps/report",
               "/sim/skirt/mesh", "/sim/penetrations/colliders", "/sim/penetrations/body", "/sim/step_ms",
@@ -37,7 +38,9 @@ def test_every_stage_is_logged(default_run):
         for part in ("raw", "inflated", "simplified", "region"):
             assert f"/colliders/hulls/{bone}/{part}" in paths
         assert f"/maps/{bone}/obb" in paths and f"/maps/{bone}/cells" in paths
-    assert timelines(out) == {"frame", "sim_time"}
+    assert timelines(out) == {"frame", "sim_time", "sewing_iteration"}
+    for part in ("flat", "placed", "sewing", "sewn", "sewing/gap_max", "report"):
+        assert f"/garments/skirt/{part}" in paths
 
 
 def test_per_frame_series_have_one_value_per_frame(default_run):
@@ -68,7 +71,7 @@ def test_skinned_mesh_in_the_recording_is_the_world_frame_skin(default_run):
 def test_scene_yaml_and_summary_are_stored(default_run):
     scene, out, _ = default_run
     text = str(rows(out, "meta/scene", "TextDocument:text")[0][1])
-    assert "at_joint: pelvis" in text
+    assert "kind: short_skirt" in text
     summary = str(rows(out, "meta/summary", "TextDocument:text")[0][1])
     assert "colliders" in summary and "simulation" in summary
     prov = str(rows(out, "meta/provenance", "TextDocument:text")[0][1])
@@ -79,7 +82,7 @@ def test_same_scene_gives_the_same_recording(default_run, tmp_path):
     scene, out, _ = default_run
     again = tmp_path / "again.rrd"
     run_scene(scene, output=again, frames=FRAMES, progress=False)
-    wall = ("/sim/step_ms", "/sim/report", "/meta/summary")   # wall-clock measurements differ by nature
+    wall = ("/sim/step_ms", "/meta/summary")   # wall-clock measurements differ by nature
     a = [(e, b) for e, b in content(out) if e not in wall]
     b = [(e, b) for e, b in content(again) if e not in wall]
     assert len(a) == len(b) and all(ea == eb and ba.equals(bb) for (ea, ba), (eb, bb) in zip(a, b))
@@ -88,7 +91,7 @@ def test_same_scene_gives_the_same_recording(default_run, tmp_path):
 def test_failed_run_keeps_the_earlier_recording(default_run, tmp_path):
     scene, out, _ = default_run
     before = out.read_bytes()
-    bad = parse_scene_text(scene.text.replace("at_joint: pelvis", "at_joint: nowhere"), source="bad.yaml")
+    bad = parse_scene_text(scene.text.replace("clip: walk", "clip: nowhere"), source="bad.yaml")
     from pipeline.schema import SceneError
     with pytest.raises(SceneError, match="nowhere"):
         run_scene(bad, output=out, frames=2, progress=False)
