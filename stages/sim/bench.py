@@ -2,12 +2,19 @@
 edge strain at rest, penetration counts. Heavy: run it from the CLI, not in tests.
 
     python -m stages.sim.bench            # prints the dict as JSON
+
+Figures per scene: `steps_per_s` from the kernels' own cycle counts (the steps only: forces,
+Verlet, springs, collisions; recording and the body audit excluded), `wall_steps_per_s` from the
+wall time of the whole simulate() call minus the body audit (setup, poses, recording included),
+the best of `repeats` runs (the machine is shared: the load average is reported). Edge strain of
+the last frame with 3 correction rounds and, for comparison, 10.
 """
 from __future__ import annotations
 
 import json
 import os
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -21,17 +28,15 @@ def _figures(result, garments, wall: float) -> dict:
     tm = result.timings
     kernel = tm["integrate"] + tm["constraints"] + tm["collisions"]
     steps_s = result.steps / max(float(result.step_ms.sum()) / 1e3, 1e-12)
-    strain = np.concatenate([edge_strain(g, result.garment(g.name).positions[-1].astype(np.float64))
-                             for g in garments])
     return {
         "steps": result.steps,
         "particles": int(sum(g.n_particles for g in garments)),
         "steps_per_s": round(steps_s, 1),
         "ms_per_step": round(1e3 / steps_s, 4),
+        "wall_steps_per_s": round(result.steps / max(wall - tm.get("audit", 0.0), 1e-12), 1),
         "collision_share": round(tm["collisions"] / kernel, 3) if kernel > 0 else None,
         "phase_share": {k: round(tm[k] / kernel, 3) for k in ("integrate", "constraints", "collisions")} if kernel else {},
-        "edge_strain_last_frame": {"mean": round(float(np.abs(strain).mean()), 4),
-                                   "max": round(float(np.abs(strain).max()), 4)},
+        "edge_strain_last_frame": _strain(result, garments),
         "penetrations": result.penetration_summary(),
         "corrected_mean": round(float(result.corrected.mean()), 1),
         "wall_s": round(wall, 2),
@@ -39,7 +44,30 @@ def _figures(result, garments, wall: float) -> dict:
     }
 
 
-def drape(frames: int = 150, threads: int = 1) -> dict:
+def _strain(result, garments) -> dict:
+    strain = np.concatenate([edge_strain(g, result.garment(g.name).positions[-1].astype(np.float64))
+                             for g in garments])
+    return {"mean": round(float(np.abs(strain).mean()), 4), "max": round(float(np.abs(strain).max()), 4)}
+
+
+def _run(scene, params: SimParams, repeats: int, threads: int) -> dict:
+    """Best of `repeats` timed runs, plus the strain with 10 correction rounds."""
+    ch, motion, cs, maps, garments = scene
+    best = None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        r = simulate(ch, motion, cs, maps, garments, params, threads=threads)
+        fig = _figures(r, garments, time.perf_counter() - t0)
+        if best is None or fig["steps_per_s"] > best["steps_per_s"]:
+            best = fig
+    r10 = simulate(ch, motion, cs, maps, garments, replace(params, iterations=10, body_audit=False), threads=threads)
+    best["edge_strain_last_frame_10_rounds"] = _strain(r10, garments)
+    best["params"] = {"iterations": params.iterations, "friction": params.friction, "tethers": params.tethers,
+                      "substeps": params.substeps}
+    return best
+
+
+def drape_scene(frames: int = 150):
     """50 x 50 cloth (2,500 particles) dropped on one 116-face convex hull (paper A fig. 8)."""
     from stages.maps.build import build_maps
     from stages.sim.scenes import convex_mesh, fibonacci_points, hull_set, toy_character, toy_motion
@@ -49,13 +77,21 @@ def drape(frames: int = 150, threads: int = 1) -> dict:
     cs = hull_set(mesh)
     maps = build_maps(cs)
     x, tri = rectangle_cloth(1.0, 1.0, 50, 50, center=(0.0, 0.42, 0.0))
-    g = build_garment("cloth", x, tri)
-    params = SimParams(friction=1.0, body_audit=True)
-    simulate(ch, toy_motion(3), cs, maps, [g], params, threads=threads)  # compile / warm
-    t0 = time.perf_counter()
-    r = simulate(ch, toy_motion(frames), cs, maps, [g], params, threads=threads)
-    out = _figures(r, [g], time.perf_counter() - t0)
-    out.update(hull_faces=int(mesh.faces.shape[0]), map=maps.maps[0].cell_stats, threads=threads)
+    return ch, toy_motion(frames), cs, maps, [build_garment("cloth", x, tri)]
+
+
+# Coulomb friction 2: with 3 rounds the hanging sides of the 50 x 50 cloth stretch a lot and their
+# pull slides the cloth off the hull at friction 1 (it stays with 10 rounds)
+DRAPE_FRICTION = 2.0
+
+
+def drape(frames: int = 150, threads: int = 1, repeats: int = 3) -> dict:
+    scene = drape_scene(frames)
+    params = SimParams(friction=DRAPE_FRICTION, body_audit=True)
+    simulate(*scene[:4], scene[4], replace(params, body_audit=False), threads=threads)  # compile / warm
+    out = _run(scene, params, repeats, threads)
+    out.update(hull_faces=int(scene[2].hulls[0].simplified.faces.shape[0]), map=scene[3].maps[0].cell_stats,
+               threads=threads)
     return out
 
 
@@ -102,26 +138,25 @@ def walk_scene(frames: int = 90):
     return ch, motion, cs, maps, [shirt, skirt]
 
 
-def walk(frames: int = 90, threads: int = 1) -> dict:
-    ch, motion, cs, maps, garments = walk_scene(frames)
-    params = SimParams(friction=0.5, body_audit=True)
-    t0 = time.perf_counter()
-    r = simulate(ch, motion, cs, maps, garments, params, threads=threads)
-    out = _figures(r, garments, time.perf_counter() - t0)
+def walk(frames: int = 90, threads: int = 1, repeats: int = 3) -> dict:
+    scene = walk_scene(frames)
+    cs = scene[2]
+    out = _run(scene, SimParams(friction=0.5, body_audit=True), repeats, threads)
     out.update(hulls=len(cs.hulls), spheres=len(cs.spheres),
                hull_faces=int(sum(h.simplified.faces.shape[0] for h in cs.hulls)), threads=threads)
     return out
 
 
-def run_benchmark(frames_drape: int = 150, frames_walk: int = 90, threads=(1, 2)) -> dict:
-    """Both scenes at each thread count; a figure per (scene, threads). Targets on the 2-core
-    machine: drape >= 5,000 steps/s, walk >= 2,000 steps/s (3 correction rounds, no recording)."""
+def run_benchmark(frames_drape: int = 150, frames_walk: int = 90, threads=(1,), repeats: int = 3) -> dict:
+    """Both scenes at each thread count (the step kernels are serial; threads only change the body
+    audit). Targets on the 2-core machine: drape >= 5,000 steps/s, walk >= 2,000 steps/s (3
+    correction rounds, no recording)."""
     out = {"machine": {"cpus": os.cpu_count(), "load_avg_1min": os.getloadavg()[0]}}
     for t in threads:
-        out[f"drape_t{t}"] = drape(frames_drape, t)
+        out[f"drape_t{t}"] = drape(frames_drape, t, repeats)
     for t in threads:
         try:
-            out[f"walk_t{t}"] = walk(frames_walk, t)
+            out[f"walk_t{t}"] = walk(frames_walk, t, repeats)
         except ImportError as err:  # a stage the walk needs is missing
             out[f"walk_t{t}"] = {"skipped": f"{err}"}
     out["machine"]["load_avg_1min_end"] = os.getloadavg()[0]

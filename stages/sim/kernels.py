@@ -147,7 +147,7 @@ def aero_forces(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, out):
         out[t, 2] = fz
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, _nrt=False)
 def aero_accumulate(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, force):
     """force (N, 3) = sum over each vertex's triangles of the triangle's force / 3 (triangle order)."""
     force[:] = 0.0
@@ -170,7 +170,7 @@ def aero_accumulate(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, f
         force[c, 2] += fz
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def integrate(x, xp, inv_mass, attach_joint, attach_local, fwd, h, gravity, damping, s, d_prev, d_next,
               use_aero, force):
     """Verlet step of every particle; attached particles follow their bone, pinned ones stay.
@@ -290,7 +290,7 @@ def spring_colours(springs, n):
 
 
 # -- collisions -----------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def collider_frames(fwd, inv, inv0, m, col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center,
                     tq, tq0, fq, cw):
     """Per collider c, for one step: tq[c] / tq0[c] (12,) the 3x4 map world (end / start of the step)
@@ -331,7 +331,7 @@ def collider_frames(fwd, inv, inv0, m, col_joint, col_kind, col_index, col_bcent
         cw[c, 4] = rad * rad
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def build_bins(cw, bin_start, bin_items, bin_range):
     """Horizontal slabs over the colliders' world bounding spheres cw (C, 5).
 
@@ -413,7 +413,7 @@ def _locate_a(loc_base, loc_x, loc_start, loc_y, loc_face, k, x, y):
     return loc_face[lo]
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, inline="always")
 def _hull_hit(planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start,
               cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, h, method, q0, q1, q2):
     """(hit, r0, r1, r2, face): inside test and response of hull h for an OBB-local point q, as
@@ -568,7 +568,7 @@ def _inside_any(col_kind, col_index, sph_radius, method, tq, cw, skip,
     return False
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, inline="always")
 def _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i, friction):
     """(pushed, px, py, pz): the world position after collider c's response r (query frame, contact
     normal n) to the point q, with Coulomb friction; moves xp[i] for a fully inelastic contact."""
@@ -760,7 +760,7 @@ def count_inside(x, inv_mass, m, method, col_kind, col_index, sph_radius, tq, cw
 
 
 # -- steps and frames ------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, k0, k1, flags, timers):
     """Steps k0..k1-1 in the paper's order: forces, Verlet (+ attachments), spring corrections,
     collisions. Per step k: fwd[k] / inv[k] (J, 4, 4) the pose at its end, inv0[k] at its start;
@@ -791,7 +791,7 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
         timers[T_COLLISIONS] += t3 - t2
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def record_frame(x, flags, max_speed2, goff, pos, pen, counts):
     """Store one frame: pos (N, 3) float32 <- x; pen (G,) particles inside a collider per garment
     (garment g = goff[g]..goff[g+1]); counts = (corrected particles, max speed^2).
@@ -818,7 +818,7 @@ def record_frame(x, flags, max_speed2, goff, pos, pen, counts):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def run_frames(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, substeps, max_speed2,
                goff, pos, pen, counts, step_cycles, flags, timers):
     """Frames 0..F-1 of a chunk (F = pos.shape[0]), `substeps` steps each (pose arrays: F * substeps),
