@@ -14,8 +14,8 @@ test, the hull response reports its exit face (the contact normal, no face scan)
 re-checked only against colliders whose world sphere holds its new position.
 
 Cloth-side argument tuples (built once by simulate.py, unpacked for free inside njit):
-    cloth = (x, xp, inv_mass, attach_joint, attach_local, si, sj, rest, wi, wj, ti, ta, tl, tris, tri_mass,
-             force)
+    cloth = (x, xp, inv_mass, attach_joint, attach_local, si, sj, rest, wi, wj, part_start, ti, ta, tl, tris,
+             tri_mass, tri_force, vt_start, vt_tri)
     cols  = (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
              tq, tq0, fq, cw, bin_start, bin_items, bin_range)
     prm   = (h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method)
@@ -135,11 +135,11 @@ def _tri_aero(x, xp, tri_mass, t, a, b, c, h, s, d_prev, wind, k_drag, k_lift):
     return fx, fy, fz
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True, fastmath=True, _nrt=False)
 def aero_forces(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, out):
     """(T, 3) per-triangle aerodynamic forces into out (see _tri_aero). tri_mass (T,): the mass of
     the triangle's free vertices (a third of each free vertex's lumped mass), kg."""
-    for t in range(tris.shape[0]):
+    for t in prange(tris.shape[0]):
         fx, fy, fz = _tri_aero(x, xp, tri_mass, t, tris[t, 0], tris[t, 1], tris[t, 2], h, s, d_prev, wind,
                                k_drag, k_lift)
         out[t, 0] = fx
@@ -147,37 +147,15 @@ def aero_forces(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, out):
         out[t, 2] = fz
 
 
-@njit(cache=True, fastmath=True, _nrt=False)
-def aero_accumulate(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, force):
-    """force (N, 3) = sum over each vertex's triangles of the triangle's force / 3 (triangle order)."""
-    force[:] = 0.0
-    for t in range(tris.shape[0]):
-        a = tris[t, 0]
-        b = tris[t, 1]
-        c = tris[t, 2]
-        fx, fy, fz = _tri_aero(x, xp, tri_mass, t, a, b, c, h, s, d_prev, wind, k_drag, k_lift)
-        fx *= 1.0 / 3.0
-        fy *= 1.0 / 3.0
-        fz *= 1.0 / 3.0
-        force[a, 0] += fx
-        force[a, 1] += fy
-        force[a, 2] += fz
-        force[b, 0] += fx
-        force[b, 1] += fy
-        force[b, 2] += fz
-        force[c, 0] += fx
-        force[c, 1] += fy
-        force[c, 2] += fz
-
-
-@njit(cache=True, _nrt=False)
+@njit(cache=True, parallel=True, _nrt=False)
 def integrate(x, xp, inv_mass, attach_joint, attach_local, fwd, h, gravity, damping, s, d_prev, d_next,
-              use_aero, force):
+              use_aero, tri_force, vt_start, vt_tri):
     """Verlet step of every particle; attached particles follow their bone, pinned ones stay.
 
     x_new = x + (1 - damping) (x - xp + s d_prev) - s d_next + a h^2, a = g + force / m,
     then xp <- x, x <- x_new. d_prev / d_next: root translation over the previous / this step.
-    force (N, 3): external force per vertex (aerodynamics), read only when use_aero.
+    tri_force (T, 3): aerodynamic force per triangle, a third to each vertex (read only when use_aero);
+    vt_start (N + 1,), vt_tri: CSR list of each vertex's triangles in ascending order.
     """
     hh = h * h
     keep = 1.0 - damping
@@ -188,7 +166,7 @@ def integrate(x, xp, inv_mass, attach_joint, attach_local, fwd, h, gravity, damp
     rx = keep * s * d_prev[0] - s * d_next[0]
     ry = keep * s * d_prev[1] - s * d_next[1]
     rz = keep * s * d_prev[2] - s * d_next[2]
-    for i in range(x.shape[0]):
+    for i in prange(x.shape[0]):
         ox = x[i, 0]
         oy = x[i, 1]
         oz = x[i, 2]
@@ -205,9 +183,17 @@ def integrate(x, xp, inv_mass, attach_joint, attach_local, fwd, h, gravity, damp
             ay = gy
             az = gz
             if use_aero:
-                ax += force[i, 0] * w * hh
-                ay += force[i, 1] * w * hh
-                az += force[i, 2] * w * hh
+                fx = 0.0
+                fy = 0.0
+                fz = 0.0
+                for k in range(vt_start[i], vt_start[i + 1]):
+                    t = vt_tri[k]
+                    fx += tri_force[t, 0]
+                    fy += tri_force[t, 1]
+                    fz += tri_force[t, 2]
+                ax += fx * (w * hh / 3.0)
+                ay += fy * (w * hh / 3.0)
+                az += fz * (w * hh / 3.0)
             nx = ox + keep * (ox - xp[i, 0]) + rx + ax
             ny = oy + keep * (oy - xp[i, 1]) + ry + ay
             nz = oz + keep * (oz - xp[i, 2]) + rz + az
@@ -220,37 +206,48 @@ def integrate(x, xp, inv_mass, attach_joint, attach_local, fwd, h, gravity, damp
 
 
 # -- springs --------------------------------------------------------------------------------------
-@njit(cache=True, fastmath=True, _nrt=False)
-def correct_springs(x, si, sj, rest, wi, wj, ti, ta, tl, iterations):
-    """`iterations` Gauss-Seidel rounds of position correction over the springs in array order
-    (stretch and compression), each followed by the tethers. wi, wj: per spring,
-    stiffness * w_i / (w_i + w_j) and stiffness * w_j / (w_i + w_j).
+@njit(cache=True, fastmath=True, _nrt=False, inline="always")
+def _correct_range(x, si, sj, rest, wi, wj, k0, k1):
+    """Gauss-Seidel position correction of springs k0..k1-1 in order (stretch and compression)."""
+    for k in range(k0, k1):
+        i = si[k]
+        j = sj[k]
+        dx = x[j, 0] - x[i, 0]
+        dy = x[j, 1] - x[i, 1]
+        dz = x[j, 2] - x[i, 2]
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 <= 1e-24:
+            continue
+        c = 1.0 - rest[k] / math.sqrt(d2)
+        a = wi[k] * c
+        b = wj[k] * c
+        x[i, 0] += a * dx
+        x[i, 1] += a * dy
+        x[i, 2] += a * dz
+        x[j, 0] -= b * dx
+        x[j, 1] -= b * dy
+        x[j, 2] -= b * dz
+
+
+@njit(cache=True, parallel=True, fastmath=True, _nrt=False)
+def correct_springs(x, si, sj, rest, wi, wj, part_start, ti, ta, tl, iterations):
+    """`iterations` rounds of Gauss-Seidel position correction (stretch and compression), each: the
+    spring blocks of `partition_springs` in parallel (they touch disjoint particles, so the result
+    does not depend on the thread count), then the springs crossing blocks (last block of
+    part_start) in order, then the tethers. wi, wj: per spring, stiffness * w_i / (w_i + w_j) and
+    stiffness * w_j / (w_i + w_j).
 
     Tethers (long-range attachments, Kim, Chentanez & Mueller 2012): free particle ti[k] is put
     back on the sphere of radius tl[k] around its anchor ta[k] (an attached / pinned particle) when
     it is farther; a one-sided constraint that stops hanging cloth from stretching far more than
-    a few Gauss-Seidel rounds can correct.
+    a few Gauss-Seidel rounds can correct. Each tether moves only its own particle.
     """
+    n_parts = part_start.size - 2
     for _ in range(iterations):
-        for k in range(si.size):
-            i = si[k]
-            j = sj[k]
-            dx = x[j, 0] - x[i, 0]
-            dy = x[j, 1] - x[i, 1]
-            dz = x[j, 2] - x[i, 2]
-            d2 = dx * dx + dy * dy + dz * dz
-            if d2 <= 1e-24:
-                continue
-            c = 1.0 - rest[k] / math.sqrt(d2)
-            a = wi[k] * c
-            b = wj[k] * c
-            x[i, 0] += a * dx
-            x[i, 1] += a * dy
-            x[i, 2] += a * dz
-            x[j, 0] -= b * dx
-            x[j, 1] -= b * dy
-            x[j, 2] -= b * dz
-        for k in range(ti.size):
+        for p in prange(n_parts):
+            _correct_range(x, si, sj, rest, wi, wj, part_start[p], part_start[p + 1])
+        _correct_range(x, si, sj, rest, wi, wj, part_start[n_parts], part_start[n_parts + 1])
+        for k in prange(ti.size):
             i = ti[k]
             a = ta[k]
             dx = x[i, 0] - x[a, 0]
@@ -264,10 +261,29 @@ def correct_springs(x, si, sj, rest, wi, wj, ti, ta, tl, iterations):
                 x[i, 2] = x[a, 2] + f * dz
 
 
-def order_springs(springs: np.ndarray, n: int) -> np.ndarray:
-    """Order for `correct_springs`: by colour (spring_colours), then input order."""
+def partition_springs(positions: np.ndarray, springs: np.ndarray, n_parts: int = 2):
+    """Order springs for `correct_springs`: (order, part_start).
+
+    Particles are split at the median of their longest axis into n_parts slabs; a spring whose two
+    particles lie in one slab goes to that slab's block, the rest to the last (sequential) block.
+    Inside a block springs are ordered by colour (spring_colours), then input order.
+    """
+    n = positions.shape[0]
+    if n_parts < 2 or n < 64:
+        n_parts = 1
+    if n_parts == 1:
+        block = np.zeros(springs.shape[0], np.int64)
+    else:
+        axis = int(np.argmax(np.ptp(positions, axis=0)))
+        rank = np.empty(n, np.int64)
+        rank[np.argsort(positions[:, axis], kind="stable")] = np.arange(n)
+        part = (rank * n_parts) // n
+        pa, pb = part[springs[:, 0]], part[springs[:, 1]]
+        block = np.where(pa == pb, pa, n_parts)
     colour = spring_colours(np.ascontiguousarray(springs, dtype=np.int64), n)
-    return np.lexsort((np.arange(springs.shape[0]), colour))
+    order = np.lexsort((np.arange(springs.shape[0]), colour, block))
+    part_start = np.searchsorted(block[order], np.arange(n_parts + 2)).astype(np.int64)
+    return order, part_start
 
 
 @njit(cache=True)
@@ -612,7 +628,7 @@ def _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i, friction):
     return True, px, py, pz
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, parallel=True, _nrt=False)
 def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
             bin_start, bin_items, bin_range, friction, passes, corrected, inside, speed2, h):
     """Collision detection and response of every free particle against every collider.
@@ -649,7 +665,7 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
     nb = bin_start.size - 1
     nc = cw.shape[0]
     ih2 = 1.0 / (h * h)
-    for i in range(x.shape[0]):
+    for i in prange(x.shape[0]):   # particles are independent: any thread count, same result
         px = x[i, 0]
         py = x[i, 1]
         pz = x[i, 2]
@@ -766,7 +782,8 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
     collisions. Per step k: fwd[k] / inv[k] (J, 4, 4) the pose at its end, inv0[k] at its start;
     d_prev[k] / d_next[k] (3,) the root translation over the previous / this step.
     timers (3,) int64 accumulate cycles of integrate / constraints / collisions."""
-    x, xp, inv_mass, attach_joint, attach_local, si, sj, rest, wi, wj, ti, ta, tl, tris, tri_mass, force = cloth
+    (x, xp, inv_mass, attach_joint, attach_local, si, sj, rest, wi, wj, part_start, ti, ta, tl, tris, tri_mass,
+     tri_force, vt_start, vt_tri) = cloth
     (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
      tq, tq0, fq, cw, bin_start, bin_items, bin_range) = cols
     h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method = prm
@@ -774,11 +791,11 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
     for k in range(k0, k1):
         t0 = cycles()
         if use_aero:
-            aero_accumulate(x, xp, tri_mass, tris, h, s, d_prev[k], wind, k_drag, k_lift, force)
+            aero_forces(x, xp, tri_mass, tris, h, s, d_prev[k], wind, k_drag, k_lift, tri_force)
         integrate(x, xp, inv_mass, attach_joint, attach_local, fwd[k], h, gravity, damping, s,
-                  d_prev[k], d_next[k], use_aero, force)
+                  d_prev[k], d_next[k], use_aero, tri_force, vt_start, vt_tri)
         t1 = cycles()
-        correct_springs(x, si, sj, rest, wi, wj, ti, ta, tl, iterations)
+        correct_springs(x, si, sj, rest, wi, wj, part_start, ti, ta, tl, iterations)
         t2 = cycles()
         collider_frames(fwd[k], inv[k], inv0[k], m, col_joint, col_kind, col_index, col_bcenter, col_bradius,
                         sph_center, tq, tq0, fq, cw)

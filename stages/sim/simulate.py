@@ -127,7 +127,7 @@ class _System:
         live = wsum > 0
         springs, rest, kinds, wsum = springs[live], rest[live], kinds[live], wsum[live]
         stiff = np.where(kinds == BEND, params.bend_stiffness, params.stretch_stiffness)
-        order = K.order_springs(springs, n)
+        order, self.part_start = K.partition_springs(self.x, springs, n_parts=2)
         springs, rest, stiff, wsum = springs[order], rest[order], stiff[order], wsum[order]
         self.si = np.ascontiguousarray(springs[:, 0], dtype=np.int32)
         self.sj = np.ascontiguousarray(springs[:, 1], dtype=np.int32)
@@ -139,7 +139,11 @@ class _System:
         # mass of each triangle's free vertices (a third of each lumped mass; aerodynamic force cap)
         third = np.where(w > 0, 1.0 / (3.0 * np.where(w > 0, w, 1.0)), 0.0)
         self.tri_mass = np.ascontiguousarray(third[self.tris].sum(axis=1))
-        self.force = np.zeros((n, 3))
+        self.tri_force = np.zeros((self.tris.shape[0], 3))
+        flat = self.tris.ravel()
+        o = np.argsort(flat, kind="stable")
+        self.vt_tri = (o // 3).astype(np.int32)
+        self.vt_start = np.searchsorted(flat[o], np.arange(n + 1)).astype(np.int64)
         self.corrected = np.zeros(n, np.uint8)
         self.inside = np.zeros(n, np.uint8)
         self.speed2 = np.zeros(n)
@@ -150,7 +154,8 @@ class _System:
     def cloth(self) -> tuple:
         """The kernels' `cloth` tuple (see stages/sim/kernels.py)."""
         return (self.x, self.xp, self.inv_mass, self.attach_joint, self.attach_local, self.si, self.sj, self.rest,
-                self.wi, self.wj, self.ti, self.ta, self.tl, self.tris, self.tri_mass, self.force)
+                self.wi, self.wj, self.part_start, self.ti, self.ta, self.tl, self.tris, self.tri_mass, self.tri_force,
+                self.vt_start, self.vt_tri)
 
     def flags(self) -> tuple:
         return (self.corrected, self.inside, self.speed2)
@@ -334,10 +339,11 @@ def winding_number(vertices, triangles, points, *, exact: bool = False, beta: fl
 
 # -- the stage ----------------------------------------------------------------------------------------
 def simulate(character, motion, colliders, maps, garments, params: SimParams, *, obstacles=None,
-             progress=None, threads: int | None = None) -> SimResult:
+             progress=None, threads: int | None = 1) -> SimResult:
     """See `_simulate`. threads: numba threads for the parallel kernels during the call (None = the
-    current setting). Results do not depend on it; on a loaded machine 1 thread avoids waiting for
-    a descheduled worker at every parallel loop."""
+    current numba setting). Results do not depend on it (every parallel loop writes disjoint
+    particles). Default 1: on the shared 2-core machine a second thread pays only when a core is
+    idle (see stages/sim/bench.py)."""
     if threads is None:
         return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress)
     import numba
