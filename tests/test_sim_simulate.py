@@ -22,18 +22,37 @@ def _cloth(n=12, center=(0, 0.5, 0), size=0.6):
     return x, tri
 
 
-def test_pinned_cloth_hangs_and_converges():
+@pytest.mark.parametrize("tethers", [False, True])
+def test_pinned_cloth_hangs_and_converges(tethers):
     x, tri = rectangle_cloth(0.5, 0.5, 10, 10, center=(0, 1, 0), normal=(0, 0, 1))
     top = np.flatnonzero(np.isclose(x[:, 1], x[:, 1].max()))
     ch, mo = _char(), toy_motion(150)
     g = build_garment("flag", x, tri, attachments=[attach_indices(top, "root")], bind=bind_pose(ch, mo))
-    r = simulate(ch, mo, None, None, [g], SimParams(body_audit=False, damping=0.05))
+    r = simulate(ch, mo, None, None, [g], SimParams(body_audit=False, damping=0.05, tethers=tethers))
     p = r.garments[0].positions
     assert r.max_speed[-1] < 0.05 and np.abs(p[-1] - p[-2]).max() < 2e-3
     assert np.allclose(p[:, top], x[top], atol=1e-6)               # pinned row never moves
     assert p[-1, :, 1].min() < x[:, 1].min() + 0.05                  # it hangs down
-    strain = edge_strain(g, p[-1].astype(np.float64))
-    assert np.abs(strain).max() < 0.4 and np.abs(strain).mean() < 0.12   # 3 rounds: stretchy, bounded
+    strain = np.abs(edge_strain(g, p[-1].astype(np.float64)))
+    if tethers:   # long-range attachments: nothing hangs lower than its rest distance from the top row
+        assert strain.max() < 0.05 and p[-1, :, 1].min() >= x[:, 1].min() - 1e-4
+    else:         # 3 rounds alone: stretchy, bounded
+        assert strain.max() < 0.4 and strain.mean() < 0.12
+
+
+def test_tethers_reach_every_free_particle_with_its_rest_path_length():
+    from stages.sim.simulate import tethers
+    x, tri = rectangle_cloth(0.4, 0.3, 5, 4, center=(0, 1, 0), normal=(0, 0, 1))
+    top = np.flatnonzero(np.isclose(x[:, 1], x[:, 1].max()))
+    ch, mo = _char(), toy_motion(2)
+    g = build_garment("flag", x, tri, attachments=[attach_indices(top, "root")], bind=bind_pose(ch, mo))
+    ti, ta, tl = tethers([g], np.array([0, g.n_particles]), g.inverse_mass)
+    free = np.flatnonzero(g.inverse_mass > 0)
+    assert np.array_equal(np.sort(ti), free) and np.isin(ta, top).all()
+    # a 5 x 4 grid 0.1 x 0.1 apart with diagonals: the straight column up is the shortest path
+    want = x[top, 1].max() - x[ti, 1]
+    np.testing.assert_allclose(tl, want, atol=1e-9)
+    np.testing.assert_allclose(x[ta, 0], x[ti, 0], atol=1e-9)
 
 
 def test_cloth_falls_on_sphere_without_penetration():
@@ -116,7 +135,7 @@ def test_two_runs_are_identical():
     g = build_garment("c", x, tri)
     p = SimParams(friction=0.8, wind=(1.0, 0.0, 0.5))
     a = simulate(ch, toy_motion(30), cs, maps, [g], p)
-    b = simulate(ch, toy_motion(30), cs, maps, [g], p)
+    b = simulate(ch, toy_motion(30), cs, maps, [g], p, threads=2)   # parallel loops: same result
     np.testing.assert_array_equal(a.garments[0].positions, b.garments[0].positions)
     np.testing.assert_array_equal(a.penetrations_body, b.penetrations_body)
     np.testing.assert_array_equal(a.corrected, b.corrected)

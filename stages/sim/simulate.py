@@ -451,6 +451,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
         return SimulationDiverged(f, local, gname, float(np.sqrt(fin.max())) if fin.size else float("nan"),
                                   partial=result(f) if f > 0 else None)
 
+    timings["setup"] = time.perf_counter() - t_start
     # frame 0: the initial state; count particles starting inside a collider (no response)
     fwd0 = np.ascontiguousarray(motion.joint_world[0])
     inv_0 = np.ascontiguousarray(np.linalg.inv(fwd0))

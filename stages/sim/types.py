@@ -146,7 +146,8 @@ class SimResult:
         body audit excluded; 0 for frame 0, the initial state).
     timings: total seconds per phase: 'poses' (collider / attachment poses), 'integrate'
         (forces + Verlet + attachments), 'constraints' (springs), 'collisions', 'audit'
-        (skinning + winding numbers), 'total' (whole call).
+        (skinning + winding numbers), 'setup' (particle system, springs, tethers, collider arrays, audit
+        tree), 'obstacles', 'total' (whole call).
     steps: number of steps simulated. params: the SimParams used.
     notes: human-readable remarks (e.g. which collision path was used for hulls).
     """
