@@ -5,13 +5,17 @@ x (N, 3) current positions, xp (N, 3) previous positions (Verlet), both in the r
 Poses: fwd (J, 4, 4) bone-local -> relative frame at the END of the step, inv (J, 4, 4) its inverse,
 inv0 (J, 4, 4) the inverse at the START of the step (for friction relative to a moving collider).
 
-Speed (issue 6): the kernels are serial (on the 2-core machine a parallel region per phase cost more
-than it saved under load) and a whole chunk of frames runs in one call (`run_frames`), so nothing is
-allocated and no Python runs between steps. Collisions: per step each collider gets a world bounding
-sphere and one 3x4 matrix world -> *query frame* (hulls: the OBB-local frame of the maps; spheres:
-bone-local with the centre at the origin); a particle is transformed only after the world sphere
-test, the hull response reports its exit face (the contact normal, no face scan), and a particle is
-re-checked only against colliders whose world sphere holds its new position.
+Speed (issue 6): a whole chunk of frames runs in one call (`run_frames`): nothing is allocated and
+no Python runs between steps. The per-step phases are parallel loops (prange) over disjoint
+particles / triangles / spring blocks, so the result is the same for any thread count (OpenMP
+regions cost ~1 us each; the caller picks the threads, 1 by default). Hot kernels are compiled with
+`_nrt=False`: numba otherwise increments / decrements (atomically) the reference count of every
+array argument of each helper inlined into the loop, which cost more than the hull query itself.
+Collisions: per step each collider gets a world bounding sphere and one 3x4 matrix world ->
+*query frame* (hulls: the OBB-local frame of the maps; spheres: bone-local with the centre at the
+origin); a particle is transformed only after the world sphere test, a hull only queried inside
+its OBB, the hull response reports its exit face (the contact normal, no face scan), and after a
+push the particle is re-checked only against the colliders whose world sphere holds it.
 
 Cloth-side argument tuples (built once by simulate.py, unpacked for free inside njit):
     cloth = (x, xp, inv_mass, attach_joint, attach_local, si, sj, rest, wi, wj, part_start, ti, ta, tl, tris,

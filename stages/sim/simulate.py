@@ -7,9 +7,10 @@ One step, in the paper's order (kernels.run_steps):
 2. forces: gravity, aerodynamic drag and lift per triangle (velocities from Verlet positions);
 3. Verlet integration, damping;
 4. `iterations` rounds of spring position correction (stretch and compression, shared by inverse
-   mass, per-kind stiffness);
+   mass, per-kind stiffness), each followed by the tethers (long-range attachments to the attached
+   particles, SimParams.tethers);
 5. collisions in each collider's bone-local frame (spheres: paper eq. 5-6; hulls: the map stage's
-   inside test and response), friction, counts of corrected / still-inside particles;
+   inside test and response), Coulomb friction, counts of corrected / still-inside particles;
 6. the root translation re-applied for the output (positions are stored in world).
 
 Inertia scale s in [0, 1]. World positions are y = x + T(t) (x: relative frame, T: root translation).
