@@ -18,10 +18,15 @@ from stages.garments.patterns import (Panel, Pattern, PatternAttachment, Placeme
 KINDS = ("tshirt", "short_skirt", "long_skirt", "cape", "square")
 
 
-def garment_measurements(character) -> dict:
+def garment_measurements(character, colliders=None, motion=None, *, clearance: float = 0.015) -> dict:
     """body_measurements plus, from the skeleton at rest (metres, world): shoulder_y (upper-arm
     joint height), shoulder_half (|x| of the upper-arm joint from the root), neck_y (neck-base
-    joint height or 0.82 height), arm_girth (upper-arm circumference estimate), floor_y."""
+    joint height or 0.82 height), arm_girth (upper-arm circumference estimate), floor_y.
+
+    With `colliders` (and the motion whose frame 0 is the bind pose; default: the rest pose) it
+    adds the clearance the cloth actually needs around the colliders AND the body (see
+    clearance_measurements); the patterns then size themselves to clear them.
+    """
     from stages.garments.placement import _chain
     from stages.rig.procedural import body_measurements
     from stages.rig.transforms import forward_kinematics
@@ -49,7 +54,121 @@ def garment_measurements(character) -> dict:
     neck = next((names.index(n) for n in ("neck", "Neck", "neck_01") if n in names), None)
     m["neck_y"] = float(w[neck, 1]) if neck is not None else y0 + 0.82 * h
     m["floor_y"] = y0
+    m.update(clearance_measurements(character, colliders, motion, clearance=clearance))
     return m
+
+
+def _slab_girth(points_xz: np.ndarray) -> float:
+    from scipy.spatial import ConvexHull, QhullError
+    if points_xz.shape[0] < 3:
+        return 0.0
+    try:
+        return float(ConvexHull(points_xz).area)    # 2D: 'area' is the perimeter
+    except QhullError:
+        return 0.0
+
+
+def clearance_measurements(character, colliders=None, motion=None, *, clearance: float = 0.015) -> dict:
+    """What a garment must clear (metres, world at frame 0 of `motion`, default the rest pose), from
+    the skinned body plus the collider surfaces when given, each plus `clearance`:
+
+    clear_chest / clear_waist / clear_hips: perimeter of the torso's slab (6 cm thick; hips: with
+        the thighs) at those heights, + 2 pi clearance. clear_skirt: the largest such perimeter of
+        hips + legs from the hips down to 10 cm below the crotch.
+    neck_half: half-width of the neck (its body part and collider) below neck_y + 6 cm.
+    shoulder_top: highest point of the shoulders (torso and upper arms, without neck and head)
+        between the neck and the upper-arm joint.
+    torso_depth: largest |z - root z| of the upper torso between chest_y and shoulder_top.
+    arm_radius: largest distance from the upper-arm axis of the upper arm (and its collider)
+        within the upper arm's first 70 %. arm_angle: the upper arm's angle below horizontal, rad.
+    thigh_radius: the same for the thigh. crotch_y: lowest point where a leg (or its collider)
+        reaches the body's mid-plane.
+    """
+    from stages.garments.placement import _chain, _subtree, bind_geometry, collider_points, part_joints
+    from stages.rig.skinning import rest_motion
+    if motion is None:
+        motion = rest_motion(character, 1, 1.0 / 30.0)
+    skinned, origins, dominant = bind_geometry(character, motion)
+    pts = [skinned]
+    owner = [dominant]
+    for j, p in collider_points(colliders, motion.joint_world[0]):
+        pts.append(p)
+        owner.append(np.full(len(p), j))
+    pts, owner = np.concatenate(pts), np.concatenate(owner)
+    root = origins[character.root_joint]
+    parents = np.asarray(character.parents)
+    torso = np.isin(owner, list(part_joints(character, "torso", origins)))
+    hips = np.isin(owner, list(part_joints(character, "hips", origins)))
+    legs = np.zeros(len(pts), bool)
+    arm_sets = []
+    for side in ("l", "r"):
+        ch = _chain(character, "leg", side)
+        if ch is not None:
+            legs |= np.isin(owner, list(_subtree(parents, ch[0])))
+        ch = _chain(character, "arm", side)
+        if ch is not None:
+            arm_sets.append(ch)
+    names = character.joint_names
+    headneck = set()
+    for n in ("neck", "Neck", "neck_01", "head", "Head"):
+        if n in names:
+            headneck |= _subtree(parents, names.index(n))
+    neckpts = np.isin(owner, list(headneck))
+    out = {}
+    b = body_measurements_cached(character)
+    c2 = 2 * np.pi * clearance
+    rel = pts - root
+
+    def slab(mask, y, half=0.03):
+        m = mask & (np.abs(pts[:, 1] - y) <= half)
+        return _slab_girth(rel[m][:, [0, 2]])
+
+    out["clear_chest"] = slab(torso & ~neckpts, b["chest_y"]) + c2
+    out["clear_waist"] = slab(torso & ~neckpts, b["waist_y"]) + c2
+    out["clear_hips"] = slab(hips | legs, b["hips_y"]) + c2
+    neck_j = next((names.index(n) for n in ("neck", "Neck", "neck_01") if n in names), None)
+    m = owner == neck_j if neck_j is not None else np.zeros(len(pts), bool)
+    out["neck_half"] = (float(np.abs(rel[m, 0]).max()) if m.any() else 0.035 * b["height"]) + clearance
+    # the neck as a box in the sagittal plane: a neckline must stay below or in front of / behind it
+    out["neck_low"] = (float(pts[m, 1].min()) if m.any() else b["chest_y"] + 0.1 * b["height"]) - clearance
+    out["neck_front"] = (float(rel[m, 2].max()) if m.any() else 0.03 * b["height"]) + clearance
+    out["neck_back"] = (float(rel[m, 2].min()) if m.any() else -0.03 * b["height"]) - clearance
+    upper = (torso | np.isin(owner, [a[0] for a in arm_sets])) & ~neckpts & ~legs
+    if arm_sets:
+        sh = float(np.mean([abs(origins[a[0], 0] - root[0]) for a in arm_sets]))
+    else:
+        sh = 0.105 * b["height"]
+    m = upper & (np.abs(rel[:, 0]) >= out["neck_half"] - clearance) & (np.abs(rel[:, 0]) <= sh + 0.02)
+    out["shoulder_top"] = (float(pts[m, 1].max()) if m.any() else b["chest_y"] + 0.12 * b["height"]) + clearance
+    m = torso & ~neckpts & (pts[:, 1] >= b["chest_y"]) & (pts[:, 1] <= out["shoulder_top"])
+    out["torso_depth"] = (float(np.abs(rel[m, 2]).max()) if m.any() else 0.07 * b["height"]) + clearance
+    for key, kind in (("arm", "arm"), ("thigh", "leg")):
+        ch = _chain(character, kind, "l")
+        if ch is None:
+            continue
+        o, e = origins[ch[0]], origins[ch[1]]
+        d = e - o
+        L = float(np.linalg.norm(d))
+        d /= L
+        mm = owner == ch[0]
+        r = pts[mm] - o
+        t = r @ d
+        keep = (t >= -0.05) & (t <= 0.7 * L)
+        rad = np.linalg.norm(r[keep] - np.outer(t[keep], d), axis=1)
+        out[f"{key}_radius"] = (float(rad.max()) if rad.size else 0.03 * b["height"]) + clearance
+        if kind == "arm":
+            out["arm_angle"] = float(np.arcsin(np.clip(-d[1], -1.0, 1.0)))
+    mid = legs & (np.abs(rel[:, 0]) <= 0.01)
+    out["crotch_y"] = (float(pts[mid, 1].min()) if mid.any() else b["hips_y"] - 0.05 * b["height"]) - clearance
+    lo = out["crotch_y"] - 0.10
+    ys = np.arange(lo, b["hips_y"] + 0.03, 0.02)
+    out["clear_skirt"] = max(slab(hips | legs, y, 0.01) for y in ys) + c2
+    return out
+
+
+def body_measurements_cached(character) -> dict:
+    from stages.rig.procedural import body_measurements
+    return body_measurements(character)
 
 
 def _need(meas: dict, *keys):
@@ -58,60 +177,125 @@ def _need(meas: dict, *keys):
             raise InputError("garment measurements", f"missing or NaN {k!r} (have {sorted(meas)})")
 
 
-def _torso_panel(name, hw, sw, nw, ha, hs, hn, neck_depth, angle, hem_y):
-    """Front / back T-shirt body: hem at v = 0, armpits at ha, shoulder points at hs, neck points at hn."""
-    dy = hs - ha
-    edges = (
-        line("hem", (hw, 0.0)),
-        line("side_l", (hw, ha)),
-        cubic("armhole_l", (sw + 0.4 * (hw - sw), ha), (sw, ha + 0.5 * dy), (sw, hs)),
-        line("shoulder_l", (nw, hn)),
-        cubic("neck", (nw, hn - 4 / 3 * neck_depth), (-nw, hn - 4 / 3 * neck_depth), (-nw, hn)),
-        line("shoulder_r", (-sw, hs)),
-        cubic("armhole_r", (-sw, ha + 0.5 * dy), (-sw - 0.4 * (hw - sw), ha), (-hw, ha)),
-        line("side_r", (-hw, 0.0)),
-    )
-    return Panel(name, edges, Placement("torso", angle_deg=angle, span_deg=180.0, shift=hem_y, offset=0.02,
-                                       wrap_until=ha))
+def _quarter_length(a: float, b: float) -> float:
+    """Length of a quarter ellipse with semi-axes a, b (Ramanujan)."""
+    return float(np.pi * (3 * (a + b) - np.sqrt((3 * a + b) * (a + 3 * b))) / 4)
 
 
-def tshirt(meas: dict, *, ease: float = 0.12, length_below_waist: float | None = None, sleeve_length: float | None = None,
-           edge_length: float = 0.025, name: str = "tshirt") -> Pattern:
+def _cos_bezier(name, start, end):
+    """A cubic close to half a cosine period from `start` to `end` (flat at both ends)."""
+    (u0, v0), (u1, v1) = start, end
+    k = 0.364 * (u1 - u0)
+    return cubic(name, (u0 + k, v0), (u1 - k, v1), (u1, v1))
+
+
+def tshirt(meas: dict, *, ease: float = 0.08, length_below_waist: float | None = None,
+           sleeve_length: float | None = None, edge_length: float = 0.025, name: str = "tshirt") -> Pattern:
+    """Front, back and two sleeves, sized to clear the body and its colliders (garment_measurements
+    with colliders), else the body plus ease.
+
+    Design (bind pose): the torso panels are a rounded-box tube from the hem to the fold line,
+    whose columns then bend over the shoulders onto the ridge plane, where front and back meet in
+    the shoulder seams. Each sleeve is a tube around the upper arm (radius arm_radius + 1 cm)
+    whose top is its cut by the vertical plane x = x_p: an ellipse of semi-axes R and
+    R / cos(arm angle), centred on the arm axis, reaching the ridge (shoulder_top) at its top and
+    the armpit at its bottom; unrolled, that cut is the cosine-shaped sleeve cap. The torso's
+    armholes run from the armpit to the shoulder point with the cap's length. Seams are sewn in
+    two stages: sides, shoulders and sleeve underarms first, then the armholes.
+    """
     _need(meas, "height", "chest", "waist", "hips", "waist_y", "hips_y", "shoulder_y", "shoulder_half", "neck_y",
-          "arm_girth", "arm_length")
+          "arm_girth")
     h = meas["height"]
     hem_y = meas["hips_y"] - 0.02 * h if length_below_waist is None else meas["waist_y"] - length_below_waist
-    girth = max(meas["chest"], meas["waist"], meas["hips"] if hem_y < meas["hips_y"] + 0.05 else 0.0) + ease
-    hw = girth / 4
-    sw = meas["shoulder_half"] + 0.01 * h
-    nw = 0.045 * h
-    hs = meas["shoulder_y"] + 0.02 * h - hem_y
-    hn = hs + 0.02 * h
-    sleeve_circ = meas["arm_girth"] + 0.08 + 2 * np.pi * 0.02
-    lam = sleeve_circ / 2   # wanted armhole length (front = back)
-    depth = np.sqrt(max(lam ** 2 / 1.1 ** 2 - (hw - sw) ** 2, (0.08 * h) ** 2))
-    ha = hs - depth
-    front = _torso_panel("front", hw, sw, nw, ha, hs, hn, 0.06 * h * 0.6, 0.0, hem_y)
-    back = _torso_panel("back", hw, sw, nw, ha, hs, hn, 0.012 * h, 180.0, hem_y)
-    lam = 0.5 * (front.edge_length(front.edge_index("armhole_l")) + back.edge_length(back.edge_index("armhole_l")))
-    sl = 0.12 * h if sleeve_length is None else sleeve_length
-    panels = [front, back]
-    seams = [Seam(SeamSide("front", "side_l"), SeamSide("back", "side_r")),
-             Seam(SeamSide("back", "side_l"), SeamSide("front", "side_r")),
-             Seam(SeamSide("front", "shoulder_l"), SeamSide("back", "shoulder_r")),
-             Seam(SeamSide("back", "shoulder_l"), SeamSide("front", "shoulder_r"))]
+    below_hips = hem_y < meas["hips_y"] + 0.05
+    chest = max(meas["chest"] + ease, meas.get("clear_chest", 0.0))
+    hem = max(chest, meas["waist"] + ease, meas.get("clear_waist", 0.0),
+              max(meas["hips"] + ease, meas.get("clear_hips", 0.0)) if below_hips else 0.0)
+    hw, cw = hem / 4, chest / 4
+    R = meas.get("arm_radius", meas["arm_girth"] / (2 * np.pi) + 0.02) + 0.01
+    alpha = float(np.clip(meas.get("arm_angle", np.pi / 4), 0.0, np.radians(70)))
+    half_cut = R / np.cos(alpha)                     # vertical semi-axis of the sleeve's cut
+    y_s = meas.get("shoulder_top", meas["shoulder_y"] + 0.05 * h) + 0.01
+    y_c = y_s - half_cut
+    xj = meas["shoulder_half"]
+    x_p = xj + max(meas["shoulder_y"] - y_c, 0.0) / max(np.tan(alpha), 1e-3) if alpha > 0.05 else xj
+    y_a = y_c - half_cut
+    depth = meas.get("torso_depth", 0.075 * h)
+    neck_half = meas.get("neck_half", 0.045 * h)
+    ha = y_a - hem_y
+    fold = max(y_s - depth - hem_y, ha + 0.03)
+    lift = y_s - hem_y - fold
+    u_s = min(x_p, cw - 0.03)
+    u_n = min(neck_half, u_s - 0.04)
+    hs = fold + _quarter_length(0.5 * depth, lift)
+    hn = fold + _quarter_length(depth, lift)
+
+    def neckline(front: bool) -> float:
+        """Neck depth (pattern v below hn) where the centre column's fold meets the neck box."""
+        psi = np.linspace(0.0, np.pi / 2, 91)
+        y = y_s - lift + lift * np.sin(psi)
+        z = depth * np.cos(psi)
+        lim = meas.get("neck_front", 0.03 * h) if front else -meas.get("neck_back", -0.03 * h)
+        hit = (y > meas.get("neck_low", meas["neck_y"])) & (z < lim)
+        k = int(np.argmax(hit)) if hit.any() else psi.size - 1
+        arc = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(y), np.diff(z)))])
+        return max(hn - (fold + arc[k]) + 0.01, 0.02)
+
+    # armhole: from the armpit inwards, then up to the shoulder point
+    lam = np.pi * R                                  # half the sleeve's circumference
+    sl = 0.1 * h if sleeve_length is None else sleeve_length
+    rise = R * np.tan(alpha)
+    cap_len = Panel("cap", (line("a", (lam, 0.0)), _cos_bezier("cap", (lam, 0.0), (0.0, 2 * rise)),
+                            line("b", (0.0, -0.1))), Placement("plane")).edge_length(1)
+    dy = hs - ha
+
+    def armhole(scoop):
+        return cubic("armhole_l", (u_s + 0.5 * (cw - u_s), ha), (u_s - scoop, ha + 0.4 * dy), (u_s, hs))
+
+    def hole_length(scoop):
+        return Panel("h", (line("a", (cw, ha)), armhole(scoop), line("b", (0.0, hs)), line("c", (0.0, ha))),
+                     Placement("plane")).edge_length(1)
+    # scoop the armhole inwards until it is as long as the sleeve cap (no gathering in the seam)
+    lo, hi = 0.0, max(u_s - u_n - 0.02, 0.0)
+    for _ in range(30 if hole_length(0.0) < cap_len else 0):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if hole_length(mid) < cap_len else (lo, mid)
+    scoop = 0.5 * (lo + hi) if hole_length(0.0) < cap_len else 0.0
+    panels, seams = [], []
+    for pname, angle, neck_depth in (("front", 0.0, neckline(True)), ("back", 180.0, neckline(False))):
+        edges = (
+            line("hem", (hw, 0.0)),
+            line("side_l", (cw, ha)),
+            armhole(scoop),
+            line("shoulder_l", (u_n, hn)),
+            cubic("neck", (u_n, hn - 4 / 3 * neck_depth), (-u_n, hn - 4 / 3 * neck_depth), (-u_n, hn)),
+            line("shoulder_r", (-u_s, hs)),
+            cubic("armhole_r", (-u_s + scoop, ha + 0.4 * dy), (-u_s - 0.5 * (cw - u_s), ha), (-cw, ha)),
+            line("side_r", (-hw, 0.0)),
+        )
+        ridge = ((-u_s, hs), (-u_n, hn), (u_n, hn), (u_s, hs))
+        panels.append(Panel(pname, edges, Placement("torso", angle_deg=angle, span_deg=180.0, shift=hem_y,
+                                                    offset=0.015, wrap_until=ha, exponent=4.0, arms=False,
+                                                    fold_at=fold, ridge=ridge)))
+    seams += [Seam(SeamSide("front", "side_l"), SeamSide("back", "side_r")),
+              Seam(SeamSide("back", "side_l"), SeamSide("front", "side_r")),
+              Seam(SeamSide("front", "shoulder_l"), SeamSide("back", "shoulder_r")),
+              Seam(SeamSide("back", "shoulder_l"), SeamSide("front", "shoulder_r"))]
+    t_mid = (xj - x_p) / np.cos(alpha)               # axis coordinate where the arm axis meets x = x_p
+    v_mid = sl + rise
     for side in ("l", "r"):
         # u > 0 of a sleeve faces the back on the left arm and the front on the right arm (see placement)
         first, second = ("cap_back", "cap_front") if side == "l" else ("cap_front", "cap_back")
-        edges = (line("cuff", (lam, 0.0)), line("under_a", (lam, sl)), line(first, (0.0, sl)),
-                 line(second, (-lam, sl)), line("under_b", (-lam, 0.0)))
+        edges = (line("cuff", (lam, 0.0)), line("under_a", (lam, sl)),
+                 _cos_bezier(first, (lam, sl), (0.0, v_mid + rise)),
+                 _cos_bezier(second, (0.0, v_mid + rise), (-lam, sl)), line("under_b", (-lam, 0.0)))
         pname = f"sleeve_{side}"
         panels.append(Panel(pname, edges, Placement(f"arm_{side}", angle_deg=0.0, span_deg=360.0,
-                                                    shift=-(sl + 0.02 * h), offset=0.02)))
+                                                    shift=t_mid - v_mid, offset=0.01, wrap_until=sl)))
         seams.append(Seam(SeamSide(pname, "under_a"), SeamSide(pname, "under_b")))
         front_hole, back_hole = ("armhole_l", "armhole_r") if side == "l" else ("armhole_r", "armhole_l")
-        seams.append(Seam(SeamSide(pname, "cap_front"), SeamSide("front", front_hole)))
-        seams.append(Seam(SeamSide(pname, "cap_back"), SeamSide("back", back_hole)))
+        seams.append(Seam(SeamSide(pname, "cap_front"), SeamSide("front", front_hole), stage=1))
+        seams.append(Seam(SeamSide(pname, "cap_back"), SeamSide("back", back_hole), stage=1))
     atts = (PatternAttachment("front", "shoulder_l"), PatternAttachment("front", "shoulder_r"))
     return Pattern(name, tuple(panels), tuple(seams), edge_length, atts)
 
@@ -219,8 +403,9 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
     shift = np.concatenate([[0.0], np.cumsum([np.ptp(p.uv[:, 0]) + 0.1 for p in flat.panels])])[:-1]
     flat3 = np.concatenate([np.c_[p.uv[:, 0] - p.uv[:, 0].min() + s, p.uv[:, 1], np.zeros(len(p.uv))]
                             for p, s in zip(flat.panels, shift)])
+    stage = np.array([pattern.seams[k].stage for k in flat.seam_index], np.int64)
     sewn, log = sew(pattern.name, placed, tri, tri_rest, flat.seam_pairs, character, motion, colliders, maps, sp,
-                    density=pattern.density, flat_positions=flat3)
+                    density=pattern.density, flat_positions=flat3, pair_stage=stage)
     pos, mtri, remap = merged_mesh(sewn, tri, flat.seam_pairs)
     atts = []
     bind = None

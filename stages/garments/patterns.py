@@ -102,6 +102,15 @@ class Placement:
     wrap_until: panel v above which the reference width stops following the outline (e.g. the
         armpit of a T-shirt panel); None = follow the outline everywhere.
     center, normal: for 'plane' only (metres, relative frame at frame 0; unit normal).
+    exponent: cross-section shape, a superellipse |p/a|^n + |q/b|^n = 1 (2: ellipse; 4: a rounded
+        box, e.g. an upper torso whose shoulders and arm roots are wide in front and back).
+    arms: torso only: whether the cross-section must also cover the upper arms' roots (a cape) or
+        not (a T-shirt, whose sleeves cover them).
+    fold_at, ridge: torso only: above panel height fold_at each panel column bends over the top of
+        the body (a quarter superellipse in the column's vertical plane) so that it ends on the
+        ridge plane through the axis (front and back meet there: a T-shirt's shoulder line). ridge:
+        ((u, v), ...) points of the panel's top line, u ascending; the column at u ends on the ridge
+        at arc length ridge(u) - fold_at (ridge interpolated, constant beyond its ends).
     """
 
     body: str
@@ -112,6 +121,10 @@ class Placement:
     wrap_until: float | None = None
     center: tuple = (0.0, 0.0, 0.0)
     normal: tuple = (0.0, 0.0, 1.0)
+    exponent: float = 2.0
+    arms: bool = True
+    fold_at: float | None = None
+    ridge: tuple = ()
 
     def __post_init__(self):
         if self.body not in BODY_PARTS:
@@ -121,6 +134,15 @@ class Placement:
                 raise ContractError(f"Placement.{name}: expected a finite number, got {getattr(self, name)}")
         if not 0 < self.span_deg <= 360:
             raise ContractError(f"Placement.span_deg: expected (0, 360], got {self.span_deg}")
+        if not (np.isfinite(self.exponent) and 1.5 <= self.exponent <= 12):
+            raise ContractError(f"Placement.exponent: expected [1.5, 12], got {self.exponent}")
+        if self.fold_at is not None:
+            r = np.asarray(self.ridge, dtype=np.float64)
+            if not np.isfinite(self.fold_at) or r.ndim != 2 or r.shape[1] != 2 or r.shape[0] < 2 \
+                    or not np.isfinite(r).all() or np.any(np.diff(r[:, 0]) <= 0) or np.any(r[:, 1] <= self.fold_at):
+                raise ContractError("Placement.fold_at / ridge: expected a finite fold height and >= 2 ridge "
+                                    "points (u ascending) above it")
+            object.__setattr__(self, "ridge", tuple(tuple(float(c) for c in q) for q in r))
         if self.offset < 0:
             raise ContractError(f"Placement.offset: expected >= 0, got {self.offset}")
         n = np.asarray(self.normal, dtype=np.float64)
@@ -199,11 +221,17 @@ class SeamSide:
 @dataclass(frozen=True)
 class Seam:
     """Two edge runs sewn together. reverse=True (usual for two outward-facing panels, whose
-    outlines run in opposite directions along a shared edge) pairs a's start with b's end."""
+    outlines run in opposite directions along a shared edge) pairs a's start with b's end.
+    stage: sewing order; seams of stage k start pulling once the earlier stages are closed."""
 
     a: SeamSide
     b: SeamSide
     reverse: bool = True
+    stage: int = 0
+
+    def __post_init__(self):
+        if not (isinstance(self.stage, (int, np.integer)) and 0 <= self.stage <= 8):
+            raise ContractError(f"Seam.stage: expected an integer in [0, 8], got {self.stage!r}")
 
 
 @dataclass(frozen=True)

@@ -121,8 +121,17 @@ def _outline_width(boundary_uv: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(umax), umax - umin, 0.0)
 
 
-def _cross_sections(points: np.ndarray, axis: BodyAxis, levels: np.ndarray, offset: float, monotone_down: bool):
-    """(L, 2) ellipse semi-axes (along P, Q) at axis coordinates `levels`."""
+def _superellipse(phi: np.ndarray, n: float):
+    """(sin-like, cos-like) of the superellipse |x|^n + |y|^n = 1 at parameter phi (n = 2: sin, cos)."""
+    s, c = np.sin(phi), np.cos(phi)
+    if n == 2.0:
+        return s, c
+    return np.sign(s) * np.abs(s) ** (2.0 / n), np.sign(c) * np.abs(c) ** (2.0 / n)
+
+
+def _cross_sections(points: np.ndarray, axis: BodyAxis, levels: np.ndarray, offset: float, monotone_down: bool,
+                    exponent: float = 2.0):
+    """(L, 2) superellipse semi-axes (along P, Q) at axis coordinates `levels`."""
     rel = points - axis.origin
     t, p, q = rel @ axis.a, rel @ axis.p, rel @ axis.q
     ab = np.full((levels.size, 2), np.nan)
@@ -131,7 +140,7 @@ def _cross_sections(points: np.ndarray, axis: BodyAxis, levels: np.ndarray, offs
         if not m.any():
             continue
         hp, hq = max(np.abs(p[m]).max(), 0.01), max(np.abs(q[m]).max(), 0.01)
-        s = max(1.0, float(np.sqrt((p[m] / hp) ** 2 + (q[m] / hq) ** 2).max()))
+        s = max(1.0, float((np.abs(p[m] / hp) ** exponent + np.abs(q[m] / hq) ** exponent).max() ** (1 / exponent)))
         ab[k] = (s * hp, s * hq)
     have = np.flatnonzero(~np.isnan(ab[:, 0]))
     if have.size == 0:
@@ -147,9 +156,10 @@ def _cross_sections(points: np.ndarray, axis: BodyAxis, levels: np.ndarray, offs
     return ab + offset
 
 
-def _arc_table(a: float, b: float, phi0: float, n: int = 721):
+def _arc_table(a: float, b: float, phi0: float, n: int = 721, exponent: float = 2.0):
     phi = phi0 + np.linspace(-np.pi, np.pi, n)
-    pts = np.stack([a * np.sin(phi), b * np.cos(phi)], axis=1)
+    sn, cs = _superellipse(phi, exponent)
+    pts = np.stack([a * sn, b * cs], axis=1)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
     return phi, s - s[n // 2]
 
@@ -172,8 +182,9 @@ def collider_points(colliders, joint_world0: np.ndarray):
     return out
 
 
-def _collider_joints(character, part: str, joint_origins: np.ndarray) -> set:
-    """Joints whose colliders a panel on `part` must clear."""
+def _collider_joints(character, part: str, joint_origins: np.ndarray, with_arms: bool = True) -> set:
+    """Joints whose colliders a panel on `part` must clear (torso: the upper arms' roots too
+    when with_arms)."""
     if part in ("torso", "hips"):
         arms = set()
         keep = set()
@@ -181,7 +192,7 @@ def _collider_joints(character, part: str, joint_origins: np.ndarray) -> set:
             ch = _chain(character, "arm", side)
             if ch is not None:
                 arms |= _subtree(np.asarray(character.parents), ch[0])
-                if part == "torso":
+                if part == "torso" and with_arms:
                     keep.add(ch[0])
         return (set(range(character.n_joints)) - arms) | keep
     return part_joints(character, part, joint_origins)
@@ -201,13 +212,14 @@ def place_panel(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, characte
     axis = body_axis(character, pl.body, joint_origins)
     joints = part_joints(character, pl.body, joint_origins)
     pts = skinned[np.isin(dominant, list(joints))]
-    cj = _collider_joints(character, pl.body, joint_origins)
+    cj = _collider_joints(character, pl.body, joint_origins, pl.arms)
     extra = [p for j, p in col_points if j in cj]
     if extra:
         pts = np.concatenate([pts] + extra)
     t = uv[:, 1] + pl.shift
     levels = np.arange(t.min() - LEVEL_STEP, t.max() + 2 * LEVEL_STEP, LEVEL_STEP)
-    ab = _cross_sections(pts, axis, levels, pl.offset, pl.body == "hips")
+    ex = float(pl.exponent)
+    ab = _cross_sections(pts, axis, levels, pl.offset, pl.body == "hips", ex)
     v_lv = levels - pl.shift
     vcap = v_lv if pl.wrap_until is None else np.minimum(v_lv, pl.wrap_until)
     width = _outline_width(boundary_uv, vcap)
@@ -217,20 +229,71 @@ def place_panel(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, characte
     phi0 = np.radians(pl.angle_deg)
     span = np.radians(pl.span_deg)
     level = np.clip(np.round((t - levels[0]) / LEVEL_STEP).astype(int), 0, levels.size - 1)
+    fold = pl.fold_at is not None
+    if fold:   # columns above the fold keep the fold level's cross-section position
+        kf = int(np.clip(np.round((pl.fold_at + pl.shift - levels[0]) / LEVEL_STEP), 0, levels.size - 1))
+        level = np.where(uv[:, 1] > pl.fold_at, kf, level)
     out = np.empty((uv.shape[0], 3))
     for k in np.unique(level):
         a, b = ab[k]
-        phi, s = _arc_table(a, b, phi0)
+        phi, s = _arc_table(a, b, phi0, exponent=ex)
         half_arc = 0.5 * (np.interp(phi0 + span / 2, phi, s) - np.interp(phi0 - span / 2, phi, s))
         grow = max(1.0, 0.5 * width[k] / half_arc)
         a, b = a * grow, b * grow
-        phi, s = _arc_table(a, b, phi0)
+        phi, s = _arc_table(a, b, phi0, exponent=ex)
         half_arc *= grow
         m = level == k
         target = uv[m, 0] / (0.5 * width[k]) * half_arc
-        ph = np.interp(target, s, phi)
-        out[m] = (axis.origin + t[m, None] * axis.a + (a * np.sin(ph))[:, None] * axis.p
-                  + (b * np.cos(ph))[:, None] * axis.q)
+        sn, cs = _superellipse(np.interp(target, s, phi), ex)
+        out[m] = axis.origin + t[m, None] * axis.a + (a * sn)[:, None] * axis.p + (b * cs)[:, None] * axis.q
+    if fold:
+        out = _fold_over(out, uv, pl, axis)
+    return out
+
+
+def _quarter_arc(dq: np.ndarray, h: np.ndarray, n: int = 65):
+    """(psi (n,), cumulative arc length (N, n)) of quarter ellipses t = h sin psi, q = dq cos psi."""
+    psi = np.linspace(0.0, np.pi / 2, n)
+    pts = np.stack([h[:, None] * np.sin(psi), dq[:, None] * np.cos(psi)], axis=2)
+    seg = np.linalg.norm(np.diff(pts, axis=1), axis=2)
+    return psi, np.concatenate([np.zeros((dq.size, 1)), np.cumsum(seg, axis=1)], axis=1)
+
+
+def _fold_over(out: np.ndarray, uv: np.ndarray, pl: Placement, axis: BodyAxis) -> np.ndarray:
+    """Bend the columns above pl.fold_at over the top of the body onto the ridge plane (q = 0).
+
+    A column at u leaves the fold level at distance dq from the ridge plane and follows the quarter
+    ellipse t = t_f + H sin psi, q = dq cos psi, whose height H makes its length equal to
+    ridge(u) - fold_at (so both panels of a shoulder seam end on the ridge at the same point);
+    beyond the ridge (a longer column) it continues straight across the ridge plane.
+    """
+    m = uv[:, 1] > pl.fold_at
+    if not m.any():
+        return out
+    x = out[m]
+    rel = x - axis.origin
+    dq = np.abs(rel @ axis.q)
+    sgn = np.where(rel @ axis.q >= 0, 1.0, -1.0)
+    # the column's foot on the ridge plane at the fold level
+    base = axis.origin + (pl.fold_at + pl.shift) * axis.a + (rel @ axis.p)[:, None] * axis.p
+    ridge = np.asarray(pl.ridge)
+    want = np.interp(uv[m, 0], ridge[:, 0], ridge[:, 1]) - pl.fold_at
+    # H by bisection: the quarter-ellipse length grows with H (from dq at H = 0)
+    lo, hi = np.zeros(dq.size), np.maximum(want, 1e-6)
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        _, s = _quarter_arc(dq, mid, 17)
+        longer = s[:, -1] > want
+        hi = np.where(longer, mid, hi)
+        lo = np.where(longer, lo, mid)
+    h = 0.5 * (lo + hi)
+    psi, s = _quarter_arc(dq, h)
+    L = uv[m, 1] - pl.fold_at
+    ps = np.array([np.interp(L[i], s[i], psi) for i in range(dq.size)])
+    beyond = np.maximum(L - s[:, -1], 0.0)
+    x = base + (h * np.sin(ps))[:, None] * axis.a + (sgn * (dq * np.cos(ps) - beyond))[:, None] * axis.q
+    out = out.copy()
+    out[m] = x
     return out
 
 

@@ -34,7 +34,7 @@ class SewParams:
     frames_per_iteration: int = 10
     dt: float = 1.0 / 30.0
     substeps: int = 2
-    iterations: int = 8
+    iterations: int = 16
     gravity_scale: float = 0.005
     damping: float = 0.2
     friction: float = 0.0
@@ -88,22 +88,38 @@ def seam_gaps(x: np.ndarray, pairs: np.ndarray) -> np.ndarray:
 
 def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: np.ndarray, pairs: np.ndarray,
         character, motion, colliders, maps, params: SewParams = SewParams(), *, density: float = 0.2,
-        flat_positions=None):
+        flat_positions=None, pair_stage=None):
     """Sew the placed panels. Returns (sewn positions of the UNSEWN mesh (N, 3), SewingLog).
 
     positions: (N, 3) placed panels; triangles (T, 3); triangle_rest (T, 3) flat edge lengths;
     pairs (K, 2) seam vertex pairs; flat_positions: (N, 3) panels laid out flat side by side (keeps
-    coincident seam vertices from being welded before sewing).
+    coincident seam vertices from being welded before sewing). pair_stage: optional (K,) sewing
+    stage of each pair: the pairs of stage k join the seam springs once every earlier pair is within
+    2 x tolerance, or after max_iterations / (2 x stages) iterations of the stage.
     """
     from stages.sim import SimParams, simulate
     from stages.sim.types import SimulationDiverged
 
     t0 = time.perf_counter()
     x = np.ascontiguousarray(positions, dtype=np.float64)
-    g = build_garment(name, x, triangles, rest_positions=flat_positions, density=density, triangle_rest=triangle_rest,
-                      extra_springs=pairs, extra_rest_lengths=np.full(len(pairs), params.seam_rest))
-    if g.n_particles != x.shape[0]:
-        raise ContractError(f"sew {name!r}: the unsewn mesh must be clean (got {g.n_particles} of {x.shape[0]} vertices)")
+    stage_of = np.zeros(len(pairs), np.int64) if pair_stage is None else np.asarray(pair_stage, np.int64).ravel()
+    if stage_of.shape != (len(pairs),):
+        raise ContractError(f"sew {name!r}: pair_stage must give one stage per seam pair")
+    stages = np.unique(stage_of) if stage_of.size else np.zeros(1, np.int64)
+    si = 0
+
+    def garment_for(x, active):
+        g = build_garment(name, x, triangles, rest_positions=flat_positions, density=density,
+                          triangle_rest=triangle_rest, extra_springs=pairs[active],
+                          extra_rest_lengths=np.full(int(active.sum()), params.seam_rest))
+        if g.n_particles != x.shape[0]:
+            raise ContractError(f"sew {name!r}: the unsewn mesh must be clean (got {g.n_particles} of {x.shape[0]} vertices)")
+        return g
+
+    active = stage_of <= stages[si]
+    g = garment_for(x, active)
+    budget = max(1, params.max_iterations // (2 * len(stages)))
+    in_stage = 0
     sp = SimParams(dt=params.dt, substeps=params.substeps, iterations=params.iterations,
                    gravity=(0.0, -9.81 * params.gravity_scale, 0.0), damping=params.damping, drag=0.0, lift=0.0,
                    friction=params.friction, body_audit=False)
@@ -113,7 +129,7 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
     logged, snaps = [0], [x.astype(np.float32)]
     pen, notes = 0, []
     it = 0
-    while gmax[-1] > params.tolerance and it < params.max_iterations:
+    while (gmax[-1] > params.tolerance or si + 1 < len(stages)) and it < params.max_iterations:
         it += 1
         try:
             r = simulate(character, hold, colliders, maps, [g], sp, threads=1)
@@ -125,6 +141,13 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
         gaps = seam_gaps(x, pairs)
         gmax.append(float(gaps.max()))
         gmean.append(float(gaps.mean()))
+        in_stage += 1
+        if si + 1 < len(stages) and (gaps[active].max() <= 2 * params.tolerance or in_stage >= budget):
+            si += 1
+            in_stage = 0
+            active = stage_of <= stages[si]
+            g = garment_for(x, active)
+            notes.append(f"stage {int(stages[si])} from iteration {it}")
         if it % params.log_every == 0:
             logged.append(it)
             snaps.append(x.astype(np.float32))
