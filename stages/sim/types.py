@@ -33,8 +33,10 @@ class SimParams:
         them 3 correction rounds let hanging cloth stretch by up to several times its length.
     thickness: m, extra margin around every collider (colliders are already inflated by delta).
     hull_response: 'ray' (paper: map-volume ray cast) or 'nearest_plane' (push to the nearest face plane).
-    collision_passes: passes over the colliders per particle and step, so a push out of one
-        collider into an overlapping one is resolved.
+    collision_passes: after a push, the particle is re-checked against the other colliders (those
+        whose bounding sphere holds it) until one full round sees no push, at most this many rounds;
+        a push out of one collider into an overlapping one is so resolved (a particle still inside
+        after the budget is counted in penetrations_colliders).
     max_speed: m/s; a particle faster than this (or NaN / inf) stops the run as diverged.
     body_audit: count particles inside the true skinned mesh per frame (generalised winding number).
     """
