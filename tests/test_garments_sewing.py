@@ -39,7 +39,7 @@ def _check_manifold(tri, n):
 def test_sewn_garment_is_clean_and_clear_of_the_body(scene, kind, openings):
     from stages.sim import winding_number
     c, m, cols, maps, body = scene
-    p = library_pattern(kind, garment_measurements(c), edge_length=0.03)
+    p = library_pattern(kind, garment_measurements(c, cols, m), edge_length=0.03)
     g, log, build = make_garment(p, c, m, cols, maps)
     _check_manifold(g.triangles, g.n_particles)
     assert len(boundary_loops(g.triangles)) == openings           # waist + hem; the cape's outline

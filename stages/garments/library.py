@@ -300,16 +300,23 @@ def tshirt(meas: dict, *, ease: float = 0.08, length_below_waist: float | None =
     return Pattern(name, tuple(panels), tuple(seams), edge_length, atts)
 
 
-def skirt(meas: dict, *, length: float, flare: float, ease: float = 0.2, hip_ease: float = 0.32,
+def skirt(meas: dict, *, length: float, flare: float, ease: float = 0.2, hip_ease: float | None = None,
           edge_length: float = 0.025, name: str = "skirt") -> Pattern:
-    """Two panels (front, back) from the waist: hip-wide below the hips, flared to the hem. The
-    ease is generous because the cloth must clear the inflated colliders (joint spheres at the hips),
-    not only the body."""
+    """Two panels (front, back) from the waist: hip-wide below the hips, flared to the hem.
+
+    Hip girth: with collider clearances (garment_measurements with colliders) the larger of
+    hips + hip_ease (default 0.06) and clear_skirt (what the hips, thighs and their colliders need);
+    without them hips + hip_ease (default 0.32, enough for the built-in character's joint spheres).
+    """
     _need(meas, "height", "waist", "hips", "waist_y", "hips_y")
     top_y = meas["waist_y"]
     dh = min(max(top_y - meas["hips_y"], 0.02), 0.8 * length)
     ht = (meas["waist"] + ease) / 4
-    hh = (max(meas["hips"], meas["waist"]) + hip_ease) / 4
+    body = max(meas["hips"], meas["waist"])
+    if "clear_skirt" in meas:
+        hh = max(body + (0.06 if hip_ease is None else hip_ease), meas["clear_skirt"]) / 4
+    else:
+        hh = (body + (0.32 if hip_ease is None else hip_ease)) / 4
     hem = max(hh * flare, hh)
     L = length
     below = L - dh
