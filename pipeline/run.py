@@ -158,7 +158,7 @@ def build_pattern_garment(scene: Scene, index: int, character, motion, colliders
         if key not in allowed:
             raise SceneError(f"{src}: garments[{index}].options.{key}: not an option of kind {g['kind']!r}; "
                              f"options: {', '.join(allowed) or 'none'}")
-    pattern = library_pattern(g["kind"], garment_measurements(character), edge_length=g["edge_length"],
+    pattern = library_pattern(g["kind"], garment_measurements(character, colliders, motion), edge_length=g["edge_length"],
                               name=g["name"], **{k: float(v) for k, v in g["options"].items()})
     sw = g["sewing"]
     sew = SewParams(tolerance=sw["tolerance"], max_iterations=sw["max_iterations"],
