@@ -3,5 +3,5 @@ collisions with the character's spheres and hulls, attachments, relative simulat
 from stages.sim.simulate import BodyAudit, particles_inside_colliders, simulate, winding_number
 from stages.sim.types import GarmentTrack, SimParams, SimResult, SimulationDiverged
 
-__all__ = ["simulate", "winding_number", "particles_inside_colliders", "BodyAudit", "SimParams", "SimResult", "GarmentTrack",
-           "SimulationDiverged"]
+__all__ = ["simulate", "winding_number", "particles_inside_colliders", "BodyAudit", "SimParams", "SimResult",
+           "GarmentTrack", "SimulationDiverged"]
