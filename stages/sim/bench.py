@@ -150,8 +150,8 @@ def walk(frames: int = 90, threads: int = 1, repeats: int = 3) -> dict:
 
 
 def run_benchmark(frames_drape: int = 150, frames_walk: int = 90, threads=(1, 2), repeats: int = 3) -> dict:
-    """Both scenes at each thread count (same results; only the speed differs). Targets on the 2-core machine: drape >= 5,000 steps/s, walk >= 2,000 steps/s (3
-    correction rounds, no recording)."""
+    """Both scenes at each thread count (same results; only the speed differs). Targets on the
+    2-core machine: drape >= 5,000 steps/s, walk >= 2,000 steps/s (3 correction rounds, no recording)."""
     out = {"machine": {"cpus": os.cpu_count(), "load_avg_1min": os.getloadavg()[0]}}
     for t in threads:
         out[f"drape_t{t}"] = drape(frames_drape, t, repeats)

@@ -550,7 +550,8 @@ def _sphere_hit(rad, q0, q1, q2):
 
 @njit(cache=True, _nrt=False)
 def _collider_hit(c, col_kind, col_index, sph_radius, method,
-                  planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                  planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base,
+                  cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
                   q0, q1, q2):
     """(hit, r0, r1, r2, n0, n1, n2): inside test, response point and outward unit contact normal
     of collider c, all in its query frame (the slow-path form of the test written out in collide)."""
@@ -559,8 +560,10 @@ def _collider_hit(c, col_kind, col_index, sph_radius, method,
         return _sphere_hit(sph_radius[idx], q0, q1, q2)
     if method != METHOD_NEAREST_PLANE and (abs(q0) > half[idx, 0] or abs(q1) > half[idx, 1] or abs(q2) > half[idx, 2]):
         return False, q0, q1, q2, 0.0, 0.0, 0.0
-    hit, r0, r1, r2, face = _hull_hit(planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
-                                      idx, method, q0, q1, q2)
+    hit, r0, r1, r2, face = _hull_hit(
+        planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base,
+        cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+        idx, method, q0, q1, q2)
     if not hit:
         return False, q0, q1, q2, 0.0, 0.0, 0.0
     return True, r0, r1, r2, planes[face, 0], planes[face, 1], planes[face, 2]
@@ -568,7 +571,8 @@ def _collider_hit(c, col_kind, col_index, sph_radius, method,
 
 @njit(cache=True, _nrt=False)
 def _inside_any(col_kind, col_index, sph_radius, method, tq, cw, skip,
-                planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base,
+                cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
                 px, py, pz):
     """True if the world point is inside any collider except `skip` (with a real push)."""
     for c in range(cw.shape[0]):
@@ -580,9 +584,10 @@ def _inside_any(col_kind, col_index, sph_radius, method, tq, cw, skip,
         if dx * dx + dy * dy + dz * dz >= cw[c, 4]:
             continue
         q0, q1, q2 = _apply12(tq, c, px, py, pz)
-        hit, r0, r1, r2, n0, n1, n2 = _collider_hit(c, col_kind, col_index, sph_radius, method,
-                                                    planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
-                                                    q0, q1, q2)
+        hit, r0, r1, r2, n0, n1, n2 = _collider_hit(
+            c, col_kind, col_index, sph_radius, method,
+            planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base,
+            cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, q0, q1, q2)
         if hit and (r0 - q0) ** 2 + (r1 - q1) ** 2 + (r2 - q2) ** 2 >= TOUCH_EPS * TOUCH_EPS:
             return True
     return False
@@ -720,8 +725,10 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
                         hit, r0, r1, r2, n0, n1, n2 = _sphere_hit(sph_radius[idx], q0, q1, q2)
                     elif method == METHOD_NEAREST_PLANE or (abs(q0) <= half[idx, 0] and abs(q1) <= half[idx, 1]
                                                             and abs(q2) <= half[idx, 2]):
-                        hit, r0, r1, r2, face = _hull_hit(planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
-                                                          idx, method, q0, q1, q2)
+                        hit, r0, r1, r2, face = _hull_hit(
+                            planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base,
+                            cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                            idx, method, q0, q1, q2)
                         if hit:
                             n0 = planes[face, 0]
                             n1 = planes[face, 1]
@@ -774,9 +781,10 @@ def count_inside(x, inv_mass, m, method, col_kind, col_index, sph_radius, tq, cw
     for i in range(x.shape[0]):
         inside[i] = 0
         if inv_mass[i] > 0.0:
-            inside[i] = _inside_any(col_kind, col_index, sph_radius, method, tq, cw, -1,
-                                    planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
-                                    x[i, 0], x[i, 1], x[i, 2])
+            inside[i] = _inside_any(
+                col_kind, col_index, sph_radius, method, tq, cw, -1,
+                planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base,
+                cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, x[i, 0], x[i, 1], x[i, 2])
 
 
 # -- steps and frames ------------------------------------------------------------------------------
