@@ -319,7 +319,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                                drag=sp["drag"], lift=sp["lift"], friction=sp["friction"],
                                inertia_scale=sp["inertia_scale"], stretch_stiffness=sp["stretch_stiffness"],
                                bend_stiffness=sp["bend_stiffness"], hull_response=s["colliders"]["response"],
-                               body_audit=sp["body_audit"])
+                               body_audit=sp["body_audit"], tethers=sp["tethers"])
             bar = Progress(len(times), "simulation", enabled=progress)
             with _Timer(summary, "simulation") as r:
                 try:
