@@ -235,6 +235,15 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result) -> dict:
     log_scalar_series(rec, "sim/step_ms", result.step_ms, result.times, name="step (ms)", color=(60, 160, 90))
     log_scalar_series(rec, "sim/contacts/colliders", result.corrected, result.times,
                       name="particles moved by a collider", color=(90, 90, 90))
+    if result.contacts_obstacles.any():
+        log_scalar_series(rec, "sim/contacts/obstacles", result.contacts_obstacles, result.times,
+                          name="obstacle contacts (per frame)", color=(200, 140, 40))
+        pts = result.contact_points
+        rec.log("sim/contacts/obstacles/points", rr.Points3D.from_fields(colors=[(255, 140, 0, 255)], radii=[0.004]),
+                static=True)
+        rec.send_columns("sim/contacts/obstacles/points", indexes=time_columns(result.times),
+                         columns=rr.Points3D.columns(positions=np.concatenate(pts).reshape(-1, 3)).partition(
+                             np.array([len(p) for p in pts])))
     p = result.params
     log_text(rec, "sim/params", "| parameter | value |\n| --- | --- |\n" + "\n".join(
         f"| {k} | {v} |" for k, v in p.__dict__.items()))

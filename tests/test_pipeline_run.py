@@ -124,3 +124,21 @@ def test_skeleton_and_colliders_sit_inside_the_skinned_body(default_run):
     err = np.linalg.norm(moved - mesh[f][1][idx], axis=1)
     # "rigid" allows up to (1 - threshold) of the weight on other bones, hence mm-level drift
     assert np.median(err) < 1e-4 and err.max() < 0.01
+
+
+def test_obstacle_scene_logs_obstacles_contacts_and_keeps_cloth_on_the_table(tmp_path):
+    scene = load_scene(REPO / "scenes" / "table_drape.yaml")
+    out = tmp_path / "table.rrd"
+    run_scene(scene, output=out, frames=24, progress=False)
+    paths = entity_paths(out)
+    assert {"/obstacles/table/mesh", "/obstacles/table/kdop", "/sim/contacts/obstacles",
+            "/sim/contacts/obstacles/points", "/sim/cloth/mesh"} <= paths
+    contacts = [int(v[0]) for _, v in rows(out, "sim/contacts/obstacles", "Scalars:scalars")]
+    assert contacts[0] == 0 and max(contacts) > 500          # it fell, then touched the table
+    cloth = rows(out, "sim/cloth/mesh", "Mesh3D:vertex_positions")[-1][1]
+    o = scene["obstacles"][0]
+    top = o["center"][1] + o["size"][1] / 2
+    over = (np.abs(cloth[:, 0] - o["center"][0]) < o["size"][0] / 2 - 0.02) & \
+           (np.abs(cloth[:, 2] - o["center"][2]) < o["size"][2] / 2 - 0.02)
+    assert over.sum() > 500
+    assert cloth[over, 1].min() > top - 1e-3                  # nothing fell through the top

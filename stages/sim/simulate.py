@@ -28,6 +28,8 @@ the colliders, so they do not depend on s.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import time
 
 import numpy as np
@@ -418,6 +420,8 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     pen_body = np.full((nf, len(garments)), -1, np.int32)
     counts = np.zeros((nf, 2))                    # corrected particles, max speed^2
     step_cycles = np.zeros(nf, np.int64)
+    n_obst = np.zeros(nf, np.int32)                                # obstacle contacts per frame
+    obst_points = [np.zeros((0, 3), np.float32) for _ in range(nf)]
     prm = (h, float(params.damping), s, k_drag, k_lift, float(params.friction), use_aero, int(params.iterations),
            int(params.collision_passes), method)
     cloth, cols, flags = sysm.cloth(), col.cols(), sysm.flags()
@@ -437,9 +441,10 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
         pos = [rel[:f_end, o0:o1] + root[:f_end, None, :].astype(np.float32)
                for o0, o1 in zip(sysm.offsets[:-1], sysm.offsets[1:])]
         step_ms = step_cycles[:f_end] / cycles_per_second() * 1e3 / ss
-        return _result(garments, pos, pen_col, pen_body, counts[:, 0].astype(np.int32),
-                       np.sqrt(counts[:, 1]), step_ms, motion.times, timings, timers, max(f_end - 1, 0) * ss,
-                       params, notes, f_end)
+        res = _result(garments, pos, pen_col, pen_body, counts[:, 0].astype(np.int32),
+                      np.sqrt(counts[:, 1]), step_ms, motion.times, timings, timers, max(f_end - 1, 0) * ss,
+                      params, notes, f_end)
+        return dataclasses.replace(res, contacts_obstacles=n_obst[:f_end].copy(), contact_points=tuple(obst_points[:f_end]))
 
     def diverged(f):
         sp2 = sysm.speed2
@@ -493,7 +498,9 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
                 ocol.collide(xpw, xw, sysm.inv_mass, ta, ta + h)
                 sysm.xp[:] = xpw - tr[k]
                 sysm.x[:] = xw - tr[k + 1]
+                n_obst[f] += ocol.n_contacts
                 timings["obstacles"] += time.perf_counter() - to
+            obst_points[f] = ocol.contacts()["point"].astype(np.float32)
             step_cycles[f] = K.read_cycles() - c0
             if not K.record_frame(sysm.x, flags, max2, sysm.goff, rel[f], pen_col[f], counts[f]):
                 raise diverged(f)

@@ -152,6 +152,10 @@ class SimResult:
         tree), 'obstacles', 'total' (whole call).
     steps: number of steps simulated. params: the SimParams used.
     notes: human-readable remarks (e.g. which collision path was used for hulls).
+    contacts_obstacles: (F,) int32, obstacle contacts (paper B) summed over the frame's steps; 0
+        without obstacles.
+    contact_points: per frame, (c, 3) float32 world positions of the particles in contact with an
+        obstacle at the frame's last step (empty arrays without obstacles).
     """
 
     garments: tuple
@@ -165,12 +169,20 @@ class SimResult:
     steps: int
     params: SimParams
     notes: tuple = field(default_factory=tuple)
+    contacts_obstacles: np.ndarray | None = None
+    contact_points: tuple = ()
 
     def __post_init__(self):
         o = "SimResult"
         t = check_array(o, "times", self.times, (None,), np.float64)
         f = t.size
-        for name in ("penetrations_colliders", "penetrations_body", "corrected"):
+        if self.contacts_obstacles is None:
+            object.__setattr__(self, "contacts_obstacles", np.zeros(f, np.int32))
+        if not self.contact_points:
+            object.__setattr__(self, "contact_points", tuple(np.zeros((0, 3), np.float32) for _ in range(f)))
+        if len(self.contact_points) != f:
+            raise ContractError(f"{o}.contact_points: {len(self.contact_points)} frames, expected {f}")
+        for name in ("penetrations_colliders", "penetrations_body", "corrected", "contacts_obstacles"):
             check_array(o, name, getattr(self, name), (f,), np.int32)
         check_array(o, "max_speed", self.max_speed, (f,), np.float64)
         check_array(o, "step_ms", self.step_ms, (f,), np.float64)
