@@ -1,7 +1,7 @@
 """Built-in garment patterns sized from the character's measurements, and the garment maker
 (pattern -> flat meshes -> placed panels -> sewn Garment).
 
-Kinds: 'tshirt', 'short_skirt', 'long_skirt', 'cape', 'square'. Sizes come from
+Kinds: 'tshirt', 'short_skirt', 'long_skirt', 'shorts', 'trousers', 'cape', 'square'. Sizes come from
 `garment_measurements(character)` (stages.rig.procedural.body_measurements plus shoulder and arm
 sizes from the skeleton): girths with ease, lengths as fractions of the body's heights.
 """
@@ -15,7 +15,7 @@ from stages.errors import InputError
 from stages.garments.patterns import (Panel, Pattern, PatternAttachment, Placement, Seam, SeamSide, cubic, line,
                                       quad)
 
-KINDS = ("tshirt", "short_skirt", "long_skirt", "cape", "square")
+KINDS = ("tshirt", "short_skirt", "long_skirt", "shorts", "trousers", "cape", "square")
 
 
 def garment_measurements(character, colliders=None, motion=None, *, clearance: float = 0.015) -> dict:
@@ -47,6 +47,16 @@ def garment_measurements(character, colliders=None, motion=None, *, clearance: f
             rel = v - w[arm[0]]
             r = np.linalg.norm(rel - np.outer(rel @ d, d), axis=1)
             m["arm_girth"] = float(2 * np.pi * np.percentile(r, 90))
+    for side in ("l", "r"):
+        leg = _chain(character, "leg", side)
+        if leg is not None:
+            lw = forward_kinematics(character.parents, character.rest_local)[:, :3, 3] if motion is None \
+                else motion.joint_world[0][:, :3, 3]
+            d = lw[leg[0]] - lw[leg[1]]
+            m[f"hip_joint_y_{side}"] = float(lw[leg[0], 1])
+            m[f"thigh_up_y_{side}"] = float(d[1] / np.linalg.norm(d))
+            m[f"thigh_len_{side}"] = float(np.linalg.norm(d))
+            m[f"shin_len_{side}"] = float(np.linalg.norm(lw[leg[2]] - lw[leg[1]]))
     m.setdefault("shoulder_y", y0 + 0.81 * h)
     m.setdefault("shoulder_half", 0.105 * h)
     m.setdefault("arm_girth", 0.21 * h)
@@ -84,7 +94,8 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
     thigh_radius: the same for the thigh. crotch_y: lowest point where a leg (or its collider)
         reaches the body's mid-plane.
     """
-    from stages.garments.placement import _chain, _subtree, bind_geometry, collider_points, part_joints
+    from stages.garments.placement import (_chain, _cross_sections, _subtree, bind_geometry, body_axis,
+                                           collider_points, part_joints)
     from stages.rig.skinning import rest_motion
     if motion is None:
         motion = rest_motion(character, 1, 1.0 / 30.0)
@@ -158,12 +169,56 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
         out[f"{key}_radius"] = (float(rad.max()) if rad.size else 0.03 * b["height"]) + clearance
         if kind == "arm":
             out["arm_angle"] = float(np.arcsin(np.clip(-d[1], -1.0, 1.0)))
-    mid = legs & (np.abs(rel[:, 0]) <= 0.01)
-    out["crotch_y"] = (float(pts[mid, 1].min()) if mid.any() else b["hips_y"] - 0.05 * b["height"]) - clearance
-    lo = out["crotch_y"] - 0.10
-    ys = np.arange(lo, b["hips_y"] + 0.03, 0.02)
-    out["clear_skirt"] = max(slab(hips | legs, y, 0.01) for y in ys) + c2
+    # crotch: going down the mid-plane from the hips, the first height where the line across the
+    # body (front to back, 15 cm each way) is outside the body and every collider
+    ys = b["hips_y"] - np.arange(0.0, 0.3 * b["height"], 0.005)
+    zs = np.arange(-0.15, 0.151, 0.01)
+    line = np.stack(np.broadcast_arrays(root[0], ys[:, None], root[2] + zs[None, :]), axis=-1).reshape(-1, 3)
+    from stages.garments.placement import inside_body
+    from stages.garments.types import bind_pose
+    blocked = inside_body(character, skinned, line, colliders, bind_pose(character, motion, colliders)
+                          if colliders is not None else None).reshape(ys.size, zs.size).any(axis=1)
+    free = np.flatnonzero(~blocked)
+    out["crotch_y"] = (float(ys[free[0]]) if free.size else b["hips_y"] - 0.05 * b["height"]) - clearance
+    arms = np.isin(owner, list(set().union(*[_subtree(parents, a[0]) for a in arm_sets]))) if arm_sets else \
+        np.zeros(len(pts), bool)
+    trunk = (torso | hips | legs) & ~neckpts & ~arms
+    # skirt_top: the waist, or lower where the upper arms' colliders (CesiumMan's shoulder spheres)
+    # come down beside the torso: a waistband there would be pushed about by them
+    reach = out["clear_waist"] / (2 * np.pi) + clearance
+    upper_arms = np.isin(owner, [a[0] for a in arm_sets]) & (np.hypot(rel[:, 0], rel[:, 2]) <= reach)
+    top = b["waist_y"]
+    if upper_arms.any():
+        top = min(top, float(pts[upper_arms, 1].min()) - clearance)
+    out["skirt_top"] = max(top, b["hips_y"] - 0.02)
+    # what a skirt must go around from its top to 10 cm below the crotch (thighs, hips, the
+    # flexible spheres between the pelvis and the spine), and trousers' seat down to the crotch:
+    # the girths of the cross-sections the 'hips' placement wraps panels on (offset = clearance),
+    # so that a panel this wide is placed without stretch
+    ys = np.arange(max(out["crotch_y"] - 0.10, b["hips_y"] - 0.2 * b["height"]), out["skirt_top"] + 0.005, 0.01)
+    ab = _cross_sections(pts[trunk], body_axis(character, "hips", origins), ys, clearance, True)
+    girth = np.array([_ellipse_perimeter(a, b_) for a, b_ in ab])
+    out["clear_top"] = float(girth[-1])
+    out["clear_skirt"] = float(girth.max())
+    out["clear_seat"] = float(girth[ys >= out["crotch_y"]].max(initial=girth[-1]))
+    # leg tubes: the thigh below the crotch (its hull and the knee sphere) and the shin
+    for key, k in (("thigh_low_radius", 0), ("shin_radius", 1)):
+        ch = _chain(character, "leg", "l")
+        if ch is None:
+            continue
+        o, e = origins[ch[k]], origins[ch[k + 1]]
+        d = (e - o) / np.linalg.norm(e - o)
+        mm = np.isin(owner, [ch[k], ch[k + 1]] if k == 0 else [ch[k]])
+        r = pts[mm] - o
+        t = r @ d
+        keep = (pts[mm, 1] <= out["crotch_y"]) & (t <= np.linalg.norm(e - o) + (0.0 if k == 0 else -0.03))
+        rad = np.linalg.norm(r[keep] - np.outer(t[keep], d), axis=1)
+        out[key] = (float(rad.max()) if rad.size else 0.05 * b["height"]) + clearance
     return out
+
+
+def _ellipse_perimeter(a: float, b: float) -> float:
+    return 4.0 * _quarter_length(a, b)
 
 
 def body_measurements_cached(character) -> dict:
@@ -309,9 +364,9 @@ def skirt(meas: dict, *, length: float, flare: float, ease: float = 0.2, hip_eas
     without them hips + hip_ease (default 0.32, enough for the built-in character's joint spheres).
     """
     _need(meas, "height", "waist", "hips", "waist_y", "hips_y")
-    top_y = meas["waist_y"]
+    top_y = min(meas["waist_y"], meas.get("skirt_top", meas["waist_y"]))
     dh = min(max(top_y - meas["hips_y"], 0.02), 0.8 * length)
-    ht = (meas["waist"] + ease) / 4
+    ht = max(meas["waist"] + ease, meas.get("clear_top", 0.0)) / 4
     body = max(meas["hips"], meas["waist"])
     if "clear_skirt" in meas:
         hh = max(body + (0.06 if hip_ease is None else hip_ease), meas["clear_skirt"]) / 4
@@ -330,8 +385,109 @@ def skirt(meas: dict, *, length: float, flare: float, ease: float = 0.2, hip_eas
                                                     shift=top_y - L, offset=0.015)))
     seams = (Seam(SeamSide("front", ("side_l_lo", "side_l_hi")), SeamSide("back", ("side_r_hi", "side_r_lo"))),
              Seam(SeamSide("back", ("side_l_lo", "side_l_hi")), SeamSide("front", ("side_r_hi", "side_r_lo"))))
-    atts = (PatternAttachment("front", "waist", joint="root"), PatternAttachment("back", "waist", joint="root"))
+    atts = (PatternAttachment("front", "waist", joint="root", sewing=True),
+            PatternAttachment("back", "waist", joint="root", sewing=True))
     return Pattern(name, tuple(panels), seams, edge_length, atts)
+
+
+def _pants(meas: dict, *, leg_length: float, hem_radius: float, ease: float, hip_ease: float | None,
+           crotch_drop: float, edge_length: float, name: str) -> Pattern:
+    """Shorts and trousers (see `shorts`): a seat (front + back, waist to crotch, sewn at the
+    sides) and two leg tubes (inseam on the inner side) whose tops are sewn to the seat's bottom
+    halves and, between the legs, to each other (the crotch seams, front and back).
+
+    Bottom of the seat: girth G (hips + hip_ease, at least clear_seat), quarter c = G / 4 per panel
+    half. Top of a leg tube (girth 2 lam): its outer part (2c, from the front centre round the
+    outside to the back centre) sews to the seat, its inner part (2 (lam - c), G / (2 pi): about
+    the seat's depth) to the other leg. The crotch is `crotch_drop` below crotch_y. Leg tube u = 0 is on the leg's outer side (Placement angle +-90),
+    u > 0 turns backwards on the left leg and forwards on the right one.
+    """
+    _need(meas, "height", "waist", "hips", "waist_y", "hips_y")
+    h = meas["height"]
+    top_y = min(meas["waist_y"], meas.get("skirt_top", meas["waist_y"]))
+    crotch = min(meas.get("crotch_y", meas["hips_y"] - 0.05 * h) - crotch_drop, top_y - 0.08)
+    H = top_y - crotch
+    below = min(max(meas["hips_y"] - crotch, 0.02), H - 0.03)
+    dh = H - below
+    body = max(meas["hips"], meas["waist"])
+    G = max(body + (0.06 if hip_ease is None else hip_ease), meas.get("clear_seat", 0.0)) \
+        if "clear_seat" in meas else body + (0.32 if hip_ease is None else hip_ease)
+    c = G / 4
+    ht = max(meas["waist"] + ease, meas.get("clear_top", 0.0)) / 4
+    # inner part: the seat's depth (front centre to back centre) at the crotch, about G / (2 pi)
+    # for the seat's elliptic cross-section; longer, the crotch seam bulges up into the body
+    lam = c + 0.5 * G / (2 * np.pi)
+    lam_h = min(np.pi * hem_radius, lam)
+    panels = []
+    for pname, angle in (("front", 0.0), ("back", 180.0)):
+        edges = (line("hem_r", (0.0, 0.0)), line("hem_l", (c, 0.0)), line("side_l_lo", (c, below)),
+                 quad("side_l_hi", (c, below + 0.5 * dh), (ht, H)), line("waist", (-ht, H)),
+                 quad("side_r_hi", (-c, below + 0.5 * dh), (-c, below)), line("side_r_lo", (-c, 0.0)))
+        panels.append(Panel(pname, edges, Placement("hips", angle_deg=angle, span_deg=180.0, shift=crotch,
+                                                    offset=0.015)))
+    L = leg_length
+    pieces = {"l": ("crotch_back", "seat_back", "seat_front", "crotch_front"),
+              "r": ("crotch_front", "seat_front", "seat_back", "crotch_back")}
+    for side, angle in (("l", 90.0), ("r", -90.0)):
+        # v = L at the crotch height on the thigh axis (pointing up from the knee to the hip joint)
+        hip_y = meas.get(f"hip_joint_y_{side}", meas["hips_y"])
+        up = max(meas.get(f"thigh_up_y_{side}", 1.0), 0.3)
+        a, b_, cc, d = pieces[side]
+        edges = (line("hem", (lam_h, 0.0)), line("under_a", (lam, L)), line(a, (c, L)), line(b_, (0.0, L)),
+                 line(cc, (-c, L)), line(d, (-lam, L)), line("under_b", (-lam_h, 0.0)))
+        panels.append(Panel(f"leg_{side}", edges, Placement(f"leg_{side}", angle_deg=angle, span_deg=360.0,
+                                                           shift=(crotch - hip_y) / up - L, offset=0.01)))
+    seams = [Seam(SeamSide("front", ("side_l_lo", "side_l_hi")), SeamSide("back", ("side_r_hi", "side_r_lo"))),
+             Seam(SeamSide("back", ("side_l_lo", "side_l_hi")), SeamSide("front", ("side_r_hi", "side_r_lo"))),
+             Seam(SeamSide("front", "hem_l"), SeamSide("leg_l", "seat_front")),
+             Seam(SeamSide("back", "hem_r"), SeamSide("leg_l", "seat_back")),
+             Seam(SeamSide("front", "hem_r"), SeamSide("leg_r", "seat_front")),
+             Seam(SeamSide("back", "hem_l"), SeamSide("leg_r", "seat_back")),
+             Seam(SeamSide("leg_l", "crotch_front"), SeamSide("leg_r", "crotch_front")),
+             Seam(SeamSide("leg_l", "crotch_back"), SeamSide("leg_r", "crotch_back")),
+             Seam(SeamSide("leg_l", "under_a"), SeamSide("leg_l", "under_b")),
+             Seam(SeamSide("leg_r", "under_a"), SeamSide("leg_r", "under_b"))]
+    atts = (PatternAttachment("front", "waist", joint="root", sewing=True),
+            PatternAttachment("back", "waist", joint="root", sewing=True))
+    return Pattern(name, tuple(panels), tuple(seams), edge_length, atts)
+
+
+def _crotch_depth(meas: dict, side: str) -> float:
+    """Distance along the thigh from the hip joint down to the crotch height."""
+    h = meas["height"]
+    crotch = meas.get("crotch_y", meas["hips_y"] - 0.05 * h) - 0.06
+    return (meas.get(f"hip_joint_y_{side}", meas["hips_y"]) - crotch) / max(meas.get(f"thigh_up_y_{side}", 1.0), 0.3)
+
+
+def shorts(meas: dict, *, leg_length: float | None = None, ease: float = 0.2, hip_ease: float | None = None,
+           leg_ease: float = 0.03, crotch_drop: float = 0.06, edge_length: float = 0.025,
+           name: str = "shorts") -> Pattern:
+    """Shorts: a seat from the waist to the crotch (front and back panels) and two leg tubes
+    (default leg_length: 12 % of the height below the crotch, above the knee), waistband pinned
+    to the pelvis. Sizes: seat girth from hips and clear_seat, waist from waist + ease and
+    clear_top, hem radius thigh_low_radius + leg_ease (see _pants)."""
+    _need(meas, "height")
+    L = 0.12 * meas["height"] if leg_length is None else leg_length
+    r = meas.get("thigh_low_radius", 0.055 * meas["height"]) + leg_ease
+    return _pants(meas, leg_length=L, hem_radius=r, ease=ease, hip_ease=hip_ease, crotch_drop=crotch_drop,
+                  edge_length=edge_length, name=name)
+
+
+def trousers(meas: dict, *, leg_length: float | None = None, ease: float = 0.2, hip_ease: float | None = None,
+             leg_ease: float = 0.04, crotch_drop: float = 0.06, edge_length: float = 0.025,
+             name: str = "trousers") -> Pattern:
+    """Trousers: as shorts with leg tubes down to 3 % of the height above the ankle joint (along
+    thigh and shin, which the tubes follow through a bent knee); hem radius shin_radius +
+    leg_ease."""
+    _need(meas, "height", "hips_y")
+    if leg_length is None:
+        L = min(meas.get(f"thigh_len_{s}", 0.24 * meas["height"]) + meas.get(f"shin_len_{s}", 0.24 * meas["height"])
+                - _crotch_depth(meas, s) for s in ("l", "r")) - 0.03 * meas["height"]
+    else:
+        L = leg_length
+    r = meas.get("shin_radius", 0.05 * meas["height"]) + leg_ease
+    return _pants(meas, leg_length=L, hem_radius=r, ease=ease, hip_ease=hip_ease, crotch_drop=crotch_drop,
+                  edge_length=edge_length, name=name)
 
 
 def cape(meas: dict, *, length: float | None = None, edge_length: float = 0.03, name: str = "cape") -> Pattern:
@@ -369,6 +525,10 @@ def library_pattern(kind: str, measurements: dict, **overrides) -> Pattern:
                   flare=1.35 if short else 1.9, name="skirt" if short else "long_skirt")
         kw.update(overrides)
         return skirt(measurements, **kw)
+    if kind == "shorts":
+        return shorts(measurements, **overrides)
+    if kind == "trousers":
+        return trousers(measurements, **overrides)
     if kind == "cape":
         return cape(measurements, **overrides)
     if kind == "square":
@@ -411,19 +571,34 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
     flat3 = np.concatenate([np.c_[p.uv[:, 0] - p.uv[:, 0].min() + s, p.uv[:, 1], np.zeros(len(p.uv))]
                             for p, s in zip(flat.panels, shift)])
     stage = np.array([pattern.seams[k].stage for k in flat.seam_index], np.int64)
+    bind = bind_pose(character, motion, colliders) if pattern.attachments else None
+
+    def chosen(a):
+        idx = run_vertices(pattern, flat, SeamSide(a.panel, a.edges))
+        if a.at is not None:
+            s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv[idx], axis=0), axis=1))])
+            idx = idx[[int(np.argmin(np.abs(s - f * s[-1]))) for f in a.at]]
+        joint = character.joint_names[character.root_joint] if a.joint == "root" else a.joint
+        return idx, joint
+
+    pins = []
+    for a in pattern.attachments:
+        if a.sewing:
+            # the middle half of the run: the ends stay free so that the seams there can close even
+            # where the placement had to stretch the band around a collider
+            idx, joint = chosen(a)
+            s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv[idx], axis=0), axis=1))])
+            f = s / max(s[-1], 1e-12)
+            idx = np.setdiff1d(idx[(f >= 0.25) & (f <= 0.75)], flat.seam_pairs.ravel())
+            if idx.size:
+                pins.append(attach_indices(idx, joint))
     sewn, log = sew(pattern.name, placed, tri, tri_rest, flat.seam_pairs, character, motion, colliders, maps, sp,
-                    density=pattern.density, flat_positions=flat3, pair_stage=stage)
+                    density=pattern.density, flat_positions=flat3, pair_stage=stage, pins=pins, bind=bind)
     pos, mtri, remap = merged_mesh(sewn, tri, flat.seam_pairs)
     atts = []
-    bind = None
     if attach and pattern.attachments:
-        bind = bind_pose(character, motion, colliders)
         for a in pattern.attachments:
-            idx = run_vertices(pattern, flat, SeamSide(a.panel, a.edges))
-            if a.at is not None:
-                s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv[idx], axis=0), axis=1))])
-                idx = idx[[int(np.argmin(np.abs(s - f * s[-1]))) for f in a.at]]
-            joint = character.joint_names[character.root_joint] if a.joint == "root" else a.joint
+            idx, joint = chosen(a)
             atts.append(attach_indices(np.unique(remap[idx]), joint))
     g = build_garment(pattern.name, pos, mtri, density=pattern.density, triangle_rest=tri_rest, attachments=atts,
                       bind=bind)

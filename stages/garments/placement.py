@@ -14,7 +14,7 @@ normals pointing away from the axis.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -44,14 +44,63 @@ def _mirror(name: str) -> str:
 
 
 def _chain(character, kind: str, side: str):
-    """Joint indices (upper, lower, end) of a limb chain found by name, or None."""
+    """Joint indices (upper, lower, end) of a limb chain found by name, else by the skeleton's
+    shape (see _structural_chain), or None."""
     from stages.rig.procedural import _ARM_CHAINS, _LEG_CHAINS
     names = character.joint_names
     for chain in (_ARM_CHAINS if kind == "arm" else _LEG_CHAINS):
         c = chain if side == "l" else tuple(_mirror(n) for n in chain)
         if all(n in names for n in c):
             return [names.index(n) for n in c]
-    return None
+    return _structural_chain(character, kind, side)
+
+
+def _main_path(parents: np.ndarray, j: int) -> list:
+    """j, then repeatedly the child with the largest subtree (first on ties)."""
+    path = [j]
+    while True:
+        kids = np.flatnonzero(parents == path[-1])
+        if kids.size == 0:
+            return path
+        path.append(int(max(kids, key=lambda k: (len(_subtree(parents, int(k))), -k))))
+
+
+def _structural_chain(character, kind: str, side: str):
+    """A limb chain of a rig with unknown joint names (e.g. CesiumMan's 'leg_joint_L_1'), from the
+    rest pose: legs are the root's children below it, arms the branches off the rest of the
+    skeleton that reach furthest sideways (|x - root x| >= 15 % of the skeleton's height); side
+    'l' is +X (the wearer's left). A leg chain starts at the root's child (the thigh); an arm chain
+    at the joint of its path's longest bone (the upper arm, not a clavicle). Three joints needed."""
+    from stages.rig.transforms import forward_kinematics
+    parents = np.asarray(character.parents)
+    w = forward_kinematics(character.parents, character.rest_local)[:, :3, 3]
+    root = character.root_joint
+    sign = 1.0 if side == "l" else -1.0
+    down = [int(c) for c in np.flatnonzero(parents == root) if w[c, 1] < w[root, 1] - 1e-3]
+    if kind == "leg":
+        starts = [c for c in down if sign * (w[c, 0] - w[root, 0]) > 1e-3]
+        best = max(starts, key=lambda c: sign * (w[c, 0] - w[root, 0]), default=None)
+    else:
+        legs = set().union(*[_subtree(parents, c) for c in down]) if down else set()
+        nkids = np.bincount(parents[parents >= 0], minlength=len(parents))
+        height = float(np.ptp(w[:, 1])) or 1.0
+        best, reach = None, 0.15 * height
+        for j in range(len(parents)):
+            if j == root or j in legs or parents[j] < 0 or nkids[parents[j]] < 2:
+                continue
+            r = max(sign * (w[k, 0] - w[root, 0]) for k in _subtree(parents, j))
+            if r >= reach:
+                best, reach = j, r
+    if best is None:
+        return None
+    path = _main_path(parents, best)
+    if len(path) < 3:
+        return None
+    if kind == "leg":
+        return path[:3]
+    bone = np.linalg.norm(w[path[1:]] - w[path[:-1]], axis=1)
+    k = int(np.argmax(bone[:len(path) - 2]))
+    return path[k:k + 3]
 
 
 def _subtree(parents: np.ndarray, j: int) -> set:
@@ -156,10 +205,12 @@ def _cross_sections(points: np.ndarray, axis: BodyAxis, levels: np.ndarray, offs
     return ab + offset
 
 
-def _arc_table(a: float, b: float, phi0: float, n: int = 721, exponent: float = 2.0):
+def _arc_table(a: float, b: float, phi0: float, n: int = 721, exponent: float = 2.0, a_neg: float | None = None):
+    """(phi, signed arc length from phi0) of the superellipse with semi-axes a (a_neg on the -P
+    side when given) and b."""
     phi = phi0 + np.linspace(-np.pi, np.pi, n)
     sn, cs = _superellipse(phi, exponent)
-    pts = np.stack([a * sn, b * cs], axis=1)
+    pts = np.stack([np.where(sn >= 0, a, a if a_neg is None else a_neg) * sn, b * cs], axis=1)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
     return phi, s - s[n // 2]
 
@@ -211,11 +262,41 @@ def place_panel(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, characte
         return np.asarray(pl.center, dtype=np.float64) + uv[:, :1] * pu + uv[:, 1:] * av
     axis = body_axis(character, pl.body, joint_origins)
     joints = part_joints(character, pl.body, joint_origins)
-    pts = skinned[np.isin(dominant, list(joints))]
     cj = _collider_joints(character, pl.body, joint_origins, pl.arms)
-    extra = [p for j, p in col_points if j in cj]
-    if extra:
-        pts = np.concatenate([pts] + extra)
+    if pl.body.startswith("leg_"):
+        mid = float(joint_origins[character.root_joint, 0])
+        # a trouser leg below the knee wraps the shin: the part beyond the thigh's length is placed
+        # around the shin's own axis (from the knee), so it follows a bent knee
+        ch = _chain(character, "leg", pl.body[-1])
+        thigh = float(np.linalg.norm(joint_origins[ch[1]] - joint_origins[ch[0]]))
+        low = uv[:, 1] + pl.shift < -thigh
+        if low.any() and (~low).any():
+            o, e = joint_origins[ch[1]], joint_origins[ch[2]]
+            a = (o - e) / np.linalg.norm(o - e)
+            q = np.array([0.0, 0.0, 1.0]) - a[2] * a
+            q /= np.linalg.norm(q)
+            shin = BodyAxis(o, a, q, np.cross(a, q))
+            out = np.empty((uv.shape[0], 3))
+            out[~low] = _wrap(uv[~low], boundary_uv, pl, axis, _part_points({ch[0]}, skinned, dominant, col_points),
+                              mid)
+            out[low] = _wrap(uv[low], boundary_uv, replace(pl, shift=pl.shift + thigh), shin,
+                             _part_points({ch[1]}, skinned, dominant, col_points), mid)
+            return out
+    mid = float(joint_origins[character.root_joint, 0]) if pl.body.startswith("leg_") else None
+    return _wrap(uv, boundary_uv, pl, axis, _part_points(joints, skinned, dominant, col_points, cj), mid)
+
+
+def _part_points(joints: set, skinned, dominant, col_points, collider_joints: set | None = None) -> np.ndarray:
+    """Skinned vertices whose dominant joint is in `joints`, plus the collider points of
+    `collider_joints` (default: the same joints)."""
+    cj = joints if collider_joints is None else collider_joints
+    return np.concatenate([skinned[np.isin(dominant, list(joints))]] + [p for j, p in col_points if j in cj])
+
+
+def _wrap(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, axis: BodyAxis, pts: np.ndarray,
+          midline_x: float | None = None) -> np.ndarray:
+    """Panel vertices wrapped around `axis` on the cross-sections of `pts` (see place_panel);
+    midline_x: legs: x of the body's mid-plane, which the tube's inner side must not cross."""
     t = uv[:, 1] + pl.shift
     levels = np.arange(t.min() - LEVEL_STEP, t.max() + 2 * LEVEL_STEP, LEVEL_STEP)
     ex = float(pl.exponent)
@@ -236,16 +317,45 @@ def place_panel(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, characte
     out = np.empty((uv.shape[0], 3))
     for k in np.unique(level):
         a, b = ab[k]
-        phi, s = _arc_table(a, b, phi0, exponent=ex)
-        half_arc = 0.5 * (np.interp(phi0 + span / 2, phi, s) - np.interp(phi0 - span / 2, phi, s))
-        grow = max(1.0, 0.5 * width[k] / half_arc)
-        a, b = a * grow, b * grow
-        phi, s = _arc_table(a, b, phi0, exponent=ex)
-        half_arc *= grow
+        if midline_x is None:
+            phi, s = _arc_table(a, b, phi0, exponent=ex)
+            half_arc = 0.5 * (np.interp(phi0 + span / 2, phi, s) - np.interp(phi0 - span / 2, phi, s))
+            grow = max(1.0, 0.5 * width[k] / half_arc)
+            a, b = a * grow, b * grow
+            a_neg = a
+            phi, s = _arc_table(a, b, phi0, exponent=ex)
+            half_arc *= grow
+        else:
+            # a leg tube: its side towards the body's mid-plane stays on this side of it (it would
+            # be inside the other leg); a wider tube grows outwards and front / back instead
+            c = axis.origin + levels[k] * axis.a
+            gap = (midline_x - c[0]) / (axis.p[0] if abs(axis.p[0]) > 1e-6 else 1e-6)
+            a_in = float(np.clip(abs(gap) - 0.015, 0.02, a))
+            inner_pos = gap > 0
+
+            def table(f):
+                out_a = a * f
+                return _arc_table(a_in if inner_pos else out_a, b * f, phi0, exponent=ex,
+                                  a_neg=out_a if inner_pos else a_in)
+
+            def half(f):
+                phi, s = table(f)
+                return 0.5 * (np.interp(phi0 + span / 2, phi, s) - np.interp(phi0 - span / 2, phi, s))
+            lo, hi = 1.0, 1.0
+            while half(hi) < 0.5 * width[k] and hi < 64:
+                lo, hi = hi, hi * 2
+            for _ in range(30 if hi > 1.0 else 0):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if half(mid) < 0.5 * width[k] else (lo, mid)
+            f = hi
+            phi, s = table(f)
+            half_arc = half(f)
+            a, a_neg, b = (a_in, a * f, b * f) if inner_pos else (a * f, a_in, b * f)
         m = level == k
         target = uv[m, 0] / (0.5 * width[k]) * half_arc
         sn, cs = _superellipse(np.interp(target, s, phi), ex)
-        out[m] = axis.origin + t[m, None] * axis.a + (a * sn)[:, None] * axis.p + (b * cs)[:, None] * axis.q
+        out[m] = axis.origin + t[m, None] * axis.a + (np.where(sn >= 0, a, a_neg) * sn)[:, None] * axis.p \
+            + (b * cs)[:, None] * axis.q
     if fold:
         out = _fold_over(out, uv, pl, axis)
     return out
@@ -320,7 +430,7 @@ def inside_body(character, skinned: np.ndarray, points: np.ndarray, colliders=No
 def place_pattern(pattern: Pattern, flat: FlatPattern, character, motion, colliders=None, *, max_tries: int = 15):
     """(N, 3) placed positions of all panels (concatenated as in `flat`), relative frame at frame 0,
     and {panel: final Placement} after clearance fixes: a panel with vertices inside the body or a
-    collider is moved out 1 cm at a time (limbs: along the limb, outwards; others: more offset)."""
+    collider is moved out 1 cm at a time (sleeves: along the arm, outwards; others: more offset)."""
     from dataclasses import replace
 
     from stages.garments.types import bind_pose
@@ -340,10 +450,20 @@ def place_pattern(pattern: Pattern, flat: FlatPattern, character, motion, collid
             if attempt == max_tries:
                 raise InputError(f"pattern {pattern.name!r} panel {panel.name!r}",
                                  f"{int(bad.sum())} vertices still inside the body after {max_tries} cm of clearance moves")
-            if pl.body.startswith(("arm", "leg")):
+            if pl.body.startswith("arm"):
                 pl = replace(pl, shift=pl.shift - 0.01)
             else:
                 pl = replace(pl, offset=pl.offset + 0.01)
         out.append(x)
         used[panel.name] = pl
+    # panels around the same trunk share one offset, so their seams start closed whatever panel
+    # had to move out
+    for body in ("torso", "hips"):
+        names = [p.name for p in pattern.panels if p.placement.body == body]
+        top = max((used[n].offset for n in names), default=0.0)
+        for i, (panel, fp) in enumerate(zip(pattern.panels, flat.panels)):
+            if panel.name in names and used[panel.name].offset < top:
+                used[panel.name] = replace(used[panel.name], offset=top)
+                out[i] = place_panel(fp.uv, fp.uv[:fp.n_boundary], used[panel.name], character, origins, skinned,
+                                     dominant, cp)
     return np.concatenate(out), used

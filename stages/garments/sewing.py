@@ -27,6 +27,8 @@ class SewParams:
     (iterations = spring correction rounds). gravity_scale: share of g applied (micro-gravity).
     damping, friction: as in SimParams. seam_rest: m, rest length of the seam springs (> 0).
     log_every: keep the positions of every k-th iteration in the log (plus the first and last).
+    min_iterations: simulate calls at least (panels placed with their seams already closed still
+    settle under micro-gravity and get pushed out of the colliders).
     """
 
     tolerance: float = 0.004
@@ -40,9 +42,11 @@ class SewParams:
     friction: float = 0.0
     seam_rest: float = 1e-4
     log_every: int = 2
+    min_iterations: int = 2
 
     def __post_init__(self):
         if not (self.tolerance > 0 and self.seam_rest > 0 and self.max_iterations >= 1 and
+                0 <= self.min_iterations <= self.max_iterations and
                 self.frames_per_iteration >= 2 and self.log_every >= 1 and 0 <= self.gravity_scale <= 1):
             raise ContractError(f"SewParams: invalid settings {self}")
 
@@ -88,7 +92,7 @@ def seam_gaps(x: np.ndarray, pairs: np.ndarray) -> np.ndarray:
 
 def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: np.ndarray, pairs: np.ndarray,
         character, motion, colliders, maps, params: SewParams = SewParams(), *, density: float = 0.2,
-        flat_positions=None, pair_stage=None):
+        flat_positions=None, pair_stage=None, pins=(), bind=None):
     """Sew the placed panels. Returns (sewn positions of the UNSEWN mesh (N, 3), SewingLog).
 
     positions: (N, 3) placed panels; triangles (T, 3); triangle_rest (T, 3) flat edge lengths;
@@ -96,6 +100,8 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
     coincident seam vertices from being welded before sewing). pair_stage: optional (K,) sewing
     stage of each pair: the pairs of stage k join the seam springs once every earlier pair is within
     2 x tolerance, or after max_iterations / (2 x stages) iterations of the stage.
+    pins: Attachment selectors (stages.garments.types) of vertices held in place while sewing,
+    with `bind` (bind_pose of the character); the hold motion is still, so they stay where placed.
     """
     from stages.sim import SimParams, simulate
     from stages.sim.types import SimulationDiverged
@@ -110,6 +116,7 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
 
     def garment_for(x, active):
         g = build_garment(name, x, triangles, rest_positions=flat_positions, density=density,
+                          attachments=tuple(pins), bind=bind if pins else None,
                           triangle_rest=triangle_rest, extra_springs=pairs[active],
                           extra_rest_lengths=np.full(int(active.sum()), params.seam_rest))
         if g.n_particles != x.shape[0]:
@@ -120,16 +127,19 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
     g = garment_for(x, active)
     budget = max(1, params.max_iterations // (2 * len(stages)))
     in_stage = 0
+    # no tethers: they would tie each panel's free particles to its own pins at flat-panel
+    # distances, against the seam springs (a waistband placed a little stretched never closes)
     sp = SimParams(dt=params.dt, substeps=params.substeps, iterations=params.iterations,
                    gravity=(0.0, -9.81 * params.gravity_scale, 0.0), damping=params.damping, drag=0.0, lift=0.0,
-                   friction=params.friction, body_audit=False)
+                   friction=params.friction, body_audit=False, tethers=False)
     hold = hold_motion(motion, params.frames_per_iteration, params.dt)
     gaps = seam_gaps(x, pairs)
     gmax, gmean = [float(gaps.max(initial=0.0))], [float(gaps.mean()) if gaps.size else 0.0]
     logged, snaps = [0], [x.astype(np.float32)]
     pen, notes = 0, []
     it = 0
-    while (gmax[-1] > params.tolerance or si + 1 < len(stages)) and it < params.max_iterations:
+    while (gmax[-1] > params.tolerance or si + 1 < len(stages) or it < params.min_iterations) \
+            and it < params.max_iterations:
         it += 1
         try:
             r = simulate(character, hold, colliders, maps, [g], sp, threads=1)
@@ -139,10 +149,10 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
         pen = int(r.penetrations_colliders[-1])
         g = replace(g, positions=x)
         gaps = seam_gaps(x, pairs)
-        gmax.append(float(gaps.max()))
-        gmean.append(float(gaps.mean()))
+        gmax.append(float(gaps.max(initial=0.0)))
+        gmean.append(float(gaps.mean()) if gaps.size else 0.0)
         in_stage += 1
-        if si + 1 < len(stages) and (gaps[active].max() <= 2 * params.tolerance or in_stage >= budget):
+        if si + 1 < len(stages) and (gaps[active].max(initial=0.0) <= 2 * params.tolerance or in_stage >= budget):
             si += 1
             in_stage = 0
             active = stage_of <= stages[si]
