@@ -37,7 +37,7 @@ from scipy.spatial.transform import Rotation
 
 from stages.checks import ContractError
 from stages.garments.types import BEND, STRETCH, Garment
-from stages.maps.kernels import METHOD_NEAREST_PLANE, METHOD_PAPER
+from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER
 from stages.maps.types import MapArrays
 from stages.sim import kernels as K
 from stages.sim.types import GarmentTrack, SimParams, SimResult, SimulationDiverged
@@ -388,7 +388,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     sysm = _System(garments, motion.joint_world[0], params)
     col = _Colliders(colliders, maps)
     notes = list(col.notes)
-    method = METHOD_PAPER if params.hull_response == "ray" else METHOD_NEAREST_PLANE
+    method = {"ray": METHOD_PAPER, "brute_ray": METHOD_BRUTE, "nearest_plane": METHOD_NEAREST_PLANE}[params.hull_response]
     s = float(params.inertia_scale)
     h = params.step
     ss = params.substeps
