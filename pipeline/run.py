@@ -125,11 +125,15 @@ def check_references(scene: Scene, character) -> None:
 
 
 def sample_scene_motion(scene: Scene, character, times: np.ndarray):
+    """The clip at `times`, after `frames.blend_in` seconds of frames blending from the rest pose."""
     from stages.rig.skinning import rest_motion, sample_motion
     clip = scene["character"]["clip"]
     if clip == "rest" or not character.clips:
         return rest_motion(character, len(times), scene["simulation"]["dt"])
-    return sample_motion(character, clip, times)
+    blend = int(round(scene["frames"]["blend_in"] / scene["simulation"]["dt"]))
+    if blend and len(times) < 2:
+        times = frame_times(scene, 2)[:2]
+    return sample_motion(character, clip, times, blend_frames=blend)
 
 
 def pattern_options(kind: str) -> tuple[str, ...]:
@@ -268,6 +272,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             character = load_character(scene)
             check_references(scene, character)
             motion = sample_scene_motion(scene, character, times)
+            times = motion.times
+            summary.frames = len(times)
             skinned = skin(character, motion)
             split = split_regions(character, threshold=s["colliders"]["rigid_threshold"])
             r.sizes.update(vertices=character.vertices.shape[0], triangles=character.triangles.shape[0],

@@ -155,6 +155,8 @@ SCENE_SPEC = {
     "frames": Field("section", {}, "which part of the clip to run", fields={
         "start": Field("float", 0.0, "clip time of the first frame, s", lo=0.0),
         "count": Field("int", 60, "number of frames", lo=1, hi=100000),
+        "blend_in": Field("float", 0.0, "seconds of extra frames first, moving from the rest pose into the clip; "
+                          "garments are then dressed on the rest pose", lo=0.0, hi=60.0),
     }),
     "colliders": Field("section", {}, "collider fitting (paper A §2)", fields={
         "delta": Field("float", 0.01, "inflation thickness, m", lo=0.0, hi=0.5),

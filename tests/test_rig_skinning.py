@@ -158,3 +158,25 @@ def test_vertex_normals_against_reference():
     n = vertex_normals(box.vertices, box.faces)
     np.testing.assert_allclose(np.einsum("ij,ij->i", n, box.vertices / np.linalg.norm(box.vertices, axis=1, keepdims=True)),
                                1.0, atol=0.1)
+
+
+def test_blend_in_starts_at_rest_and_joins_the_clip():
+    clip = make_clip(7, 4, loop=True)
+    c = make_character(7, n_joints=4, clips=[clip])
+    times = np.linspace(0.2, 0.8, 7)
+    plain = sample_motion(c, 0, times)
+    blended = sample_motion(c, 0, times, blend_frames=5)
+    assert blended.n_frames == 12
+    np.testing.assert_allclose(blended.times, np.arange(12) * 0.1, atol=1e-12)
+    rest = forward_kinematics(c.parents, c.rest_local)
+    world0 = blended.joint_world[0].copy()
+    world0[:, :3, 3] += blended.root_translation[0]
+    np.testing.assert_allclose(world0, rest, atol=1e-9)          # frame 0 is the rest pose
+    # after the blend the poses are the clip's; the relative frames differ by a constant offset
+    a = blended.joint_world[5:].copy()
+    a[..., :3, 3] += blended.root_translation[5:, None, :]
+    b = plain.joint_world.copy()
+    b[..., :3, 3] += plain.root_translation[:, None, :]
+    shift = a[0, c.root_joint, :3, 3] - b[0, c.root_joint, :3, 3]
+    b[..., :3, 3] += shift
+    np.testing.assert_allclose(a, b, atol=1e-9)

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse
 
+from scipy.spatial.transform import Rotation
+
 from stages.rig.kernels import lbs_kernel
 from stages.rig.transforms import forward_kinematics, slerp, trs_to_matrix
 from stages.rig.types import Character, Clip, Motion
@@ -57,16 +59,43 @@ def _motion_from_globals(name: str, times: np.ndarray, globals_: np.ndarray, cha
                   root_translation=root_translation)
 
 
-def sample_motion(character: Character, clip_key, times) -> Motion:
+def sample_motion(character: Character, clip_key, times, *, blend_frames: int = 0) -> Motion:
     """The clip `clip_key` (name or index) sampled at playback `times` (F,) seconds from the clip start.
 
-    The returned Motion.times are `times - times[0]` (seconds from the first frame).
+    blend_frames: prepend that many frames that move from the rest pose (`rest_local`) into the
+    clip's pose at times[0] (smoothstep in time; translations and scales lerped, rotations slerped),
+    at the spacing of `times`. Garments dressed on the rest pose (a clean T- or A-pose) can then
+    follow the clip. The returned Motion.times count from its first frame.
     """
     clip = character.clip(clip_key)
     times = np.atleast_1d(np.asarray(times, np.float64))
     local = sample_clip(character, clip, times)
+    if blend_frames > 0:
+        if times.size < 2:
+            raise ValueError("sample_motion: blend_frames needs at least 2 clip times (for the spacing)")
+        u = np.arange(blend_frames, dtype=np.float64) / blend_frames
+        u = u * u * (3.0 - 2.0 * u)                                     # smoothstep
+        local = np.concatenate([blend_local(character.rest_local, local[0], u), local])
+        dt = times[1] - times[0]
+        times = times[0] + dt * np.arange(-blend_frames, times.size, dtype=np.float64)
     # Motion.times count from the first frame (the contract); the clip was sampled at `times`.
     return _motion_from_globals(clip.name, times - times[0], forward_kinematics(character.parents, local), character)
+
+
+def blend_local(a: np.ndarray, b: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """(U, J, 4, 4) local transforms between a and b (J, 4, 4) at weights u (U,): TRS blend."""
+    def trs(m):
+        scale = np.linalg.norm(m[:, :3, :3], axis=1)                    # column norms
+        rot = Rotation.from_matrix(m[:, :3, :3] / scale[:, None, :]).as_quat()
+        return m[:, :3, 3], rot, scale
+    ta, ra, sa = trs(a)
+    tb, rb, sb = trs(b)
+    w = np.asarray(u, np.float64)[:, None, None]
+    t = (1 - w) * ta + w * tb
+    s = (1 - w) * sa + w * sb
+    r = slerp(np.broadcast_to(ra, (len(u),) + ra.shape), np.broadcast_to(rb, (len(u),) + rb.shape),
+              np.broadcast_to(np.asarray(u, np.float64)[:, None], (len(u), ra.shape[0])))
+    return trs_to_matrix(t, r, s)
 
 
 def rest_motion(character: Character, n_frames: int, dt: float) -> Motion:
