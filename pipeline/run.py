@@ -113,6 +113,8 @@ def check_references(scene: Scene, character) -> None:
                              f"clips: {[c.name for c in character.clips] or 'none'} (or 'rest')") from None
     names = set(character.joint_names)
     for i, g in enumerate(scene["garments"]):
+        if g["type"] == "pattern":
+            check_pattern(scene, i)
         refs = [("at_joint", g.get("at_joint"))]
         if g.get("pin") is not None:
             refs.append(("pin.collider", g["pin"]["collider"]))
@@ -148,10 +150,9 @@ def pattern_options(kind: str) -> tuple[str, ...]:
     return tuple(p for p in inspect.signature(fn).parameters if p not in ("meas", "measurements", "edge_length", "name"))
 
 
-def build_pattern_garment(scene: Scene, index: int, character, motion, colliders, maps):
-    """A sewn garment from a built-in pattern: (Garment, SewingLog, GarmentBuild)."""
-    from stages.garments.library import KINDS, garment_measurements, library_pattern, make_garment
-    from stages.garments.sewing import SewParams
+def check_pattern(scene: Scene, index: int) -> None:
+    """A pattern garment's kind exists in the library and its options are the kind's options."""
+    from stages.garments.library import KINDS
     g = scene["garments"][index]
     src = scene.path or "<scene>"
     if g["kind"] not in KINDS:
@@ -162,6 +163,14 @@ def build_pattern_garment(scene: Scene, index: int, character, motion, colliders
         if key not in allowed:
             raise SceneError(f"{src}: garments[{index}].options.{key}: not an option of kind {g['kind']!r}; "
                              f"options: {', '.join(allowed) or 'none'}")
+
+
+def build_pattern_garment(scene: Scene, index: int, character, motion, colliders, maps):
+    """A sewn garment from a built-in pattern: (Garment, SewingLog, GarmentBuild)."""
+    from stages.garments.library import KINDS, garment_measurements, library_pattern, make_garment
+    from stages.garments.sewing import SewParams
+    g = scene["garments"][index]
+    check_pattern(scene, index)
     pattern = library_pattern(g["kind"], garment_measurements(character, colliders, motion), edge_length=g["edge_length"],
                               name=g["name"], **{k: float(v) for k, v in g["options"].items()})
     sw = g["sewing"]

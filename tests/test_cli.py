@@ -62,3 +62,32 @@ def test_validate_default_scene():
 def test_bad_frames_flag():
     r = cli("run", "scenes/default.yaml", "--frames", "0")
     assert r.returncode == 2 and "--frames" in r.stderr
+
+
+def test_pattern_option_of_another_kind_is_named(tmp_path):
+    f = tmp_path / "s.yaml"
+    f.write_text("garments:\n  - {type: pattern, name: t, kind: tshirt, options: {flare: 1.5}}\n")
+    r = cli("validate", str(f), cwd=tmp_path)
+    assert r.returncode == 2 and "garments[0].options.flare" in r.stderr and "sleeve_length" in r.stderr
+
+
+def test_mesh_garment_runs_from_a_file(tmp_path):
+    import trimesh
+    import numpy as np
+    n = 12
+    u = np.linspace(-0.3, 0.3, n)
+    xx, zz = np.meshgrid(u, u, indexing="ij")
+    v = np.column_stack([xx.ravel(), np.zeros(n * n), zz.ravel()])
+    tri = [[i * n + j, i * n + j + 1, (i + 1) * n + j] for i in range(n - 1) for j in range(n - 1)] + \
+          [[(i + 1) * n + j, i * n + j + 1, (i + 1) * n + j + 1] for i in range(n - 1) for j in range(n - 1)]
+    trimesh.Trimesh(v, np.array(tri), process=False).export(tmp_path / "sheet.obj")
+    f = tmp_path / "s.yaml"
+    f.write_text("character: {clip: rest}\nframes: {count: 3}\nsimulation: {body_audit: false}\n"
+                 "garments:\n  - {type: mesh, name: sheet, path: sheet.obj, translate: [0, 1.9, 0]}\n")
+    r = cli("run", str(f), "-q", "-o", str(tmp_path / "out.rrd"), cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    from tests.rrd_read import rows
+    pos = rows(tmp_path / "out.rrd", "sim/sheet/mesh", "Mesh3D:vertex_positions")
+    assert len(pos) == 3 and pos[0][1].shape == (n * n, 3)
+    assert abs(float(pos[0][1][:, 1].mean()) - 1.9) < 1e-4
+    assert float(pos[-1][1][:, 1].mean()) < 1.9                  # it falls
