@@ -14,7 +14,8 @@ from scipy.spatial.transform import Rotation
 
 from stages.hulls.types import ColliderSet, SphereCollider
 from stages.maps.build import build_maps
-from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER, collide_points
+from stages.maps.kernels import (METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER, collide_points, hull_query,
+                                query_arrays)
 from stages.sim.scenes import convex_mesh, fibonacci_points, hull_set, sphere_set
 from stages.sim.simulate import _Colliders
 
@@ -227,9 +228,7 @@ def test_hull_response_matches_maps_kernel_and_reports_the_contact_face(method):
     m = maps.arrays
     for p in pts[hit_ref & moved][:100]:
         q = m.axes[0] @ (p - m.center[0])
-        hit, r0, r1, r2, face = K._hull_hit(m.planes, m.face_start, m.half, m.kind, m.n_theta, m.n_second,
-                                            m.second_lo, m.second_hi, m.cell_base, m.cell_start, m.cell_tris,
-                                            m.loc_base, m.loc_x, m.loc_start, m.loc_y, m.loc_face, 0, method, *q)
+        hit, r0, r1, r2, face = hull_query(*query_arrays(m), 0, method, *q)
         pl = m.planes[face]
         assert hit and abs(pl[:3] @ [r0, r1, r2] - pl[3]) < 1e-9
         assert (m.planes[:, :3] @ [r0, r1, r2] - m.planes[:, 3]).max() < 1e-9     # on the hull surface

@@ -1,18 +1,32 @@
-"""Numba hull queries over the packed maps (paper A §2.3-2.4), for the simulation's njit loops.
+"""Numba hull queries over the packed maps (paper A §2.3-2.4): the one home of the hull query, used
+by the maps' tests and benchmark and inside the simulation's njit loops (stages/sim/kernels.py).
 
-Every kernel takes `m` = `MapSet.arrays` (a `MapArrays` named tuple of flat arrays, documented in
+The core, `hull_query`, takes the MapArrays fields one by one (plain arrays, in `QUERY_FIELDS`
+order; `query_arrays(m)` unpacks them) and an OBB-local point, and returns the face it responded
+on (the contact normal). Why plain arrays: numba increments / decrements (atomically) the reference
+count of every array reached through a named tuple argument of a compiled call (~300 ns per query
+with the 18-array MapArrays, more than the query itself); hull_query and its helpers are inlined
+(inline="always") into the caller, so compiled with the caller's flags (the simulation's loops use
+`_nrt=False`: no reference counting at all).
+
+    hull_query(half, kind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+               cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, h, method, q0, q1, q2)
+        -> (inside, x, y, z, face)   OBB-local point q of hull h; the response point (OBB-local) and
+        the global face id it lies on when inside, else (False, q0, q1, q2, -1)
+
+The MapArrays-level kernels take `m` = `MapSet.arrays` (the named tuple documented in
 stages/maps/types.py), the hull index `h` and a bone-local point `p` ((3,) float64 array or row
 view). Points come back as a tuple of three floats (bone-local, metres), which costs no allocation
 inside a hot loop.
 
-Signatures (stable; the simulation codes against them):
+Signatures (stable; tests and the benchmark code against them):
     hull_inside(m, h, p) -> bool                        paper path: OBB, slab point location, 2 planes
     hull_response(m, h, p) -> (x, y, z)                  paper ray through the cell's triangle list
     hull_push_nearest_plane(m, h, p) -> (x, y, z)        baseline: out through the least-penetrated plane
     hull_inside_brute(m, h, p) -> bool                   behind every face plane
     hull_response_brute(m, h, p) -> (x, y, z)            the paper ray against every face
-    hull_collide(m, h, p, method) -> (inside, x, y, z)   inside test + response (p itself if outside)
-        method: METHOD_PAPER (0, default), METHOD_BRUTE (1), METHOD_NEAREST_PLANE (2)
+    hull_collide(m, h, p, method) -> (inside, x, y, z)   hull_query in bone-local coordinates (p itself
+        if outside); method: METHOD_PAPER (0, default), METHOD_BRUTE (1), METHOD_NEAREST_PLANE (2)
 Vectorised wrappers (tests, logging, benchmarks): inside_points, response_points, collide_points.
 
 Response ray (paper A §2.4). Source s: the OBB centre (map sphere) or p's projection on the OBB long
@@ -50,6 +64,16 @@ METHOD_BRUTE = 1
 METHOD_NEAREST_PLANE = 2
 ZERO_DIR = 1e-12          # relative to the hull's longest half extent
 TWO_PI = 2.0 * math.pi
+# the MapArrays fields hull_query takes, in its argument order
+QUERY_FIELDS = ("half", "kind", "n_theta", "n_second", "second_lo", "second_hi", "face_start", "planes",
+                "cell_base", "cell_start", "cell_tris", "loc_base", "loc_x", "loc_start", "loc_y", "loc_face")
+
+
+@njit(cache=True, inline="always")
+def query_arrays(m):
+    """The MapArrays fields hull_query takes, in its order (unpack once, outside a hot loop)."""
+    return (m.half, m.kind, m.n_theta, m.n_second, m.second_lo, m.second_hi, m.face_start, m.planes,
+            m.cell_base, m.cell_start, m.cell_tris, m.loc_base, m.loc_x, m.loc_start, m.loc_y, m.loc_face)
 
 
 # -- frames -------------------------------------------------------------------------------------
@@ -75,18 +99,17 @@ def _to_bone(m, h, q0, q1, q2):
 
 
 @njit(cache=True, inline="always")
-def _plane_dist(m, f, q0, q1, q2):
-    pl = m.planes[f]
-    return pl[0] * q0 + pl[1] * q1 + pl[2] * q2 - pl[3]
+def _plane_dist(planes, f, q0, q1, q2):
+    return planes[f, 0] * q0 + planes[f, 1] * q1 + planes[f, 2] * q2 - planes[f, 3]
 
 
 # -- inside ---------------------------------------------------------------------------------------
 @njit(cache=True, inline="always")
-def _locate(m, k, x, y):
+def _slab_locate(loc_base, loc_x, loc_start, loc_y, loc_face, k, x, y):
     """Face of planar mesh k (= 2h + side) containing (x, y); -1 outside the outline, -2 in a gap."""
-    b0 = m.loc_base[k]
-    b1 = m.loc_base[k + 1]
-    xs = m.loc_x
+    b0 = loc_base[k]
+    b1 = loc_base[k + 1]
+    xs = loc_x
     if x < xs[b0] or x > xs[b1 - 1]:
         return -1
     # last slab whose left boundary <= x; branch-free halving (a select, not a jump, per step:
@@ -99,11 +122,11 @@ def _locate(m, k, x, y):
         n -= half
     xl = xs[lo]
     f = (x - xl) / (xs[lo + 1] - xl)
-    e0 = m.loc_start[lo]
-    e1 = m.loc_start[lo + 1]
+    e0 = loc_start[lo]
+    e1 = loc_start[lo + 1]
     if e1 <= e0:
         return -2
-    ys = m.loc_y
+    ys = loc_y
     if ys[e0, 0] + f * (ys[e0, 1] - ys[e0, 0]) > y:
         return -1
     lo = e0
@@ -115,89 +138,84 @@ def _locate(m, k, x, y):
         n -= half
     if y > ys[lo, 2] + f * (ys[lo, 3] - ys[lo, 2]):
         return -1 if lo == e1 - 1 else -2
-    return m.loc_face[lo]
+    return loc_face[lo]
+
+
+@njit(cache=True)
+def _locate(m, k, x, y):
+    """_slab_locate over MapArrays (tests)."""
+    return _slab_locate(m.loc_base, m.loc_x, m.loc_start, m.loc_y, m.loc_face, k, x, y)
 
 
 @njit(cache=True, inline="always")
-def _inside_brute_local(m, h, q0, q1, q2):
-    for f in range(m.face_start[h], m.face_start[h + 1]):
-        if _plane_dist(m, f, q0, q1, q2) > 0.0:
+def _inside_brute(planes, face_start, h, q0, q1, q2):
+    for f in range(face_start[h], face_start[h + 1]):
+        if _plane_dist(planes, f, q0, q1, q2) > 0.0:
             return False
     return True
 
 
 @njit(cache=True, inline="always")
-def _inside_local(m, h, q0, q1, q2):
-    hx = m.half[h]
-    if abs(q0) > hx[0] or abs(q1) > hx[1] or abs(q2) > hx[2]:
+def _inside_paper(half, face_start, planes, loc_base, loc_x, loc_start, loc_y, loc_face, h, q0, q1, q2):
+    """OBB rejection, the upper and lower planar meshes' faces above / below q, their two planes."""
+    if abs(q0) > half[h, 0] or abs(q1) > half[h, 1] or abs(q2) > half[h, 2]:
         return False
-    fu = _locate(m, 2 * h, q1, q2)
+    fu = _slab_locate(loc_base, loc_x, loc_start, loc_y, loc_face, 2 * h, q1, q2)
     if fu == -1:
         return False
-    fl = _locate(m, 2 * h + 1, q1, q2)
+    fl = _slab_locate(loc_base, loc_x, loc_start, loc_y, loc_face, 2 * h + 1, q1, q2)
     if fl == -1:
         return False
     if fu == -2 or fl == -2:             # a numerical gap in a planar mesh: answer exactly
-        return _inside_brute_local(m, h, q0, q1, q2)
-    return _plane_dist(m, fu, q0, q1, q2) <= 0.0 and _plane_dist(m, fl, q0, q1, q2) <= 0.0
-
-
-@njit(cache=True)
-def hull_inside(m, h, p):
-    """Paper path: OBB rejection, point location in the upper and lower planar meshes, two planes."""
-    q0, q1, q2 = _to_local(m, h, p)
-    return _inside_local(m, h, q0, q1, q2)
-
-
-@njit(cache=True)
-def hull_inside_brute(m, h, p):
-    """Inside iff behind (or on) every face plane."""
-    q0, q1, q2 = _to_local(m, h, p)
-    return _inside_brute_local(m, h, q0, q1, q2)
+        return _inside_brute(planes, face_start, h, q0, q1, q2)
+    return _plane_dist(planes, fu, q0, q1, q2) <= 0.0 and _plane_dist(planes, fl, q0, q1, q2) <= 0.0
 
 
 # -- response -------------------------------------------------------------------------------------
 @njit(cache=True, inline="always")
-def _nearest_plane_local(m, h, q0, q1, q2):
+def _nearest_plane(planes, face_start, h, q0, q1, q2):
+    """(signed distance, face) of the plane q is least behind (largest signed distance)."""
     best = -np.inf
-    bf = m.face_start[h]
-    for f in range(m.face_start[h], m.face_start[h + 1]):
-        s = _plane_dist(m, f, q0, q1, q2)
+    bf = face_start[h]
+    for f in range(face_start[h], face_start[h + 1]):
+        s = _plane_dist(planes, f, q0, q1, q2)
         if s > best:
             best = s
             bf = f
-    pl = m.planes[bf]
-    return q0 - best * pl[0], q1 - best * pl[1], q2 - best * pl[2]
+    return best, bf
 
 
 @njit(cache=True, inline="always")
-def _cell_of(m, h, q0, d0, d1, d2):
+def _cell_of(kind, n_theta, n_second, second_lo, second_hi, cell_base, h, q0, d0, d1, d2):
     """Global cell of a unit ray direction d (and axial coordinate q0 for the cylinder)."""
-    nt = m.n_theta[h]
-    ns = m.n_second[h]
+    nt = n_theta[h]
+    ns = n_second[h]
     th = math.atan2(d2, d1)
     if th < 0.0:
         th += TWO_PI
     it = int(math.floor(th * nt / TWO_PI))
     if it >= nt:
         it = nt - 1
-    if m.kind[h] == KIND_CYLINDER:
+    if kind[h] == KIND_CYLINDER:
         v = q0
     else:
         v = math.atan2(math.sqrt(d1 * d1 + d2 * d2), d0)
-    lo = m.second_lo[h]
-    js = int(math.floor((v - lo) / (m.second_hi[h] - lo) * ns))
+    lo = second_lo[h]
+    js = int(math.floor((v - lo) / (second_hi[h] - lo) * ns))
     if js < 0:
         js = 0
     elif js >= ns:
         js = ns - 1
-    return m.cell_base[h] + it * ns + js
+    return cell_base[h] + it * ns + js
 
 
 @njit(cache=True, inline="always")
-def _ray_exit_local(m, h, q0, q1, q2, brute):
-    """Exit point of the map ray through q (OBB-local); ok=False when there is no usable ray."""
-    if m.kind[h] == KIND_CYLINDER:
+def _response(half, kind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base, cell_start,
+              cell_tris, h, brute, q0, q1, q2):
+    """(x, y, z, face): where the map ray through q (OBB-local) leaves the hull and the face it leaves
+    through (brute: every face, else q's cell list); with no usable ray (q at the source, or no
+    listed face facing along it) the nearest-plane push."""
+    if kind[h] == KIND_CYLINDER:
         s0 = q0
         d0 = 0.0
     else:
@@ -206,91 +224,109 @@ def _ray_exit_local(m, h, q0, q1, q2, brute):
     d1 = q1
     d2 = q2
     dn = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-    if dn <= ZERO_DIR * m.half[h, 0]:
-        return False, q0, q1, q2
-    d0 /= dn
-    d1 /= dn
-    d2 /= dn
-    planes = m.planes
     tmin = np.inf
-    if brute:
-        for f in range(m.face_start[h], m.face_start[h + 1]):
+    ef = -1
+    if dn > ZERO_DIR * half[h, 0]:
+        d0 /= dn
+        d1 /= dn
+        d2 /= dn
+        if brute:
+            e0 = face_start[h]
+            e1 = face_start[h + 1]
+        else:
+            c = _cell_of(kind, n_theta, n_second, second_lo, second_hi, cell_base, h, q0, d0, d1, d2)
+            e0 = cell_start[c]
+            e1 = cell_start[c + 1]
+        for e in range(e0, e1):
+            f = e if brute else cell_tris[e]
             nd = planes[f, 0] * d0 + planes[f, 1] * d1 + planes[f, 2] * d2
             if nd > 0.0:
                 t = (planes[f, 3] - planes[f, 0] * s0) / nd
                 if t < tmin:
                     tmin = t
-    else:
-        c = _cell_of(m, h, q0, d0, d1, d2)
-        for i in range(m.cell_start[c], m.cell_start[c + 1]):
-            f = m.cell_tris[i]
-            nd = planes[f, 0] * d0 + planes[f, 1] * d1 + planes[f, 2] * d2
-            if nd > 0.0:
-                t = (planes[f, 3] - planes[f, 0] * s0) / nd
-                if t < tmin:
-                    tmin = t
-    if tmin == np.inf:
-        return False, q0, q1, q2
-    return True, s0 + tmin * d0, tmin * d1, tmin * d2
+                    ef = f
+    if ef >= 0:
+        return s0 + tmin * d0, tmin * d1, tmin * d2, ef
+    best, bf = _nearest_plane(planes, face_start, h, q0, q1, q2)
+    return q0 - best * planes[bf, 0], q1 - best * planes[bf, 1], q2 - best * planes[bf, 2], bf
 
 
 @njit(cache=True, inline="always")
-def _response_local(m, h, q0, q1, q2, brute):
-    ok, r0, r1, r2 = _ray_exit_local(m, h, q0, q1, q2, brute)
-    if not ok:
-        return _nearest_plane_local(m, h, q0, q1, q2)
-    return r0, r1, r2
+def hull_query(half, kind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base, cell_start,
+               cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, h, method, q0, q1, q2):
+    """(inside, x, y, z, face) of hull h for an OBB-local point q: the response point (OBB-local) and
+    the global face it lies on (its plane's normal is the contact normal), or (False, q, -1) outside.
+    METHOD_PAPER: OBB, slab point location, two planes; the map ray through q's cell list.
+    METHOD_BRUTE: every plane; the ray against every face. METHOD_NEAREST_PLANE: every plane; push
+    to the least penetrated one."""
+    if method == METHOD_PAPER:
+        if not _inside_paper(half, face_start, planes, loc_base, loc_x, loc_start, loc_y, loc_face, h, q0, q1, q2):
+            return False, q0, q1, q2, -1
+    else:
+        best, bf = _nearest_plane(planes, face_start, h, q0, q1, q2)
+        if best > 0.0:
+            return False, q0, q1, q2, -1
+        if method == METHOD_NEAREST_PLANE:
+            return True, q0 - best * planes[bf, 0], q1 - best * planes[bf, 1], q2 - best * planes[bf, 2], bf
+    r0, r1, r2, face = _response(half, kind, n_theta, n_second, second_lo, second_hi, face_start, planes,
+                                 cell_base, cell_start, cell_tris, h, method != METHOD_PAPER, q0, q1, q2)
+    return True, r0, r1, r2, face
+
+
+# -- MapArrays-level kernels (bone-local points) ----------------------------------------------------
+@njit(cache=True)
+def hull_inside(m, h, p):
+    """Paper path: OBB rejection, point location in the upper and lower planar meshes, two planes."""
+    q0, q1, q2 = _to_local(m, h, p)
+    return _inside_paper(m.half, m.face_start, m.planes, m.loc_base, m.loc_x, m.loc_start, m.loc_y, m.loc_face,
+                         h, q0, q1, q2)
+
+
+@njit(cache=True)
+def hull_inside_brute(m, h, p):
+    """Inside iff behind (or on) every face plane."""
+    q0, q1, q2 = _to_local(m, h, p)
+    return _inside_brute(m.planes, m.face_start, h, q0, q1, q2)
+
+
+@njit(cache=True, inline="always")
+def _response_bone(m, h, p, brute):
+    q0, q1, q2 = _to_local(m, h, p)
+    r0, r1, r2, _ = _response(m.half, m.kind, m.n_theta, m.n_second, m.second_lo, m.second_hi, m.face_start,
+                              m.planes, m.cell_base, m.cell_start, m.cell_tris, h, brute, q0, q1, q2)
+    return _to_bone(m, h, r0, r1, r2)
 
 
 @njit(cache=True)
 def hull_response(m, h, p):
     """Paper ray from the map source through p, scanning only p's cell list (see module doc)."""
-    q0, q1, q2 = _to_local(m, h, p)
-    r0, r1, r2 = _response_local(m, h, q0, q1, q2, False)
-    return _to_bone(m, h, r0, r1, r2)
+    return _response_bone(m, h, p, False)
 
 
 @njit(cache=True)
 def hull_response_brute(m, h, p):
     """The same ray against every face of the hull."""
-    q0, q1, q2 = _to_local(m, h, p)
-    r0, r1, r2 = _response_local(m, h, q0, q1, q2, True)
-    return _to_bone(m, h, r0, r1, r2)
+    return _response_bone(m, h, p, True)
 
 
 @njit(cache=True)
 def hull_push_nearest_plane(m, h, p):
     """Baseline (NvCloth-style convex response): project p on the plane it penetrates least."""
     q0, q1, q2 = _to_local(m, h, p)
-    r0, r1, r2 = _nearest_plane_local(m, h, q0, q1, q2)
-    return _to_bone(m, h, r0, r1, r2)
+    best, bf = _nearest_plane(m.planes, m.face_start, h, q0, q1, q2)
+    pl = m.planes[bf]
+    return _to_bone(m, h, q0 - best * pl[0], q1 - best * pl[1], q2 - best * pl[2])
 
 
 @njit(cache=True)
 def hull_collide(m, h, p, method):
-    """(inside, x, y, z): the response point if p is inside the hull, else p itself."""
+    """(inside, x, y, z): hull_query's response point (bone-local) if p is inside the hull, else p."""
     q0, q1, q2 = _to_local(m, h, p)
-    if method == METHOD_NEAREST_PLANE:
-        best = -np.inf
-        bf = m.face_start[h]
-        for f in range(m.face_start[h], m.face_start[h + 1]):
-            s = _plane_dist(m, f, q0, q1, q2)
-            if s > best:
-                best = s
-                bf = f
-        if best > 0.0:
-            return False, p[0], p[1], p[2]
-        pl = m.planes[bf]
-        x, y, z = _to_bone(m, h, q0 - best * pl[0], q1 - best * pl[1], q2 - best * pl[2])
-        return True, x, y, z
-    brute = method == METHOD_BRUTE
-    if brute:
-        inside = _inside_brute_local(m, h, q0, q1, q2)
-    else:
-        inside = _inside_local(m, h, q0, q1, q2)
+    inside, r0, r1, r2, _ = hull_query(m.half, m.kind, m.n_theta, m.n_second, m.second_lo, m.second_hi,
+                                       m.face_start, m.planes, m.cell_base, m.cell_start, m.cell_tris, m.loc_base,
+                                       m.loc_x, m.loc_start, m.loc_y, m.loc_face, h, method, q0, q1, q2)
     if not inside:
         return False, p[0], p[1], p[2]
-    r0, r1, r2 = _response_local(m, h, q0, q1, q2, brute)
     x, y, z = _to_bone(m, h, r0, r1, r2)
     return True, x, y, z
 

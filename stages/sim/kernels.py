@@ -35,8 +35,7 @@ from numba import njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER, TWO_PI, ZERO_DIR
-from stages.maps.types import KIND_CYLINDER
+from stages.maps.kernels import METHOD_NEAREST_PLANE, hull_query, query_arrays
 
 KIND_HULL = 0
 KIND_SPHERE = 1
@@ -392,148 +391,11 @@ def build_bins(cw, bin_start, bin_items, bin_range):
     bin_start[0] = 0
 
 
-# -- hull queries over unpacked map arrays ---------------------------------------------------------
-# The same arithmetic as stages.maps.kernels (slab point location, the map ray), but taking the
-# MapArrays fields as plain arguments and returning the response's face. Why not call the maps
-# kernels: numba increments / decrements the reference count of every array argument of a function
-# inlined into a big loop (an atomic operation each); with the 18-array named tuple that cost
-# ~300 ns per query, more than the query. So: no array-taking inline helpers in the collision loop;
-# the sphere test and the OBB rejection are written out in it, and only points inside an OBB call
-# _hull_hit (a plain call, no reference counting).
-@njit(cache=True, inline="always")
-def _locate_a(loc_base, loc_x, loc_start, loc_y, loc_face, k, x, y):
-    """Face of planar mesh k (= 2h + side) containing (x, y); -1 outside the outline, -2 in a gap."""
-    b0 = loc_base[k]
-    b1 = loc_base[k + 1]
-    if x < loc_x[b0] or x > loc_x[b1 - 1]:
-        return -1
-    lo = b0
-    n = b1 - 1 - b0
-    while n > 1:
-        half = n >> 1
-        lo = lo + half if loc_x[lo + half] <= x else lo
-        n -= half
-    xl = loc_x[lo]
-    f = (x - xl) / (loc_x[lo + 1] - xl)
-    e0 = loc_start[lo]
-    e1 = loc_start[lo + 1]
-    if e1 <= e0:
-        return -2
-    if loc_y[e0, 0] + f * (loc_y[e0, 1] - loc_y[e0, 0]) > y:
-        return -1
-    lo = e0
-    n = e1 - e0
-    while n > 1:
-        half = n >> 1
-        k = lo + half
-        lo = k if loc_y[k, 0] + f * (loc_y[k, 1] - loc_y[k, 0]) <= y else lo
-        n -= half
-    if y > loc_y[lo, 2] + f * (loc_y[lo, 3] - loc_y[lo, 2]):
-        return -1 if lo == e1 - 1 else -2
-    return loc_face[lo]
-
-
-@njit(cache=True, _nrt=False, inline="always")
-def _hull_hit(planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base, cell_start,
-              cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, h, method, q0, q1, q2):
-    """(hit, r0, r1, r2, face): inside test and response of hull h for an OBB-local point q, as
-    stages.maps.kernels.hull_collide, plus the face the response point lies on (its plane's normal
-    is the contact normal). METHOD_PAPER: OBB, slab location, two planes; the map ray through q's
-    cell list. METHOD_BRUTE: every plane; the ray against every face. METHOD_NEAREST_PLANE: push to
-    the least penetrated plane."""
-    f0 = face_start[h]
-    f1 = face_start[h + 1]
-    brute = method == METHOD_BRUTE
-    if method == METHOD_PAPER:
-        if abs(q0) > half[h, 0] or abs(q1) > half[h, 1] or abs(q2) > half[h, 2]:
-            return False, q0, q1, q2, -1
-        fu = _locate_a(loc_base, loc_x, loc_start, loc_y, loc_face, 2 * h, q1, q2)
-        if fu == -1:
-            return False, q0, q1, q2, -1
-        fl = _locate_a(loc_base, loc_x, loc_start, loc_y, loc_face, 2 * h + 1, q1, q2)
-        if fl == -1:
-            return False, q0, q1, q2, -1
-        if fu == -2 or fl == -2:             # a numerical gap in a planar mesh: answer exactly
-            brute = True
-        elif (planes[fu, 0] * q0 + planes[fu, 1] * q1 + planes[fu, 2] * q2 - planes[fu, 3] > 0.0
-              or planes[fl, 0] * q0 + planes[fl, 1] * q1 + planes[fl, 2] * q2 - planes[fl, 3] > 0.0):
-            return False, q0, q1, q2, -1
-    # nearest plane (the baseline response, the brute inside test and the ray's fallback)
-    best = -np.inf
-    bf = f0
-    if method != METHOD_PAPER or brute:
-        for f in range(f0, f1):
-            d = planes[f, 0] * q0 + planes[f, 1] * q1 + planes[f, 2] * q2 - planes[f, 3]
-            if d > best:
-                best = d
-                bf = f
-        if best > 0.0:
-            return False, q0, q1, q2, -1
-        if method == METHOD_NEAREST_PLANE:
-            return True, q0 - best * planes[bf, 0], q1 - best * planes[bf, 1], q2 - best * planes[bf, 2], bf
-        brute = method == METHOD_BRUTE
-    # the map ray (stages.maps.kernels._ray_exit_local), keeping the exit face
-    if mkind[h] == KIND_CYLINDER:
-        s0 = q0
-        d0 = 0.0
-    else:
-        s0 = 0.0
-        d0 = q0
-    d1 = q1
-    d2 = q2
-    dn = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-    tmin = np.inf
-    ef = -1
-    if dn > ZERO_DIR * half[h, 0]:
-        d0 /= dn
-        d1 /= dn
-        d2 /= dn
-        if brute:
-            for f in range(f0, f1):
-                nd = planes[f, 0] * d0 + planes[f, 1] * d1 + planes[f, 2] * d2
-                if nd > 0.0:
-                    t = (planes[f, 3] - planes[f, 0] * s0) / nd
-                    if t < tmin:
-                        tmin = t
-                        ef = f
-        else:
-            # the cell of the direction (stages.maps.kernels._cell_of)
-            nt = n_theta[h]
-            ns = n_second[h]
-            th = math.atan2(d2, d1)
-            if th < 0.0:
-                th += TWO_PI
-            it = int(math.floor(th * nt / TWO_PI))
-            if it >= nt:
-                it = nt - 1
-            v = q0 if mkind[h] == KIND_CYLINDER else math.atan2(math.sqrt(d1 * d1 + d2 * d2), d0)
-            lo = second_lo[h]
-            js = int(math.floor((v - lo) / (second_hi[h] - lo) * ns))
-            if js < 0:
-                js = 0
-            elif js >= ns:
-                js = ns - 1
-            cell = cell_base[h] + it * ns + js
-            for e in range(cell_start[cell], cell_start[cell + 1]):
-                f = cell_tris[e]
-                nd = planes[f, 0] * d0 + planes[f, 1] * d1 + planes[f, 2] * d2
-                if nd > 0.0:
-                    t = (planes[f, 3] - planes[f, 0] * s0) / nd
-                    if t < tmin:
-                        tmin = t
-                        ef = f
-    if ef >= 0:
-        return True, s0 + tmin * d0, tmin * d1, tmin * d2, ef
-    # no usable ray (q on the source, or no listed face facing along it): nearest plane
-    if best == -np.inf:
-        for f in range(f0, f1):
-            d = planes[f, 0] * q0 + planes[f, 1] * q1 + planes[f, 2] * q2 - planes[f, 3]
-            if d > best:
-                best = d
-                bf = f
-    return True, q0 - best * planes[bf, 0], q1 - best * planes[bf, 1], q2 - best * planes[bf, 2], bf
-
-
+# -- collider queries -----------------------------------------------------------------------------
+# Hulls: stages.maps.kernels.hull_query over the MapArrays fields as plain arrays (unpacked once per
+# kernel with query_arrays: a named tuple reached inside the loop would cost reference counting per
+# query); the sphere test and the OBB rejection are written out in collide's loop, and only points
+# inside an OBB reach the hull query.
 @njit(cache=True, inline="always")
 def _sphere_hit(rad, q0, q1, q2):
     """(hit, r0, r1, r2, n0, n1, n2) of a sphere of radius rad at the origin of the query frame:
@@ -550,7 +412,7 @@ def _sphere_hit(rad, q0, q1, q2):
 
 @njit(cache=True, _nrt=False)
 def _collider_hit(c, col_kind, col_index, sph_radius, method,
-                  planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base,
+                  half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
                   cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
                   q0, q1, q2):
     """(hit, r0, r1, r2, n0, n1, n2): inside test, response point and outward unit contact normal
@@ -560,8 +422,8 @@ def _collider_hit(c, col_kind, col_index, sph_radius, method,
         return _sphere_hit(sph_radius[idx], q0, q1, q2)
     if method != METHOD_NEAREST_PLANE and (abs(q0) > half[idx, 0] or abs(q1) > half[idx, 1] or abs(q2) > half[idx, 2]):
         return False, q0, q1, q2, 0.0, 0.0, 0.0
-    hit, r0, r1, r2, face = _hull_hit(
-        planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base,
+    hit, r0, r1, r2, face = hull_query(
+        half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
         cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
         idx, method, q0, q1, q2)
     if not hit:
@@ -571,7 +433,7 @@ def _collider_hit(c, col_kind, col_index, sph_radius, method,
 
 @njit(cache=True, _nrt=False)
 def _inside_any(col_kind, col_index, sph_radius, method, tq, cw, skip,
-                planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base,
+                half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
                 cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
                 px, py, pz):
     """True if the world point is inside any collider except `skip` (with a real push)."""
@@ -586,7 +448,7 @@ def _inside_any(col_kind, col_index, sph_radius, method, tq, cw, skip,
         q0, q1, q2 = _apply12(tq, c, px, py, pz)
         hit, r0, r1, r2, n0, n1, n2 = _collider_hit(
             c, col_kind, col_index, sph_radius, method,
-            planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base,
+            half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
             cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, q0, q1, q2)
         if hit and (r0 - q0) ** 2 + (r1 - q1) ** 2 + (r2 - q2) ** 2 >= TOUCH_EPS * TOUCH_EPS:
             return True
@@ -643,32 +505,18 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
     """Collision detection and response of every free particle against every collider.
 
     Per particle: the colliders of its y slab whose world bounding sphere holds it are tested in
-    their query frame (spheres: paper eq. 5-6; hulls: OBB rejection, then the maps' inside test and
-    `method` response, see _hull_hit). After a push by collider c the particle is outside c (by
-    PUSH_EPS; friction slides it along the contact plane); the other colliders are then visited
-    cyclically (world sphere test first) until every one has been checked at the current position
-    without a push, at most `passes` rounds over the colliders. The response gets Coulomb friction
+    their query frame (spheres: paper eq. 5-6; hulls: OBB rejection, then stages.maps.kernels.hull_query
+    with `method`). After a push by collider c the particle is outside c (by PUSH_EPS; friction
+    slides it along the contact plane); the other colliders are then visited cyclically (world
+    sphere test first) until every one has been checked at the current position without a push, at
+    most `passes` rounds over the colliders. The response gets Coulomb friction
     relative to the collider: its tangential travel over the step loses up to `friction` times the
     push's normal depth.
     corrected[i] |= 1 if the particle was pushed; inside[i] = 1 if it is still inside a collider at
     the end; speed2[i] = |x - xp|^2 / h^2 at the end (divergence check).
     """
-    planes = m.planes
-    face_start = m.face_start
-    half = m.half
-    mkind = m.kind
-    n_theta = m.n_theta
-    n_second = m.n_second
-    second_lo = m.second_lo
-    second_hi = m.second_hi
-    cell_base = m.cell_base
-    cell_start = m.cell_start
-    cell_tris = m.cell_tris
-    loc_base = m.loc_base
-    loc_x = m.loc_x
-    loc_start = m.loc_start
-    loc_y = m.loc_y
-    loc_face = m.loc_face
+    (half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base, cell_start, cell_tris,
+     loc_base, loc_x, loc_start, loc_y, loc_face) = query_arrays(m)
     y0 = bin_range[0]
     bh = bin_range[1]
     nb = bin_start.size - 1
@@ -725,8 +573,8 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
                         hit, r0, r1, r2, n0, n1, n2 = _sphere_hit(sph_radius[idx], q0, q1, q2)
                     elif method == METHOD_NEAREST_PLANE or (abs(q0) <= half[idx, 0] and abs(q1) <= half[idx, 1]
                                                             and abs(q2) <= half[idx, 2]):
-                        hit, r0, r1, r2, face = _hull_hit(
-                            planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base,
+                        hit, r0, r1, r2, face = hull_query(
+                            half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
                             cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
                             idx, method, q0, q1, q2)
                         if hit:
@@ -762,28 +610,14 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
 @njit(cache=True, _nrt=False)
 def count_inside(x, inv_mass, m, method, col_kind, col_index, sph_radius, tq, cw, inside):
     """inside[i] = 1 if free particle i is inside any collider (no response)."""
-    planes = m.planes
-    face_start = m.face_start
-    half = m.half
-    mkind = m.kind
-    n_theta = m.n_theta
-    n_second = m.n_second
-    second_lo = m.second_lo
-    second_hi = m.second_hi
-    cell_base = m.cell_base
-    cell_start = m.cell_start
-    cell_tris = m.cell_tris
-    loc_base = m.loc_base
-    loc_x = m.loc_x
-    loc_start = m.loc_start
-    loc_y = m.loc_y
-    loc_face = m.loc_face
+    (half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base, cell_start, cell_tris,
+     loc_base, loc_x, loc_start, loc_y, loc_face) = query_arrays(m)
     for i in range(x.shape[0]):
         inside[i] = 0
         if inv_mass[i] > 0.0:
             inside[i] = _inside_any(
                 col_kind, col_index, sph_radius, method, tq, cw, -1,
-                planes, face_start, half, mkind, n_theta, n_second, second_lo, second_hi, cell_base,
+                half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
                 cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, x[i, 0], x[i, 1], x[i, 2])
 
 
