@@ -111,6 +111,10 @@ def check_references(scene: Scene, character) -> None:
         except KeyError:
             raise SceneError(f"{src}: character.clip: {clip!r} is not a clip of {character.name!r}; "
                              f"clips: {[c.name for c in character.clips] or 'none'} (or 'rest')") from None
+    for section in ("garments", "obstacles"):
+        for i, item in enumerate(scene[section]):
+            if item["type"] == "mesh" and not Path(item["path"]).is_file():
+                raise SceneError(f"{src}: {section}[{i}].path: file not found: {item['path']}")
     names = set(character.joint_names)
     for i, g in enumerate(scene["garments"]):
         if g["type"] == "pattern":

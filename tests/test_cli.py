@@ -91,3 +91,10 @@ def test_mesh_garment_runs_from_a_file(tmp_path):
     assert len(pos) == 3 and pos[0][1].shape == (n * n, 3)
     assert abs(float(pos[0][1][:, 1].mean()) - 1.9) < 1e-4
     assert float(pos[-1][1][:, 1].mean()) < 1.9                  # it falls
+
+
+def test_missing_obstacle_mesh_is_found_by_validate(tmp_path):
+    f = tmp_path / "s.yaml"
+    f.write_text("obstacles:\n  - {type: mesh, name: rock, path: rock.stl}\n")
+    r = cli("validate", str(f), cwd=tmp_path)
+    assert r.returncode == 2 and "obstacles[0].path: file not found" in r.stderr and "rock.stl" in r.stderr
