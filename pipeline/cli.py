@@ -37,8 +37,12 @@ def cmd_run(args) -> int:
     from pipeline.run import run_scene
     from pipeline.scene import load_scene
     scene = load_scene(args.scene)
+    def announce(stage: str) -> None:
+        if not args.quiet:
+            print(f"{stage} ...", file=sys.stderr, flush=True)
+
     summary = run_scene(scene, output=Path(args.output) if args.output else None, frames=args.frames,
-                        progress=not args.quiet)
+                        progress=not args.quiet, on_stage=announce)
     print(summary.text())
     return 0
 
