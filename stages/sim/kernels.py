@@ -37,6 +37,9 @@ from numba.extending import intrinsic
 
 from stages.maps.kernels import METHOD_NEAREST_PLANE, hull_query, query_arrays
 
+# the hull query is inlined from stages.maps.kernels: its edits must invalidate this module's cache
+NUMBA_CACHE_DEPENDS = ("stages.maps.kernels", "stages.maps.types")
+
 KIND_HULL = 0
 KIND_SPHERE = 1
 PUSH_EPS = 1e-7      # m: responded particles end this far outside, so the inclusive inside test says "out"
