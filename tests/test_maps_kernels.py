@@ -224,3 +224,14 @@ def test_disk_cache_of_a_kernel_follows_the_modules_it_inlines(tmp_path):
     (tmp_path / "dep_inlined.py").write_text(
         "from numba import njit\n\n@njit(cache=True, inline='always')\ndef f(x):\n    return x + 2.0\n")
     assert run() == (3.0, 0)          # the inlined module changed: recompiled
+
+
+def test_query_arrays_follow_the_map_arrays_fields():
+    """hull_query's array arguments are MapArrays' fields after the OBB frame, in field order."""
+    from stages.maps.types import MapArrays
+    assert K.QUERY_FIELDS == MapArrays._fields[2:]
+    m = MapSet.from_maps([MAPS["round-sphere"]]).arrays
+    got = K.query_arrays(m)
+    assert len(got) == len(K.QUERY_FIELDS)
+    for name, arr in zip(K.QUERY_FIELDS, got):
+        np.testing.assert_array_equal(arr, getattr(m, name))
