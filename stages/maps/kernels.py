@@ -53,63 +53,15 @@ Edge cases (documented behaviour):
 """
 from __future__ import annotations
 
-import functools
-import hashlib
-import importlib.util
 import math
-import os
 
 import numpy as np
 from numba import njit
-from numba.core import caching
 
+import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.maps.types import KIND_CYLINDER, HullMap, MapSet
 
 
-# -- numba disk cache across files ---------------------------------------------------------------
-# numba keeps a cached kernel while the source file that defines it is unchanged; it does not look
-# at the files of the kernels it inlines or calls (stages/sim/kernels.py inlines hull_query), so an
-# edit here would leave the simulation running the old query from its cache. A module that defines
-# NUMBA_CACHE_DEPENDS (module names) before its first @njit(cache=True) gets a cache stamp covering
-# those modules' sources too.
-@functools.lru_cache(maxsize=None)
-def _source_digest(path: str, mtime: float, size: int) -> bytes:
-    with open(path, "rb") as f:
-        return hashlib.sha256(f.read()).digest()
-
-
-class _DependentSource:
-    """Cache locator mixin: the stamp is the base locator's (own source) plus the listed modules'."""
-
-    @classmethod
-    def from_function(cls, py_func, py_file):
-        deps = py_func.__globals__.get("NUMBA_CACHE_DEPENDS")
-        if not deps:
-            return None
-        self = super().from_function(py_func, py_file)
-        if self is not None:
-            self._dep_files = tuple(importlib.util.find_spec(d).origin for d in deps)
-        return self
-
-    def get_source_stamp(self):
-        deps = []
-        for path in self._dep_files:
-            st = os.stat(path)
-            deps.append(_source_digest(path, st.st_mtime, st.st_size))
-        return (super().get_source_stamp(), *deps)
-
-
-def _register_dependent_locators():
-    """Put dependency-aware variants of numba's source-file locators first (same order), once."""
-    locators = caching.CacheImpl._locator_classes
-    if any(issubclass(c, _DependentSource) for c in locators):
-        return
-    plain_file = (caching.UserProvidedCacheLocator, caching.InTreeCacheLocator, caching.UserWideCacheLocator)
-    bases = [c for c in locators if c in plain_file]
-    locators[:0] = [type(f"Dependent{b.__name__}", (_DependentSource, b), {}) for b in bases]
-
-
-_register_dependent_locators()
 NUMBA_CACHE_DEPENDS = ("stages.maps.types",)     # KIND_CYLINDER is compiled in
 
 METHOD_PAPER = 0

@@ -35,6 +35,7 @@ from numba import njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.maps.kernels import METHOD_NEAREST_PLANE, hull_query, query_arrays
 
 # the hull query is inlined from stages.maps.kernels: its edits must invalidate this module's cache
