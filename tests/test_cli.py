@@ -32,8 +32,11 @@ def test_bad_scenes_exit_2_with_one_line_and_no_traceback(tmp_path, text, fragme
         assert r.returncode == 2, (cmd, r.stdout, r.stderr)
         assert "Traceback" not in r.stderr
         lines = [l for l in r.stderr.splitlines() if l.strip()]
-        assert len(lines) == 1 and lines[0].startswith("error: ") and fragment in lines[0], r.stderr
-        assert str(f) in lines[0]
+        errors = [l for l in lines if l.startswith("error: ")]
+        # one error line, last; anything before it is a stage announcement ("rig ...")
+        assert len(errors) == 1 and lines[-1] == errors[0] and fragment in errors[0], r.stderr
+        assert all(l.endswith(" ...") for l in lines[:-1]), r.stderr
+        assert str(f) in errors[0]
     assert not list(tmp_path.rglob("*.rrd*"))  # nothing written, not even a temporary file
 
 
