@@ -343,7 +343,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             with _Timer(summary, "simulation") as r:
                 try:
                     result = simulate(character, motion, colliders, maps, garments, params, obstacles=obstacles,
-                                      progress=lambda done, total: bar.update(done), threads=1)
+                                      progress=lambda done, total: bar.update(done), threads=sp["threads"])
                 finally:
                     bar.close()
                 r.sizes.update(steps=result.steps)
