@@ -36,8 +36,8 @@ class SimParams:
         them 3 correction rounds let hanging cloth stretch by up to several times its length.
     thickness: m, extra margin around every collider (colliders are already inflated by delta).
     hull_response: 'ray' (paper: OBB, planar-mesh point location, map-volume ray cast), 'brute_ray'
-        (the same response by testing every face plane and every face: faster on ~100-face hulls, see
-        `python -m pipeline bench maps`) or 'nearest_plane' (push to the nearest face plane).
+        (the same response by testing every face plane and every face: an independent check of the
+        paper's path; compare speeds with `python -m pipeline bench maps`) or 'nearest_plane' (push to the nearest face plane).
     collision_passes: after a push, the particle is re-checked against the other colliders (those
         whose bounding sphere holds it) until one full round sees no push, at most this many rounds;
         a push out of one collider into an overlapping one is so resolved (a particle still inside
