@@ -137,6 +137,7 @@ class _System:
         self.rest = np.ascontiguousarray(rest)
         self.wi = np.ascontiguousarray(stiff * w[self.si] / wsum)
         self.wj = np.ascontiguousarray(stiff * w[self.sj] / wsum)
+        self.ij, self.sp = K.pack_springs(self.si, self.sj, self.rest, self.wi, self.wj)
         self.tris = np.ascontiguousarray(np.concatenate([g.triangles + o for g, o in zip(garments, self.offsets)]),
                                          dtype=np.int32)
         # mass of each triangle's free vertices (a third of each lumped mass; aerodynamic force cap)
@@ -156,8 +157,8 @@ class _System:
 
     def cloth(self) -> tuple:
         """The kernels' `cloth` tuple (see stages/sim/kernels.py)."""
-        return (self.x, self.xp, self.inv_mass, self.attach_joint, self.attach_local, self.si, self.sj, self.rest,
-                self.wi, self.wj, self.part_start, self.ti, self.ta, self.tl, self.tris, self.tri_mass, self.tri_force,
+        return (self.x, self.xp, self.inv_mass, self.attach_joint, self.attach_local, self.ij, self.sp,
+                self.part_start, self.ti, self.ta, self.tl, self.tris, self.tri_mass, self.tri_force,
                 self.vt_start, self.vt_tri)
 
     def flags(self) -> tuple:
