@@ -137,6 +137,16 @@ def build_topology(prim_min, prim_max, centre_proj):
     return node_min, node_max, children, leaf_prim, depth
 
 
+@njit(cache=True, inline="always")
+def _merge_children(node_min, node_max, children, node):
+    """An inner node's bounds: the union of its two children's."""
+    a = children[node, 0]
+    b = children[node, 1]
+    for i in range(node_min.shape[1]):
+        node_min[node, i] = min(node_min[a, i], node_min[b, i])
+        node_max[node, i] = max(node_max[a, i], node_max[b, i])
+
+
 @njit(cache=True)
 def refit_range(node_min, node_max, children, leaf_prim, prim_min, prim_max, lo, hi):
     """Bottom-up refit of nodes [lo, hi) from per-primitive bounds (leaf_prim indexes prim_*)."""
@@ -148,11 +158,7 @@ def refit_range(node_min, node_max, children, leaf_prim, prim_min, prim_max, lo,
                 node_min[node, i] = prim_min[p, i]
                 node_max[node, i] = prim_max[p, i]
         else:
-            a = children[node, 0]
-            b = children[node, 1]
-            for i in range(h):
-                node_min[node, i] = min(node_min[a, i], node_min[b, i])
-                node_max[node, i] = max(node_max[a, i], node_max[b, i])
+            _merge_children(node_min, node_max, children, node)
 
 
 @njit(cache=True)
@@ -168,11 +174,7 @@ def refit_particle_tree(node_min, node_max, children, leaf_prim, directions, x0,
                 node_min[node, i] = min(a, b)
                 node_max[node, i] = max(a, b)
         else:
-            a = children[node, 0]
-            b = children[node, 1]
-            for i in range(h):
-                node_min[node, i] = min(node_min[a, i], node_min[b, i])
-                node_max[node, i] = max(node_max[a, i], node_max[b, i])
+            _merge_children(node_min, node_max, children, node)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -56,7 +56,12 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.affine import apply_affine, apply_rigid_inverse
 from stages.obstacles.kdop import refit_particle_tree, refit_range, triangle_bounds
+
+# kernels below compile in code from these modules: their edits must invalidate the disk cache
+NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.obstacles.kdop")
 
 BARY_TOL = 1e-9
 # a particle may start up to this fraction of the band BEHIND a plane and still be pushed out;
@@ -172,24 +177,6 @@ def candidate_pairs(c_min, c_max, c_children, c_leaf, o_min, o_max, o_children, 
 
 
 @njit(cache=True, inline="always")
-def _apply(m, x, y, z):
-    return (m[0, 0] * x + m[0, 1] * y + m[0, 2] * z + m[0, 3],
-            m[1, 0] * x + m[1, 1] * y + m[1, 2] * z + m[1, 3],
-            m[2, 0] * x + m[2, 1] * y + m[2, 2] * z + m[2, 3])
-
-
-@njit(cache=True, inline="always")
-def _apply_inv(m, x, y, z):
-    # rigid inverse: R^T (p - t)
-    x -= m[0, 3]
-    y -= m[1, 3]
-    z -= m[2, 3]
-    return (m[0, 0] * x + m[1, 0] * y + m[2, 0] * z,
-            m[0, 1] * x + m[1, 1] * y + m[2, 1] * z,
-            m[0, 2] * x + m[1, 2] * y + m[2, 2] * z)
-
-
-@njit(cache=True, inline="always")
 def _projects_inside(p0, p1, t, a, e1x, e1y, e1z, e2x, e2y, e2z):
     """Whether p0 + t (p1 - p0), projected on the triangle's plane, lies inside it."""
     wx = p0[0] + t * (p1[0] - p0[0]) - a[0]
@@ -260,8 +247,8 @@ def refit_obstacles(o_min, o_max, o_children, o_leaf, directions, vertices, tria
         w0 = np.empty((v_hi - v_lo, 3))
         w1 = np.empty((v_hi - v_lo, 3))
         for v in range(v_lo, v_hi):
-            w0[v - v_lo, 0], w0[v - v_lo, 1], w0[v - v_lo, 2] = _apply(pose0[r], vertices[v, 0], vertices[v, 1], vertices[v, 2])
-            w1[v - v_lo, 0], w1[v - v_lo, 1], w1[v - v_lo, 2] = _apply(pose1[r], vertices[v, 0], vertices[v, 1], vertices[v, 2])
+            w0[v - v_lo, 0], w0[v - v_lo, 1], w0[v - v_lo, 2] = apply_affine(pose0[r], vertices[v, 0], vertices[v, 1], vertices[v, 2])
+            w1[v - v_lo, 0], w1[v - v_lo, 1], w1[v - v_lo, 2] = apply_affine(pose1[r], vertices[v, 0], vertices[v, 1], vertices[v, 2])
         local_tris = triangles[t_lo:t_hi] - v_lo
         pmin = np.empty((t_hi - t_lo, h))
         pmax = np.empty((t_hi - t_lo, h))
@@ -303,8 +290,8 @@ def best_contacts(x_prev, x, inv_mass, pairs, n_pairs, vertices, triangles, tri_
         if inv_mass[p] == 0.0:
             continue
         r = tri_obstacle[tri]
-        p0[0], p0[1], p0[2] = _apply_inv(pose0[r], x_prev[p, 0], x_prev[p, 1], x_prev[p, 2])
-        p1[0], p1[1], p1[2] = _apply_inv(pose1[r], x[p, 0], x[p, 1], x[p, 2])
+        p0[0], p0[1], p0[2] = apply_rigid_inverse(pose0[r], x_prev[p, 0], x_prev[p, 1], x_prev[p, 2])
+        p1[0], p1[1], p1[2] = apply_rigid_inverse(pose1[r], x[p, 0], x[p, 1], x[p, 2])
         for j in range(3):
             a[j] = vertices[triangles[tri, 0], j]
             b[j] = vertices[triangles[tri, 1], j]
@@ -362,8 +349,8 @@ def respond(x_prev, x, best_tri, best_t, vertices, triangles, tri_obstacle, pose
         nz /= ln
         # body frame of the obstacle: the relative motion of particle and obstacle
         # velocity (Verlet displacement) as currently encoded by x - x_prev
-        s0x, s0y, s0z = _apply_inv(pose0[r], x_prev[p, 0], x_prev[p, 1], x_prev[p, 2])
-        s1x, s1y, s1z = _apply_inv(pose1[r], x[p, 0], x[p, 1], x[p, 2])
+        s0x, s0y, s0z = apply_rigid_inverse(pose0[r], x_prev[p, 0], x_prev[p, 1], x_prev[p, 2])
+        s1x, s1y, s1z = apply_rigid_inverse(pose1[r], x[p, 0], x[p, 1], x[p, 2])
         d1 = nx * (s1x - ax) + ny * (s1y - ay) + nz * (s1z - az)
         vx = s1x - s0x
         vy = s1y - s0y
@@ -392,8 +379,8 @@ def respond(x_prev, x, best_tri, best_t, vertices, triangles, tri_obstacle, pose
         q1 = e1 - (keep * tx + vn_new * nx)
         q2 = e2 - (keep * ty + vn_new * ny)
         q3 = e3 - (keep * tz + vn_new * nz)
-        x[p, 0], x[p, 1], x[p, 2] = _apply(pose1[r], e1, e2, e3)
-        x_prev[p, 0], x_prev[p, 1], x_prev[p, 2] = _apply(pose0[r], q1, q2, q3)
+        x[p, 0], x[p, 1], x[p, 2] = apply_affine(pose1[r], e1, e2, e3)
+        x_prev[p, 0], x_prev[p, 1], x_prev[p, 2] = apply_affine(pose0[r], q1, q2, q3)
         m = pose1[r]
         prev_normal[p, 0] = m[0, 0] * nx + m[0, 1] * ny + m[0, 2] * nz
         prev_normal[p, 1] = m[1, 0] * nx + m[1, 1] * ny + m[1, 2] * nz

@@ -36,10 +36,11 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.affine import apply_affine
 from stages.maps.kernels import METHOD_NEAREST_PLANE, hull_query, query_arrays
 
 # the hull query is inlined from stages.maps.kernels: its edits must invalidate this module's cache
-NUMBA_CACHE_DEPENDS = ("stages.maps.kernels", "stages.maps.types")
+NUMBA_CACHE_DEPENDS = ("stages.maps.kernels", "stages.maps.types", "stages.affine")
 
 KIND_HULL = 0
 KIND_SPHERE = 1
@@ -73,13 +74,6 @@ def read_cycles():
 
 
 # -- small affine helpers -------------------------------------------------------------------------
-@njit(cache=True, inline="always")
-def _apply(m, x, y, z):
-    return (m[0, 0] * x + m[0, 1] * y + m[0, 2] * z + m[0, 3],
-            m[1, 0] * x + m[1, 1] * y + m[1, 2] * z + m[1, 3],
-            m[2, 0] * x + m[2, 1] * y + m[2, 2] * z + m[2, 3])
-
-
 @njit(cache=True, inline="always")
 def _apply12(a, c, x, y, z):
     """Row c of a (C, 12) array of row-major 3x4 affine matrices applied to (x, y, z)."""
@@ -180,7 +174,7 @@ def integrate(x, xp, inv_mass, attach_joint, attach_local, fwd, h, gravity, damp
         j = attach_joint[i]
         w = inv_mass[i]
         if j >= 0:
-            nx, ny, nz = _apply(fwd[j], attach_local[i, 0], attach_local[i, 1], attach_local[i, 2])
+            nx, ny, nz = apply_affine(fwd[j], attach_local[i, 0], attach_local[i, 1], attach_local[i, 2])
         elif w == 0.0:
             nx = ox
             ny = oy
@@ -368,7 +362,7 @@ def collider_frames(fwd, inv, inv0, m, col_joint, col_kind, col_index, col_bcent
             for b in range(3):
                 fq[c, 4 * a + b] = f[a, 0] * r[b, 0] + f[a, 1] * r[b, 1] + f[a, 2] * r[b, 2]
             fq[c, 4 * a + 3] = f[a, 0] * ctr[0] + f[a, 1] * ctr[1] + f[a, 2] * ctr[2] + f[a, 3]
-        px, py, pz = _apply(f, col_bcenter[c, 0], col_bcenter[c, 1], col_bcenter[c, 2])
+        px, py, pz = apply_affine(f, col_bcenter[c, 0], col_bcenter[c, 1], col_bcenter[c, 2])
         sc = 0.0
         for b in range(3):
             sc = max(sc, f[0, b] * f[0, b] + f[1, b] * f[1, b] + f[2, b] * f[2, b])
