@@ -171,7 +171,7 @@ def check_pattern(scene: Scene, index: int) -> None:
 
 def build_pattern_garment(scene: Scene, index: int, character, motion, colliders, maps):
     """A sewn garment from a built-in pattern: (Garment, SewingLog, GarmentBuild)."""
-    from stages.garments.library import KINDS, garment_measurements, library_pattern, make_garment
+    from stages.garments.library import garment_measurements, library_pattern, make_garment
     from stages.garments.sewing import SewParams
     g = scene["garments"][index]
     check_pattern(scene, index)
@@ -181,6 +181,15 @@ def build_pattern_garment(scene: Scene, index: int, character, motion, colliders
     sew = SewParams(tolerance=sw["tolerance"], max_iterations=sw["max_iterations"],
                     gravity_scale=sw["gravity_scale"], iterations=sw["iterations"])
     return make_garment(pattern, character, motion, colliders, maps, sew_params=sew)
+
+
+def placement_matrix(item: dict) -> np.ndarray:
+    """(4, 4) transform of a mesh item's `rotate_deg` (XYZ Euler, degrees) then `translate`."""
+    from scipy.spatial.transform import Rotation
+    m = np.eye(4)
+    m[:3, :3] = Rotation.from_euler("xyz", item["rotate_deg"], degrees=True).as_matrix()
+    m[:3, 3] = item["translate"]
+    return m
 
 
 def build_scene_garments(scene: Scene, character, motion, colliders, maps):
@@ -201,11 +210,7 @@ def build_scene_garments(scene: Scene, character, motion, colliders, maps):
             builds[g["name"]] = (log, build)
             continue
         if g["type"] == "mesh":
-            from scipy.spatial.transform import Rotation
-            m = np.eye(4)
-            m[:3, :3] = Rotation.from_euler("xyz", g["rotate_deg"], degrees=True).as_matrix()
-            m[:3, 3] = g["translate"]
-            x, tri = import_garment_mesh(g["path"], scale=g["scale"], transform=m)
+            x, tri = import_garment_mesh(g["path"], scale=g["scale"], transform=placement_matrix(g))
         elif g["type"] == "rectangle":
             nx, ny = g["resolution"]
             axis = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}[g["normal"]]
@@ -230,8 +235,6 @@ def build_scene_garments(scene: Scene, character, motion, colliders, maps):
 
 def build_scene_obstacles(scene: Scene, duration: float):
     """The scene's obstacles (world frame) with their k-DOP trees."""
-    from scipy.spatial.transform import Rotation
-
     from stages.obstacles import (ObstacleMotion, box_mesh, build_obstacle_set, cylinder_mesh,
                                   load_obstacle_mesh, make_obstacle, plane_mesh, sphere_mesh, table_mesh)
     out = []
@@ -251,10 +254,7 @@ def build_scene_obstacles(scene: Scene, duration: float):
         elif t == "cylinder":
             mesh, pivot = cylinder_mesh(o["center"], o["radius"], o["height"], o["sections"]), o["center"]
         else:  # mesh file
-            m = np.eye(4)
-            m[:3, :3] = Rotation.from_euler("xyz", o["rotate_deg"], degrees=True).as_matrix()
-            m[:3, 3] = o["translate"]
-            mesh = load_obstacle_mesh(o["path"], scale=o["scale"], transform=m)
+            mesh = load_obstacle_mesh(o["path"], scale=o["scale"], transform=placement_matrix(o))
             pivot = o["translate"]
         motion = None
         if any(o["velocity"]) or any(o["angular_velocity"]):

@@ -7,7 +7,7 @@ sizes from the skeleton): girths with ease, lengths as fractions of the body's h
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 

@@ -433,9 +433,7 @@ def place_pattern(pattern: Pattern, flat: FlatPattern, character, motion, collid
     collider is moved out 1 cm at a time (sleeves: along the arm, outwards; others: more offset)."""
     from dataclasses import replace
 
-    from stages.garments.types import bind_pose
     skinned, origins, dominant = bind_geometry(character, motion)
-    bind = bind_pose(character, motion, colliders) if colliders is not None else None
     cp = collider_points(colliders, motion.joint_world[0])
     out, used = [], {}
     for panel, fp in zip(pattern.panels, flat.panels):

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from stages.checks import ContractError
-from stages.garments.types import Garment, build_garment
+from stages.garments.types import build_garment
 
 
 @dataclass(frozen=True)

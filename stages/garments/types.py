@@ -18,7 +18,7 @@ edges, nothing left, non-finite positions).
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -237,7 +237,6 @@ def boundary_loops(triangles: np.ndarray) -> list[np.ndarray]:
 
 def _select(att: Attachment, x0: np.ndarray, triangles: np.ndarray, remap: np.ndarray, bind: BindPose):
     """(particle indices, joints followed) of one selector, in welded indexing."""
-    n = x0.shape[0]
     if att.kind == "indices":
         idx = np.asarray(att.indices, dtype=np.int64)
         if idx.size and (idx.min() < 0 or idx.max() >= remap.size):

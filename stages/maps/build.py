@@ -124,10 +124,6 @@ def _dot(a, b) -> float:
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-def _cross(a, b) -> tuple:
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
 def _clip(poly: list, n: tuple, off: float, tol: float) -> list:
     """Sutherland-Hodgman: keep the part of a convex polygon (list of 3-tuples) with n.x >= off - tol."""
     out = []
@@ -158,33 +154,6 @@ def _wedge_polys(tri: list, th0: float, th1: float, tol: float) -> list:
 
 def _phi(x) -> float:
     return math.atan2(math.hypot(x[1], x[2]), x[0])
-
-
-def _edge_phi_range(a, b):
-    """Min and max of phi over the segment a-b (which does not pass through the origin).
-
-    Its directions run along a great-circle arc shorter than pi; the angle to the pole along it is
-    extreme at the arc's ends or at the circle's point nearest to (farthest from) the pole.
-    """
-    pa, pb = _phi(a), _phi(b)
-    lo, hi = min(pa, pb), max(pa, pb)
-    m = _cross(a, b)
-    mn = math.sqrt(_dot(m, m))
-    if mn <= 1e-14 * math.sqrt(_dot(a, a) * _dot(b, b)):
-        return lo, hi
-    m = (m[0] / mn, m[1] / mn, m[2] / mn)
-    f = (1.0 - m[0] * m[0], -m[0] * m[1], -m[0] * m[2])   # the pole projected on the circle's plane
-    fn = math.sqrt(_dot(f, f))
-    if fn <= 1e-14:
-        return lo, hi
-    f = (f[0] / fn, f[1] / fn, f[2] / fn)
-    for g, is_min in ((f, True), ((-f[0], -f[1], -f[2]), False)):
-        if _dot(_cross(a, g), m) >= -1e-14 and _dot(_cross(g, b), m) >= -1e-14:
-            if is_min:
-                lo = min(lo, _phi(g))
-            else:
-                hi = max(hi, _phi(g))
-    return lo, hi
 
 
 def _axis_ray_hits(a, b, c, sign: float, tol: float) -> bool:

@@ -13,7 +13,7 @@ import numpy as np
 
 from stages.obstacles.demo_cloth import project_springs, square_cloth, verlet_integrate
 from stages.obstacles.kdop import DEFAULT_K, refit_particle_tree
-from stages.obstacles.kernels import candidate_pairs, collide_obstacles, motion_axis_order
+from stages.obstacles.kernels import candidate_pairs, motion_axis_order
 from stages.obstacles.primitives import make_obstacle, table_mesh
 from stages.obstacles.stage import ObstacleCollider, build_obstacle_set
 

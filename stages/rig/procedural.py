@@ -264,15 +264,15 @@ def _build_capsules(parents, positions, radii, ends, min_length, end_leaf=None):
             cap = 0.5 * (r_tip[0] + r_tip[1])
             end = positions[b] + d / n * max(n - cap, 0.0) if n > 1e-9 else positions[b].copy()
             targets.append((-1, end, r_tip))
-        for c, e, re in targets:
+        for c, e, r_end in targets:
             d = e - positions[b]
             n = float(np.linalg.norm(d))
             if n < min_length and c >= 0:
                 continue  # zero-length bone (BVH 'HipJoint', 'lowerneck'): no capsule of its own
             axis = d / n if n >= 1e-9 else np.array([0.0, 1.0, 0.0])
             w, dp = _cross_section_axes(axis)
-            r0 = radii[b] if (c < 0 or c == main) else np.minimum(radii[b], re)
-            rows.append((positions[b], e, axis, n, w, dp, r0, re, b, c))
+            r0 = radii[b] if (c < 0 or c == main) else np.minimum(radii[b], r_end)
+            rows.append((positions[b], e, axis, n, w, dp, r0, r_end, b, c))
     if not rows or max(r[3] for r in rows) < min_length:
         raise ContractError("skin_skeleton: the skeleton has no bone of positive length")
     cols = list(zip(*rows))
@@ -829,7 +829,7 @@ def _girth(vertices, triangles, y, axis_xz):
     links = np.concatenate([pairs, np.stack([np.arange(0, n, 2), np.arange(1, n, 2)], axis=1)])
     adj = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(n, n))
     ncomp, label = connected_components(adj, directed=False)
-    best, best_len, fallback, fallback_len = None, -1.0, None, -1.0
+    best, best_len, fallback_len = None, -1.0, -1.0
     for c in range(ncomp):
         pts = ends[label == c]
         if len(pts) < 3:
@@ -841,5 +841,5 @@ def _girth(vertices, triangles, y, axis_xz):
         if inside and per > best_len:
             best, best_len = c, per
         if per > fallback_len:
-            fallback, fallback_len = c, per
+            fallback_len = per
     return best_len if best is not None else fallback_len
