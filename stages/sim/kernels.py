@@ -21,9 +21,9 @@ Cloth-side argument tuples (built once by simulate.py, unpacked for free inside 
     cloth = (x, xp, inv_mass, attach_joint, attach_local, ij, sp, part_start, ti, ta, tl, tris,
              tri_mass, tri_force, vt_start, vt_tri)
     cols  = (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
-             tq, tq0, fq, cw, bin_start, bin_items, bin_range)
+             tq, tq0, fq, cw, bin_start, bin_items, bin_range, face_edges, src_range)
     prm   = (h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method)
-    flags = (corrected, inside, speed2)
+    flags = (corrected, inside, speed2, contact)
 """
 from __future__ import annotations
 
@@ -37,10 +37,12 @@ from numba.extending import intrinsic
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.affine import apply_affine
-from stages.maps.kernels import METHOD_NEAREST_PLANE, hull_query, query_arrays
+from stages.fastmath import inv_sqrt
+from stages.maps.kernels import METHOD_NEAREST_PLANE, METHOD_PAPER, ZERO_DIR, hull_query, query_arrays
+from stages.maps.types import KIND_CYLINDER as KIND_CYLINDER_MAP
 
 # the hull query is inlined from stages.maps.kernels: its edits must invalidate this module's cache
-NUMBA_CACHE_DEPENDS = ("stages.maps.kernels", "stages.maps.types", "stages.affine")
+NUMBA_CACHE_DEPENDS = ("stages.maps.kernels", "stages.maps.types", "stages.affine", "stages.fastmath")
 
 KIND_HULL = 0
 KIND_SPHERE = 1
@@ -98,7 +100,8 @@ def _tri_aero(x, xp, tri_mass, t, a, b, c, h, s, d_prev, wind, k_drag, k_lift):
     inertia scale s). w = wind - mean v; n' = unit normal oriented along w; c = n'.w/|w|.
     drag = k_drag A c |w|^2 w/|w|; lift = k_lift A c |w|^2 (n' - c w/|w|)   (k = 0.5 rho C).
     With N = (b - a) x (c - a) (|N| = 2A) these are drag = k_drag/2 |N.w| w and
-    lift = k_lift/2 (N.w) |w|/|N| (N - (N.w)/|w|^2 w): one square root per triangle. Explicit drag
+    lift = k_lift/2 (N.w) |w|/|N| (N - (N.w)/|w|^2 w), from one r = 1/sqrt(|w|^2 |N|^2):
+    |w|/|N| = |w|^2 r, 1/|w|^2 = |N|^2 r^2. Explicit drag
     is unstable once it would more than stop the triangle within a step: |F| is capped at m |w| / h.
     """
     ih = 1.0 / (3.0 * h)
@@ -119,9 +122,10 @@ def _tri_aero(x, xp, tri_mass, t, a, b, c, h, s, d_prev, wind, k_drag, k_lift):
     if n2 <= 1e-40 or w2 <= 1e-20:
         return 0.0, 0.0, 0.0
     nw = nx * wx + ny * wy + nz * wz
+    r = inv_sqrt(w2 * n2)
     fd = 0.5 * k_drag * abs(nw)
-    fl = 0.5 * k_lift * nw * math.sqrt(w2 / n2)
-    g = nw / w2
+    fl = 0.5 * k_lift * nw * w2 * r
+    g = nw * n2 * r * r
     fx = fd * wx + fl * (nx - g * wx)
     fy = fd * wy + fl * (ny - g * wy)
     fz = fd * wz + fl * (nz - g * wz)
@@ -242,7 +246,7 @@ def _correct_range(xf, ij, sp, k0, k1):
         d2 = dx * dx + dy * dy + dz * dz
         if d2 <= 1e-24:
             continue
-        c = 1.0 - sp[3 * k] / math.sqrt(d2)
+        c = 1.0 - sp[3 * k] * inv_sqrt(d2)     # the latency of sqrt + divide bounds this loop
         a = sp[3 * k + 1] * c
         b = sp[3 * k + 2] * c
         xf[i] = xi + a * dx
@@ -523,9 +527,48 @@ def _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i, friction):
     return True, px, py, pz
 
 
+EDGE_EPS = 1e-12     # m: slack of the exit-face containment test (rounding is ~1e-17 m here)
+
+
+@njit(cache=True, inline="always")
+def _cached_exit(mkind, half, planes, face_edges, src_range, h, f, q0, q1, q2):
+    """(known, inside, r0, r1, r2): the paper's hull query answered from one remembered face f.
+
+    The map ray of q (paper A §2.4: from the OBB centre, or q's projection on the cylinder axis,
+    through q) leaves the convex hull at exactly one point when its source is inside the hull
+    (src_range: the source positions known to be strictly inside). If the ray meets face f's
+    triangle (face_edges: three in-plane inward edge planes), that point is the exit, f the exit face
+    and q is inside iff it is behind f's plane: the same answer as hull_query, from one plane and
+    three edge tests instead of the point location and the cell's face scan. known False: f is not
+    the exit face of this ray (or the source is not known inside); ask hull_query."""
+    if mkind[h] == KIND_CYLINDER_MAP:
+        s0 = q0
+        d0 = 0.0
+    else:
+        s0 = 0.0
+        d0 = q0
+    if not (src_range[h, 0] < s0 < src_range[h, 1]):
+        return False, False, q0, q1, q2
+    nd = planes[f, 0] * d0 + planes[f, 1] * q1 + planes[f, 2] * q2
+    z = ZERO_DIR * half[h, 0]
+    if nd <= 0.0 or d0 * d0 + q1 * q1 + q2 * q2 <= z * z:
+        return False, False, q0, q1, q2
+    tau = (planes[f, 3] - planes[f, 0] * s0) / nd
+    r0 = s0 + tau * d0
+    r1 = tau * q1
+    r2 = tau * q2
+    for k in range(0, 12, 4):
+        if face_edges[f, k] * r0 + face_edges[f, k + 1] * r1 + face_edges[f, k + 2] * r2 < face_edges[f, k + 3] - EDGE_EPS:
+            return False, False, q0, q1, q2
+    if planes[f, 0] * q0 + planes[f, 1] * q1 + planes[f, 2] * q2 > planes[f, 3]:
+        return True, False, q0, q1, q2
+    return True, True, r0, r1, r2
+
+
 @njit(cache=True, parallel=True, _nrt=False)
 def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
-            bin_start, bin_items, bin_range, friction, passes, corrected, inside, speed2, h):
+            bin_start, bin_items, bin_range, face_edges, src_range, friction, passes, corrected, inside, speed2,
+            contact, h):
     """Collision detection and response of every free particle against every collider.
 
     Per particle: the colliders of its y slab whose world bounding sphere holds it are tested in
@@ -538,6 +581,10 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
     push's normal depth.
     corrected[i] |= 1 if the particle was pushed; inside[i] = 1 if it is still inside a collider at
     the end; speed2[i] = |x - xp|^2 / h^2 at the end (divergence check).
+    Temporal coherence (METHOD_PAPER): contact[i] = (collider, face) of the particle's last hull push;
+    the next query of that hull first tries that face (_cached_exit, same answer), which is the exit
+    face again for a particle resting on or sliding over the hull. face_edges (F, 12), src_range
+    (H, 2): see _cached_exit and stages/sim/simulate.py.
     """
     (half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base, cell_start, cell_tris,
      loc_base, loc_x, loc_start, loc_y, loc_face) = query_arrays(m)
@@ -592,16 +639,24 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
                     q0, q1, q2 = _apply12(tq, c, px, py, pz)
                     idx = col_index[c]
                     hit = False
+                    hface = -1
                     r0 = r1 = r2 = n0 = n1 = n2 = 0.0
                     if col_kind[c] == KIND_SPHERE:
                         hit, r0, r1, r2, n0, n1, n2 = _sphere_hit(sph_radius[idx], q0, q1, q2)
                     elif method == METHOD_NEAREST_PLANE or (abs(q0) <= half[idx, 0] and abs(q1) <= half[idx, 1]
                                                             and abs(q2) <= half[idx, 2]):
-                        hit, r0, r1, r2, face = hull_query(
-                            half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
-                            cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
-                            idx, method, q0, q1, q2)
+                        known = False
+                        face = contact[i, 1]
+                        if method == METHOD_PAPER and contact[i, 0] == c:
+                            known, hit, r0, r1, r2 = _cached_exit(mkind, half, planes, face_edges, src_range, idx,
+                                                                  face, q0, q1, q2)
+                        if not known:
+                            hit, r0, r1, r2, face = hull_query(
+                                half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+                                cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                                idx, method, q0, q1, q2)
                         if hit:
+                            hface = face
                             n0 = planes[face, 0]
                             n1 = planes[face, 1]
                             n2 = planes[face, 2]
@@ -613,6 +668,9 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
                         else:
                             pushed, wx, wy, wz = _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i, friction)
                             if pushed:
+                                if col_kind[c] == KIND_HULL:
+                                    contact[i, 0] = c
+                                    contact[i, 1] = hface
                                 px = wx
                                 py = wy
                                 pz = wz
@@ -655,9 +713,9 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
     (x, xp, inv_mass, attach_joint, attach_local, ij, sp, part_start, ti, ta, tl, tris, tri_mass,
      tri_force, vt_start, vt_tri) = cloth
     (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
-     tq, tq0, fq, cw, bin_start, bin_items, bin_range) = cols
+     tq, tq0, fq, cw, bin_start, bin_items, bin_range, face_edges, src_range) = cols
     h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method = prm
-    corrected, inside, speed2 = flags
+    corrected, inside, speed2, contact = flags
     for k in range(k0, k1):
         t0 = cycles()
         if use_aero:
@@ -671,7 +729,8 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
                         sph_center, tq, tq0, fq, cw)
         build_bins(cw, bin_start, bin_items, bin_range)
         collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
-                bin_start, bin_items, bin_range, friction, passes, corrected, inside, speed2, h)
+                bin_start, bin_items, bin_range, face_edges, src_range, friction, passes, corrected, inside, speed2,
+                contact, h)
         t3 = cycles()
         timers[T_INTEGRATE] += t1 - t0
         timers[T_CONSTRAINTS] += t2 - t1
@@ -683,7 +742,7 @@ def record_frame(x, flags, max_speed2, goff, pos, pen, counts):
     """Store one frame: pos (N, 3) float32 <- x; pen (G,) particles inside a collider per garment
     (garment g = goff[g]..goff[g+1]); counts = (corrected particles, max speed^2).
     Returns False (storing nothing) if a particle is non-finite or faster than sqrt(max_speed2)."""
-    corrected, inside, speed2 = flags
+    corrected, inside, speed2, _ = flags
     vmax = 0.0
     for i in range(x.shape[0]):
         v = speed2[i]

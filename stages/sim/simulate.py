@@ -38,7 +38,7 @@ from scipy.spatial.transform import Rotation
 from stages.checks import ContractError
 from stages.garments.types import BEND, STRETCH, Garment
 from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER
-from stages.maps.types import MapArrays
+from stages.maps.types import KIND_CYLINDER, MapArrays
 from stages.sim import kernels as K
 from stages.sim.types import GarmentTrack, SimParams, SimResult, SimulationDiverged
 
@@ -151,6 +151,7 @@ class _System:
         self.corrected = np.zeros(n, np.uint8)
         self.inside = np.zeros(n, np.uint8)
         self.speed2 = np.zeros(n)
+        self.contact = np.full((n, 2), -1, np.int32)     # (collider, face) of the last hull push
         self.goff = np.ascontiguousarray(self.offsets, dtype=np.int64)
         self.ti, self.ta, self.tl = tethers(garments, self.offsets, w) if params.tethers else (
             np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0))
@@ -162,10 +163,45 @@ class _System:
                 self.vt_start, self.vt_tri)
 
     def flags(self) -> tuple:
-        return (self.corrected, self.inside, self.speed2)
+        return (self.corrected, self.inside, self.speed2, self.contact)
 
     def split(self, a: np.ndarray) -> list:
         return [a[self.offsets[i]:self.offsets[i + 1]] for i in range(len(self.names))]
+
+
+def exit_face_data(hull_maps, m) -> tuple[np.ndarray, np.ndarray]:
+    """Per-face and per-hull data of the collision kernel's exit-face cache (K._cached_exit).
+
+    face_edges (F, 12) float64: per face (global id, OBB-local frame of its hull) its three edge
+    planes (m, o), m the unit in-plane normal pointing into the triangle: inside iff m.r >= o.
+    src_range (H, 2) float64: the map ray's source is known strictly inside hull h when its axial
+    coordinate s0 satisfies lo < s0 < hi (map sphere: the OBB centre, s0 = 0; map cylinder: the
+    axis point s0 = q0). An empty range (lo >= hi) turns the cache off for that hull.
+    """
+    face_edges = np.zeros((m.planes.shape[0], 12))
+    src_range = np.zeros((len(hull_maps), 2))
+    for h, hm in enumerate(hull_maps):
+        f0, f1 = int(m.face_start[h]), int(m.face_start[h + 1])
+        v = (hm.mesh.vertices - m.center[h]) @ m.axes[h].T             # OBB-local
+        tri = v[hm.mesh.faces]                                          # (F, 3, 3)
+        n = m.planes[f0:f1, :3]
+        for k in range(3):
+            a, b = tri[:, k], tri[:, (k + 1) % 3]
+            e = np.cross(n, b - a)
+            e /= np.linalg.norm(e, axis=1, keepdims=True)
+            face_edges[f0:f1, 4 * k:4 * k + 3] = e
+            face_edges[f0:f1, 4 * k + 3] = np.einsum("ij,ij->i", e, a)
+        # the source s = (s0, 0, 0) is inside iff n0 s0 < off - margin for every face
+        n0, off = m.planes[f0:f1, 0], m.planes[f0:f1, 3] - 1e-9 * float(m.half[h].max())
+        if int(m.kind[h]) == KIND_CYLINDER:
+            lo = np.max(off[n0 < 0] / n0[n0 < 0], initial=-np.inf)
+            hi = np.min(off[n0 > 0] / n0[n0 > 0], initial=np.inf)
+            if np.any(off[n0 == 0] <= 0):
+                lo, hi = np.inf, -np.inf
+        else:
+            lo, hi = (-np.inf, np.inf) if np.all(off > 0) else (np.inf, -np.inf)
+        src_range[h] = lo, hi
+    return face_edges, src_range
 
 
 class _Colliders:
@@ -185,6 +221,7 @@ class _Colliders:
             self.m = maps.arrays
         else:
             self.m = empty_map_arrays()
+        self.face_edges, self.src_range = exit_face_data(maps.maps if hulls else (), self.m)
         joint, kind, index, bc, br = [], [], [], [], []
         for h, hull in enumerate(hulls):
             v = hull.simplified.vertices
@@ -219,7 +256,8 @@ class _Colliders:
     def cols(self) -> tuple:
         """The kernels' `cols` tuple (see stages/sim/kernels.py)."""
         return (self.joint, self.kind, self.index, self.bcenter, self.bradius, self.sph_center, self.sph_radius,
-                self.tq, self.tq0, self.fq, self.cw, self.bin_start, self.bin_items, self.bin_range)
+                self.tq, self.tq0, self.fq, self.cw, self.bin_start, self.bin_items, self.bin_range,
+                self.face_edges, self.src_range)
 
 
 def particles_inside_colliders(points, colliders, maps, pose, method: int = METHOD_PAPER) -> np.ndarray:
