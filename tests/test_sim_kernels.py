@@ -186,7 +186,7 @@ def _collide(col, x, xp, friction=0.0, method=0, passes=4, contact=None):
     n = x.shape[0]
     out, xp = x.copy(), xp.copy()
     corr, ins, sp = np.zeros(n, np.uint8), np.zeros(n, np.uint8), np.zeros(n)
-    contact = np.full((n, 2), -1, np.int32) if contact is None else contact
+    contact = np.full((n, col.joint.size), -1, np.int32) if contact is None else contact
     K.collide(out, xp, np.ones(n), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.tq0, col.fq,
               col.cw, col.bin_start, col.bin_items, col.bin_range, col.face_edges, col.src_range, friction, passes,
               corr, ins, sp, contact, 1 / 30)
@@ -243,9 +243,9 @@ def test_hull_response_matches_maps_kernel_and_reports_the_contact_face(method):
 
 
 @njit   # not cached: it inlines the kernel under test
-def _cached_exit_many(m, face_edges, src_range, pts, face, out):
+def _cached_face_many(m, face_edges, src_range, pts, face, out):
     for i in range(pts.shape[0]):
-        known, hit, r0, r1, r2 = K._cached_exit(m.kind, m.half, m.planes, face_edges, src_range, 0, face[i],
+        known, hit, r0, r1, r2 = K._cached_face(m.kind, m.half, m.planes, face_edges, src_range, 0, face[i],
                                                 pts[i, 0], pts[i, 1], pts[i, 2])
         out[i, 0] = known
         out[i, 1] = hit
@@ -257,7 +257,8 @@ def _cached_exit_many(m, face_edges, src_range, pts, face, out):
 @pytest.mark.parametrize("kind", ["sphere", "cylinder"])
 def test_exit_face_cache_gives_the_paper_answer(kind):
     """The collision kernel's remembered-face shortcut: whenever it answers, it answers as the paper's
-    query (inside test and response), and with the true exit face it always answers."""
+    query (inside test and response); with the true exit face it always answers for inside points,
+    and with the separating face the paper's query reports it always answers for outside points."""
     rng = np.random.default_rng(11)
     mesh = convex_mesh(fibonacci_points(40, (0.12, 0.35, 0.15)) + rng.normal(0, 0.005, (40, 3)))
     cs = hull_set(mesh)
@@ -272,23 +273,27 @@ def test_exit_face_cache_gives_the_paper_answer(kind):
     exit_face = np.array([r[4] for r in ref], np.int32)
     # any face: answers only when right
     out = np.zeros((q.shape[0], 5))
-    _cached_exit_many(m, col.face_edges, col.src_range, q, rng.integers(0, m.planes.shape[0], q.shape[0]).astype(np.int32), out)
+    _cached_face_many(m, col.face_edges, col.src_range, q, rng.integers(0, m.planes.shape[0], q.shape[0]).astype(np.int32), out)
     known = out[:, 0].astype(bool)
     assert known.any()
     assert np.array_equal(out[known, 1].astype(bool), hit_ref[known])
     both = known & hit_ref
     np.testing.assert_allclose(out[both, 2:], resp_ref[both], atol=1e-12)
     # the true exit face: always answers for inside points whose ray source is inside the hull
-    _cached_exit_many(m, col.face_edges, col.src_range, q[hit_ref], exit_face[hit_ref], out[:hit_ref.sum()])
+    _cached_face_many(m, col.face_edges, col.src_range, q[hit_ref], exit_face[hit_ref], out[:hit_ref.sum()])
     src = q[hit_ref, 0] if kind == "cylinder" else np.zeros(hit_ref.sum())
     ok = (col.src_range[0, 0] < src) & (src < col.src_range[0, 1])
     assert ok.mean() > 0.9 and out[:hit_ref.sum()][ok, 0].all() and out[:hit_ref.sum()][ok, 1].all()
     np.testing.assert_allclose(out[:hit_ref.sum()][ok, 2:], resp_ref[hit_ref][ok], atol=1e-12)
     # inside the collision kernel: a remembered contact changes nothing but the speed
     pts = q @ m.axes[0] + m.center[0]                                      # bone = world here
-    contact = np.full((q.shape[0], 2), -1, np.int32)
+    sep = ~hit_ref & (exit_face >= 0)
+    assert sep.sum() > 100
+    _cached_face_many(m, col.face_edges, col.src_range, q[sep], exit_face[sep], out[:sep.sum()])
+    assert out[:sep.sum(), 0].all() and not out[:sep.sum(), 1].any()
+    contact = np.full((q.shape[0], 1), -1, np.int32)
     a = _collide(col, pts, pts, contact=contact)
-    assert (contact[a[2].astype(bool), 0] == 0).all()
+    assert (contact[a[2].astype(bool), 0] >= 0).all()
     b = _collide(col, pts, pts, contact=contact)
     np.testing.assert_allclose(b[0], a[0], atol=1e-12)
     assert np.array_equal(a[2], b[2]) and np.array_equal(a[3], b[3])

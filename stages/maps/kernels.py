@@ -12,7 +12,8 @@ with the 18-array MapArrays, more than the query itself); hull_query and its hel
     hull_query(half, kind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
                cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, h, method, q0, q1, q2)
         -> (inside, x, y, z, face)   OBB-local point q of hull h; the response point (OBB-local) and
-        the global face id it lies on when inside, else (False, q0, q1, q2, -1)
+        the global face id it lies on when inside, else (False, q0, q1, q2, face) with face a
+        separating face (q in front of its plane) or -1 (rejected by the OBB or an outline)
 
 The MapArrays-level kernels take `m` = `MapSet.arrays` (the named tuple documented in
 stages/maps/types.py), the hull index `h` and a bone-local point `p` ((3,) float64 array or row
@@ -162,18 +163,24 @@ def _inside_brute(planes, face_start, h, q0, q1, q2):
 
 @njit(cache=True, inline="always")
 def _inside_paper(half, face_start, planes, loc_base, loc_x, loc_start, loc_y, loc_face, h, q0, q1, q2):
-    """OBB rejection, the upper and lower planar meshes' faces above / below q, their two planes."""
+    """(inside, face): OBB rejection, the upper and lower planar meshes' faces above / below q, their
+    two planes. face: when outside, a face whose plane q is in front of (a separating plane: the
+    simulation remembers it), -1 if rejected by the OBB or a planar mesh's outline."""
     if abs(q0) > half[h, 0] or abs(q1) > half[h, 1] or abs(q2) > half[h, 2]:
-        return False
+        return False, -1
     fu = _slab_locate(loc_base, loc_x, loc_start, loc_y, loc_face, 2 * h, q1, q2)
     if fu == -1:
-        return False
+        return False, -1
     fl = _slab_locate(loc_base, loc_x, loc_start, loc_y, loc_face, 2 * h + 1, q1, q2)
     if fl == -1:
-        return False
+        return False, -1
     if fu == -2 or fl == -2:             # a numerical gap in a planar mesh: answer exactly
-        return _inside_brute(planes, face_start, h, q0, q1, q2)
-    return _plane_dist(planes, fu, q0, q1, q2) <= 0.0 and _plane_dist(planes, fl, q0, q1, q2) <= 0.0
+        return _inside_brute(planes, face_start, h, q0, q1, q2), -1
+    if _plane_dist(planes, fu, q0, q1, q2) > 0.0:
+        return False, fu
+    if _plane_dist(planes, fl, q0, q1, q2) > 0.0:
+        return False, fl
+    return True, -1
 
 
 # -- response -------------------------------------------------------------------------------------
@@ -260,17 +267,20 @@ def _response(half, kind, n_theta, n_second, second_lo, second_hi, face_start, p
 def hull_query(half, kind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base, cell_start,
                cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, h, method, q0, q1, q2):
     """(inside, x, y, z, face) of hull h for an OBB-local point q: the response point (OBB-local) and
-    the global face it lies on (its plane's normal is the contact normal), or (False, q, -1) outside.
+    the global face it lies on (its plane's normal is the contact normal), or (False, q, face) outside
+    with face a face whose plane q is in front of (-1 when the OBB or an outline rejected q).
     METHOD_PAPER: OBB, slab point location, two planes; the map ray through q's cell list.
     METHOD_BRUTE: every plane; the ray against every face. METHOD_NEAREST_PLANE: every plane; push
     to the least penetrated one."""
     if method == METHOD_PAPER:
-        if not _inside_paper(half, face_start, planes, loc_base, loc_x, loc_start, loc_y, loc_face, h, q0, q1, q2):
-            return False, q0, q1, q2, -1
+        inside, sep = _inside_paper(half, face_start, planes, loc_base, loc_x, loc_start, loc_y, loc_face, h,
+                                    q0, q1, q2)
+        if not inside:
+            return False, q0, q1, q2, sep
     else:
         best, bf = _nearest_plane(planes, face_start, h, q0, q1, q2)
         if best > 0.0:
-            return False, q0, q1, q2, -1
+            return False, q0, q1, q2, bf
         if method == METHOD_NEAREST_PLANE:
             return True, q0 - best * planes[bf, 0], q1 - best * planes[bf, 1], q2 - best * planes[bf, 2], bf
     r0, r1, r2, face = _response(half, kind, n_theta, n_second, second_lo, second_hi, face_start, planes,
@@ -284,7 +294,7 @@ def hull_inside(m, h, p):
     """Paper path: OBB rejection, point location in the upper and lower planar meshes, two planes."""
     q0, q1, q2 = _to_local(m, h, p)
     return _inside_paper(m.half, m.face_start, m.planes, m.loc_base, m.loc_x, m.loc_start, m.loc_y, m.loc_face,
-                         h, q0, q1, q2)
+                         h, q0, q1, q2)[0]
 
 
 @njit(cache=True, _nrt=False)

@@ -286,7 +286,7 @@ def correct_springs(x, ij, sp, part_start, ti, ta, tl, iterations):
             dz = x[i, 2] - x[a, 2]
             d2 = dx * dx + dy * dy + dz * dz
             if d2 > tl[k] * tl[k]:
-                f = tl[k] / math.sqrt(d2)
+                f = tl[k] * inv_sqrt(d2)
                 x[i, 0] = x[a, 0] + f * dx
                 x[i, 1] = x[a, 1] + f * dy
                 x[i, 2] = x[a, 2] + f * dz
@@ -531,16 +531,18 @@ EDGE_EPS = 1e-12     # m: slack of the exit-face containment test (rounding is ~
 
 
 @njit(cache=True, inline="always")
-def _cached_exit(mkind, half, planes, face_edges, src_range, h, f, q0, q1, q2):
+def _cached_face(mkind, half, planes, face_edges, src_range, h, f, q0, q1, q2):
     """(known, inside, r0, r1, r2): the paper's hull query answered from one remembered face f.
 
-    The map ray of q (paper A §2.4: from the OBB centre, or q's projection on the cylinder axis,
-    through q) leaves the convex hull at exactly one point when its source is inside the hull
-    (src_range: the source positions known to be strictly inside). If the ray meets face f's
-    triangle (face_edges: three in-plane inward edge planes), that point is the exit, f the exit face
-    and q is inside iff it is behind f's plane: the same answer as hull_query, from one plane and
-    three edge tests instead of the point location and the cell's face scan. known False: f is not
-    the exit face of this ray (or the source is not known inside); ask hull_query."""
+    In front of f's plane, q is outside the convex hull (a separating plane). Behind it: the map ray
+    of q (paper A §2.4: from the OBB centre, or q's projection on the cylinder axis, through q)
+    leaves the hull at exactly one point when its source is inside the hull (src_range: the source
+    positions known to be strictly inside); if the ray meets face f's triangle (face_edges: three
+    in-plane inward edge planes) that point is the exit, so q is inside and the point is the
+    response, f the contact face: the same answer as hull_query, from one plane and three edge tests
+    instead of the point location and the cell's face scan. known False: ask hull_query."""
+    if planes[f, 0] * q0 + planes[f, 1] * q1 + planes[f, 2] * q2 > planes[f, 3]:
+        return True, False, q0, q1, q2
     if mkind[h] == KIND_CYLINDER_MAP:
         s0 = q0
         d0 = 0.0
@@ -560,8 +562,6 @@ def _cached_exit(mkind, half, planes, face_edges, src_range, h, f, q0, q1, q2):
     for k in range(0, 12, 4):
         if face_edges[f, k] * r0 + face_edges[f, k + 1] * r1 + face_edges[f, k + 2] * r2 < face_edges[f, k + 3] - EDGE_EPS:
             return False, False, q0, q1, q2
-    if planes[f, 0] * q0 + planes[f, 1] * q1 + planes[f, 2] * q2 > planes[f, 3]:
-        return True, False, q0, q1, q2
     return True, True, r0, r1, r2
 
 
@@ -581,10 +581,11 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
     push's normal depth.
     corrected[i] |= 1 if the particle was pushed; inside[i] = 1 if it is still inside a collider at
     the end; speed2[i] = |x - xp|^2 / h^2 at the end (divergence check).
-    Temporal coherence (METHOD_PAPER): contact[i] = (collider, face) of the particle's last hull push;
-    the next query of that hull first tries that face (_cached_exit, same answer), which is the exit
-    face again for a particle resting on or sliding over the hull. face_edges (F, 12), src_range
-    (H, 2): see _cached_exit and stages/sim/simulate.py.
+    Temporal coherence (METHOD_PAPER): contact (N, C) int32 holds per particle and hull the face of
+    its last verdict (the exit face of a push, or a separating face), -1 unknown; the next query of
+    that hull first tries that face (_cached_face: the same answer when it gives one), which is right
+    again for a particle resting on, sliding over or hovering near the hull. face_edges (F, 12),
+    src_range (H, 2): see _cached_face and stages/sim/simulate.py.
     """
     (half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base, cell_start, cell_tris,
      loc_base, loc_x, loc_start, loc_y, loc_face) = query_arrays(m)
@@ -639,24 +640,24 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
                     q0, q1, q2 = _apply12(tq, c, px, py, pz)
                     idx = col_index[c]
                     hit = False
-                    hface = -1
                     r0 = r1 = r2 = n0 = n1 = n2 = 0.0
                     if col_kind[c] == KIND_SPHERE:
                         hit, r0, r1, r2, n0, n1, n2 = _sphere_hit(sph_radius[idx], q0, q1, q2)
                     elif method == METHOD_NEAREST_PLANE or (abs(q0) <= half[idx, 0] and abs(q1) <= half[idx, 1]
                                                             and abs(q2) <= half[idx, 2]):
                         known = False
-                        face = contact[i, 1]
-                        if method == METHOD_PAPER and contact[i, 0] == c:
-                            known, hit, r0, r1, r2 = _cached_exit(mkind, half, planes, face_edges, src_range, idx,
+                        face = contact[i, c]
+                        if method == METHOD_PAPER and face >= 0:
+                            known, hit, r0, r1, r2 = _cached_face(mkind, half, planes, face_edges, src_range, idx,
                                                                   face, q0, q1, q2)
                         if not known:
                             hit, r0, r1, r2, face = hull_query(
                                 half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
                                 cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
                                 idx, method, q0, q1, q2)
+                            if face >= 0:
+                                contact[i, c] = face
                         if hit:
-                            hface = face
                             n0 = planes[face, 0]
                             n1 = planes[face, 1]
                             n2 = planes[face, 2]
@@ -668,9 +669,6 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
                         else:
                             pushed, wx, wy, wz = _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i, friction)
                             if pushed:
-                                if col_kind[c] == KIND_HULL:
-                                    contact[i, 0] = c
-                                    contact[i, 1] = hface
                                 px = wx
                                 py = wy
                                 pz = wz

@@ -151,7 +151,7 @@ class _System:
         self.corrected = np.zeros(n, np.uint8)
         self.inside = np.zeros(n, np.uint8)
         self.speed2 = np.zeros(n)
-        self.contact = np.full((n, 2), -1, np.int32)     # (collider, face) of the last hull push
+        self.contact = np.zeros((n, 0), np.int32)   # per particle and collider: last face (see set_colliders)
         self.goff = np.ascontiguousarray(self.offsets, dtype=np.int64)
         self.ti, self.ta, self.tl = tethers(garments, self.offsets, w) if params.tethers else (
             np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0))
@@ -161,6 +161,10 @@ class _System:
         return (self.x, self.xp, self.inv_mass, self.attach_joint, self.attach_local, self.ij, self.sp,
                 self.part_start, self.ti, self.ta, self.tl, self.tris, self.tri_mass, self.tri_force,
                 self.vt_start, self.vt_tri)
+
+    def set_colliders(self, n_colliders: int):
+        """The collision kernel's per particle and collider face cache, all unknown (-1)."""
+        self.contact = np.full((self.x.shape[0], n_colliders), -1, np.int32)
 
     def flags(self) -> tuple:
         return (self.corrected, self.inside, self.speed2, self.contact)
@@ -426,6 +430,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
                                 f"SimParams.dt is {params.dt:.6g} s")
     sysm = _System(garments, motion.joint_world[0], params)
     col = _Colliders(colliders, maps)
+    sysm.set_colliders(col.joint.size)
     notes = list(col.notes)
     method = {"ray": METHOD_PAPER, "brute_ray": METHOD_BRUTE, "nearest_plane": METHOD_NEAREST_PLANE}[params.hull_response]
     s = float(params.inertia_scale)
