@@ -565,6 +565,182 @@ def _cached_face(mkind, half, planes, face_edges, src_range, h, f, q0, q1, q2):
     return True, True, r0, r1, r2
 
 
+# -- overlapping colliders: escape from their union when the pass budget is spent ------------------
+@njit(cache=True, inline="always")
+def _outward(c, col_kind, face_start, planes, idx, tq, px, py, pz):
+    """World unit direction out of collider c at the world point p: sphere, radial from its centre;
+    hull, the normal of the face whose plane p is farthest in front of (the nearest face from inside).
+    Normals go to world by the transpose of tq's linear part (inverse transpose of query -> world)."""
+    q0, q1, q2 = _apply12(tq, c, px, py, pz)
+    if col_kind[c] == KIND_SPHERE:
+        n0, n1, n2 = q0, q1, q2
+        if n0 * n0 + n1 * n1 + n2 * n2 < 1e-24:
+            n0, n1, n2 = 0.0, 1.0, 0.0
+    else:
+        best = -np.inf
+        n0 = n1 = n2 = 0.0
+        for f in range(face_start[idx], face_start[idx + 1]):
+            s = planes[f, 0] * q0 + planes[f, 1] * q1 + planes[f, 2] * q2 - planes[f, 3]
+            if s > best:
+                best = s
+                n0 = planes[f, 0]
+                n1 = planes[f, 1]
+                n2 = planes[f, 2]
+    w0 = tq[c, 0] * n0 + tq[c, 4] * n1 + tq[c, 8] * n2
+    w1 = tq[c, 1] * n0 + tq[c, 5] * n1 + tq[c, 9] * n2
+    w2 = tq[c, 2] * n0 + tq[c, 6] * n1 + tq[c, 10] * n2
+    k = 1.0 / max(math.sqrt(w0 * w0 + w1 * w1 + w2 * w2), 1e-300)
+    return w0 * k, w1 * k, w2 * k
+
+
+@njit(cache=True, inline="always")
+def _ray_exit(c, col_kind, face_start, planes, idx, sph_radius, tq, px, py, pz, dx, dy, dz):
+    """Parameter t >= 0 where the world ray p + t d leaves convex collider c (0 if p is not inside).
+    The query frame is affine in world, so t is the same in both frames: q(p + t d) = q(p) + t e."""
+    q0, q1, q2 = _apply12(tq, c, px, py, pz)
+    e0, e1, e2 = _rotate12(tq, c, dx, dy, dz)
+    if col_kind[c] == KIND_SPHERE:
+        r = sph_radius[idx]
+        a = e0 * e0 + e1 * e1 + e2 * e2
+        b = q0 * e0 + q1 * e1 + q2 * e2
+        cc = q0 * q0 + q1 * q1 + q2 * q2 - r * r
+        if cc >= 0.0 or a <= 0.0:
+            return 0.0
+        return (-b + math.sqrt(max(b * b - a * cc, 0.0))) / a
+    t = np.inf
+    for f in range(face_start[idx], face_start[idx + 1]):
+        nd = planes[f, 0] * e0 + planes[f, 1] * e1 + planes[f, 2] * e2
+        room = planes[f, 3] - (planes[f, 0] * q0 + planes[f, 1] * q1 + planes[f, 2] * q2)
+        if nd > 0.0:
+            t = min(t, room / nd)
+        elif room < 0.0:        # outside this face's half-space and not moving towards it
+            return 0.0
+    return max(t, 0.0) if t < np.inf else 0.0
+
+
+@njit(cache=True, _nrt=False)
+def _escape_along(col_kind, col_index, sph_radius, method, tq, cw,
+                  half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+                  cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                  px, py, pz, dx, dy, dz):
+    """(ok, s): the distance s along the world unit direction d at which p + s d is outside every
+    collider (the detection's inside test), walking from exit to exit: a ray leaves a convex
+    collider once and never re-enters it, so each round passes at least one collider for good and
+    nc + 1 rounds suffice (ok False only on round-off)."""
+    nc = cw.shape[0]
+    s = 0.0
+    for _ in range(nc + 1):
+        x0 = px + s * dx
+        x1 = py + s * dy
+        x2 = pz + s * dz
+        step = -1.0
+        for c in range(nc):
+            u0 = x0 - cw[c, 0]
+            u1 = x1 - cw[c, 1]
+            u2 = x2 - cw[c, 2]
+            if u0 * u0 + u1 * u1 + u2 * u2 >= cw[c, 4]:
+                continue
+            q0, q1, q2 = _apply12(tq, c, x0, x1, x2)
+            hit, r0, r1, r2, n0, n1, n2 = _collider_hit(
+                c, col_kind, col_index, sph_radius, method,
+                half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+                cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, q0, q1, q2)
+            if hit and (r0 - q0) ** 2 + (r1 - q1) ** 2 + (r2 - q2) ** 2 >= TOUCH_EPS * TOUCH_EPS:
+                step = max(step, _ray_exit(c, col_kind, face_start, planes, col_index[c], sph_radius, tq,
+                                           x0, x1, x2, dx, dy, dz))
+        if step < 0.0:
+            return True, s
+        s += step + PUSH_EPS
+    return False, s
+
+
+@njit(cache=True, inline="always")
+def _settle(xp, i, px, py, pz, wx, wy, wz):
+    """After the escape p -> w: fully inelastic along its direction d (as _push): xp[i] moves along
+    d by the outward part of the travel w - xp[i], so the escape is no outward Verlet velocity."""
+    dx = wx - px
+    dy = wy - py
+    dz = wz - pz
+    dl = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if dl <= 0.0:
+        return
+    dx /= dl
+    dy /= dl
+    dz /= dl
+    vn = (wx - xp[i, 0]) * dx + (wy - xp[i, 1]) * dy + (wz - xp[i, 2]) * dz
+    if vn > 0.0:
+        xp[i, 0] += vn * dx
+        xp[i, 1] += vn * dy
+        xp[i, 2] += vn * dz
+
+
+@njit(cache=True, _nrt=False)
+def escape_union(c, last, col_kind, col_index, sph_radius, method, tq, cw,
+                 half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+                 cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                 px, py, pz):
+    """(ok, x, y, z): a world point outside every collider near p, for a particle still inside
+    collider c when collide's pass budget is spent (pushed back and forth between overlapping
+    colliders; `last` the collider of its last push, -1 if none). Candidate directions: out of
+    `last` at p (the last push), out of c, their bisector, and the four directions perpendicular to
+    the first (the crease between two colliders pressing from opposite sides); along each, the
+    exit of the union of the colliders (_escape_along); the shortest wins (first on ties)."""
+    ax, ay, az = _outward(c, col_kind, face_start, planes, col_index[c], tq, px, py, pz)
+    if last >= 0:
+        bx, by, bz = _outward(last, col_kind, face_start, planes, col_index[last], tq, px, py, pz)
+    else:
+        bx, by, bz = ax, ay, az
+    # a unit vector perpendicular to b: cross with the world axis least aligned with it
+    if abs(bx) <= abs(by) and abs(bx) <= abs(bz):
+        ux, uy, uz = 0.0, bz, -by
+    elif abs(by) <= abs(bz):
+        ux, uy, uz = -bz, 0.0, bx
+    else:
+        ux, uy, uz = by, -bx, 0.0
+    k = 1.0 / math.sqrt(ux * ux + uy * uy + uz * uz)
+    ux *= k
+    uy *= k
+    uz *= k
+    vx = by * uz - bz * uy
+    vy = bz * ux - bx * uz
+    vz = bx * uy - by * ux
+    mx = ax + bx
+    my = ay + by
+    mz = az + bz
+    ml = math.sqrt(mx * mx + my * my + mz * mz)
+    best = np.inf
+    ex = ey = ez = 0.0
+    for kcand in range(7):
+        if kcand == 0:
+            dx, dy, dz = bx, by, bz
+        elif kcand == 1:
+            dx, dy, dz = ax, ay, az
+        elif kcand == 2:
+            if ml < 0.1:      # (nearly) opposite: no bisector
+                continue
+            dx, dy, dz = mx / ml, my / ml, mz / ml
+        elif kcand == 3:
+            dx, dy, dz = ux, uy, uz
+        elif kcand == 4:
+            dx, dy, dz = -ux, -uy, -uz
+        elif kcand == 5:
+            dx, dy, dz = vx, vy, vz
+        else:
+            dx, dy, dz = -vx, -vy, -vz
+        ok, s = _escape_along(col_kind, col_index, sph_radius, method, tq, cw,
+                              half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+                              cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                              px, py, pz, dx, dy, dz)
+        if ok and s < best:
+            best = s
+            ex = dx
+            ey = dy
+            ez = dz
+    if best == np.inf:
+        return False, px, py, pz
+    return True, px + best * ex, py + best * ey, pz + best * ez
+
+
 @njit(cache=True, parallel=True, _nrt=False)
 def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
             bin_start, bin_items, bin_range, face_edges, src_range, friction, passes, corrected, inside, speed2,
@@ -576,7 +752,9 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
     with `method`). After a push by collider c the particle is outside c (by PUSH_EPS; friction
     slides it along the contact plane); the other colliders are then visited cyclically (world
     sphere test first) until every one has been checked at the current position without a push, at
-    most `passes` rounds over the colliders. The response gets Coulomb friction
+    most `passes` rounds over the colliders. A particle still inside one when the budget is spent is
+    being pushed back and forth between overlapping colliders: `escape_union` moves it to a point
+    outside all of them (no friction, inelastic along the escape). The response gets Coulomb friction
     relative to the collider: its tangential travel over the step loses up to `friction` times the
     push's normal depth.
     corrected[i] |= 1 if the particle was pushed; inside[i] = 1 if it is still inside a collider at
@@ -664,7 +842,20 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
                     if hit:
                         if stage == 2:
                             if (r0 - q0) ** 2 + (r1 - q1) ** 2 + (r2 - q2) ** 2 >= TOUCH_EPS * TOUCH_EPS:
-                                inside[i] = 1
+                                # budget spent between overlapping colliders: leave their union
+                                ok, wx, wy, wz = escape_union(
+                                    c, last, col_kind, col_index, sph_radius, method, tq, cw,
+                                    half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes,
+                                    cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                                    px, py, pz)
+                                if ok:
+                                    _settle(xp, i, px, py, pz, wx, wy, wz)
+                                    px = wx
+                                    py = wy
+                                    pz = wz
+                                    last = c
+                                else:
+                                    inside[i] = 1
                                 break
                         else:
                             pushed, wx, wy, wz = _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i, friction)
