@@ -750,9 +750,9 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
     Per particle: the colliders of its y slab whose world bounding sphere holds it are tested in
     their query frame (spheres: paper eq. 5-6; hulls: OBB rejection, then stages.maps.kernels.hull_query
     with `method`). After a push by collider c the particle is outside c (by PUSH_EPS; friction
-    slides it along the contact plane); the other colliders are then visited cyclically (world
-    sphere test first) until every one has been checked at the current position without a push, at
-    most `passes` rounds over the colliders. A particle still inside one when the budget is spent is
+    slides it along the contact plane); the colliders of the slab of its new position are then visited
+    cyclically (world sphere test first) until every one has been checked at the current position
+    without a push, at most `passes` x (number of colliders) visits. A particle still inside one when the budget is spent is
     being pushed back and forth between overlapping colliders: `escape_union` moves it to a point
     outside all of them (no friction, inelastic along the escape). The response gets Coulomb friction
     relative to the collider: its tangential travel over the step loses up to `friction` times the
@@ -789,27 +789,39 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
             streak = 0
             budget = passes * nc
             c = 0
+            k = k0 = k1 = 0             # stages 1-2: the slab list of the current position, its cursor
             while True:
                 if stage == 0:
                     if e == e1:
                         if last < 0 or nc == 1:
                             break
                         stage = 1
-                        c = last
-                        streak = 1
+                        streak = -1
                         continue
                     c = bin_items[e]
                     e += 1
                 else:
-                    if streak >= nc:
+                    if streak < 0:      # a new position: cycle over its slab's colliders (no other can hold it)
+                        bb = int(math.floor((py - y0) / bh))
+                        if bb < 0 or bb >= nb:
+                            break
+                        k0 = bin_start[bb]
+                        k1 = bin_start[bb + 1]
+                        k = k1 - 1
+                        streak = 0
+                        for j in range(k0, k1):     # `last` is left outside by its own push: seen
+                            if bin_items[j] == last:
+                                k = j
+                                streak = 1
+                    if streak >= k1 - k0:
                         break
-                    c = c + 1 if c + 1 < nc else 0
+                    k = k + 1 if k + 1 < k1 else k0
+                    c = bin_items[k]
                     if stage == 1:
                         budget -= 1
                         if budget < 0:
                             stage = 2
-                            streak = 1      # `last` is left outside by its own push
-                            c = last
+                            streak = -1
                             continue
                 dx = px - cw[c, 0]
                 dy = py - cw[c, 1]
@@ -864,7 +876,7 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
                                 py = wy
                                 pz = wz
                                 last = c
-                                streak = 1
+                                streak = -1
                                 continue
                 streak += 1
             if last >= 0:
