@@ -459,6 +459,25 @@ def _collider_hit(c, col_kind, col_index, sph_radius, method,
     return True, r0, r1, r2, planes[face, 0], planes[face, 1], planes[face, 2]
 
 
+@njit(cache=True, inline="always")
+def _penetrates(c, col_kind, col_index, sph_radius, method, tq, cw,
+                half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+                cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                px, py, pz):
+    """True if the world point is inside collider c with a real push (world sphere test first)."""
+    dx = px - cw[c, 0]
+    dy = py - cw[c, 1]
+    dz = pz - cw[c, 2]
+    if dx * dx + dy * dy + dz * dz >= cw[c, 4]:
+        return False
+    q0, q1, q2 = _apply12(tq, c, px, py, pz)
+    hit, r0, r1, r2, n0, n1, n2 = _collider_hit(
+        c, col_kind, col_index, sph_radius, method,
+        half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+        cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, q0, q1, q2)
+    return hit and (r0 - q0) ** 2 + (r1 - q1) ** 2 + (r2 - q2) ** 2 >= TOUCH_EPS * TOUCH_EPS
+
+
 @njit(cache=True, _nrt=False)
 def _inside_any(col_kind, col_index, sph_radius, method, tq, cw, skip,
                 half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
@@ -466,19 +485,10 @@ def _inside_any(col_kind, col_index, sph_radius, method, tq, cw, skip,
                 px, py, pz):
     """True if the world point is inside any collider except `skip` (with a real push)."""
     for c in range(cw.shape[0]):
-        if c == skip:
-            continue
-        dx = px - cw[c, 0]
-        dy = py - cw[c, 1]
-        dz = pz - cw[c, 2]
-        if dx * dx + dy * dy + dz * dz >= cw[c, 4]:
-            continue
-        q0, q1, q2 = _apply12(tq, c, px, py, pz)
-        hit, r0, r1, r2, n0, n1, n2 = _collider_hit(
-            c, col_kind, col_index, sph_radius, method,
-            half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
-            cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, q0, q1, q2)
-        if hit and (r0 - q0) ** 2 + (r1 - q1) ** 2 + (r2 - q2) ** 2 >= TOUCH_EPS * TOUCH_EPS:
+        if c != skip and _penetrates(c, col_kind, col_index, sph_radius, method, tq, cw,
+                                     half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes,
+                                     cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                                     px, py, pz):
             return True
     return False
 
@@ -635,17 +645,9 @@ def _escape_along(col_kind, col_index, sph_radius, method, tq, cw,
         x2 = pz + s * dz
         step = -1.0
         for c in range(nc):
-            u0 = x0 - cw[c, 0]
-            u1 = x1 - cw[c, 1]
-            u2 = x2 - cw[c, 2]
-            if u0 * u0 + u1 * u1 + u2 * u2 >= cw[c, 4]:
-                continue
-            q0, q1, q2 = _apply12(tq, c, x0, x1, x2)
-            hit, r0, r1, r2, n0, n1, n2 = _collider_hit(
-                c, col_kind, col_index, sph_radius, method,
-                half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
-                cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, q0, q1, q2)
-            if hit and (r0 - q0) ** 2 + (r1 - q1) ** 2 + (r2 - q2) ** 2 >= TOUCH_EPS * TOUCH_EPS:
+            if _penetrates(c, col_kind, col_index, sph_radius, method, tq, cw,
+                           half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+                           cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, x0, x1, x2):
                 step = max(step, _ray_exit(c, col_kind, face_start, planes, col_index[c], sph_radius, tq,
                                            x0, x1, x2, dx, dy, dz))
         if step < 0.0:
