@@ -118,7 +118,8 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
         g = build_garment(name, x, triangles, rest_positions=flat_positions, density=density,
                           attachments=tuple(pins), bind=bind if pins else None,
                           triangle_rest=triangle_rest, extra_springs=pairs[active],
-                          extra_rest_lengths=np.full(int(active.sum()), params.seam_rest))
+                          extra_rest_lengths=np.full(int(active.sum()), params.seam_rest),
+                          yield_swept=False)   # the sewing holds the body still
         if g.n_particles != x.shape[0]:
             raise ContractError(f"sew {name!r}: the unsewn mesh must be clean (got {g.n_particles} of {x.shape[0]} vertices)")
         return g

@@ -10,7 +10,10 @@ relative-frame position is `Motion.joint_world[t, j] @ attach_local`.
   = the two opposite vertices of each pair of triangles sharing an edge;
 - rest lengths from the rest shape, lumped masses from an area density;
 - attachment selectors (`attach_indices`, `attach_near`, `attach_top_loop`) resolved against the
-  bind pose (frame 0 of the motion, `BindPose`).
+  bind pose (frame 0 of the motion, `BindPose`);
+- attached particles that a collider of another bone passes through during the motion (an arm
+  swinging through a waistband) yield to collisions, with a warning: rigid, they would sit inside
+  that limb for those frames (`swept_attachments`).
 Degenerate input is repaired with a `warnings.warn` (zero-area / repeated triangles dropped,
 coincident vertices welded, unused vertices removed) or refused with `InputError` (non-manifold
 edges, nothing left, non-finite positions).
@@ -41,9 +44,13 @@ class Garment:
     springs: (S, 2) int32, particle index pairs, i < j.
     rest_lengths: (S,) float64, metres, > 0.
     kinds: (S,) int8, STRETCH (0) or BEND (1).
-    inverse_mass: (N,) float64, 1/kg, >= 0; 0 = pinned (attached particles, or fixed in place when
+    inverse_mass: (N,) float64, 1/kg, >= 0; 0 = pinned (to its bone, or fixed in place when
         attach_joint is -1).
-    attach_joint: (N,) int32, -1 = not attached; else the joint whose bone the particle follows.
+    attach_joint: (N,) int32, -1 = not attached; else the joint whose bone the particle follows: it
+        is put on its bone at the start of every step and is pinned for the springs. With inverse mass
+        0 it stays there (rigid attachment, paper A §3.2); with a positive one (its lumped mass) it
+        yields to the collision response: a collider may push it off its bone for the rest of the
+        step (`swept_attachments`).
     attach_local: (N, 3) float64, metres, bone-local position of attached particles (0 for others).
     density: area density used for the masses, kg/m^2.
     """
@@ -86,8 +93,6 @@ class Garment:
         aj = check_array(o, "attach_joint", self.attach_joint, (n,), np.int32)
         if np.any(aj < -1):
             raise ContractError(f"{o}.attach_joint: expected -1 or a joint index")
-        if np.any((aj >= 0) & (w != 0)):
-            raise ContractError(f"{o}.inverse_mass: attached particles must have inverse mass 0")
         check_array(o, "attach_local", self.attach_local, (n, 3), np.float64)
 
     @property
@@ -96,8 +101,13 @@ class Garment:
 
     @property
     def attached(self) -> np.ndarray:
-        """Indices of particles following a bone."""
+        """Indices of particles following a bone (rigidly or yielding)."""
         return np.flatnonzero(self.attach_joint >= 0)
+
+    @property
+    def yielding(self) -> np.ndarray:
+        """Indices of attached particles that yield to the collision response (inverse mass > 0)."""
+        return np.flatnonzero((self.attach_joint >= 0) & (self.inverse_mass > 0))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -150,17 +160,22 @@ class BindPose:
     joint_world: (J, 4, 4) float64, Motion.joint_world[0] (bone-local -> relative frame).
     joint_origins: (J, 3) float64, metres, joint positions at frame 0, relative frame.
     joint_names: J names. colliders: optional ColliderSet (for 'near' a collider).
+    poses: optional (F, J, 4, 4) float64, Motion.joint_world at every frame: attachments are checked
+        against the colliders of the other bones over these frames (`swept_attachments`).
     """
 
     joint_world: np.ndarray
     joint_origins: np.ndarray
     joint_names: tuple[str, ...]
     colliders: object = None
+    poses: np.ndarray | None = None
 
     def __post_init__(self):
         j = len(self.joint_names)
         check_array("BindPose", "joint_world", self.joint_world, (j, 4, 4), np.float64)
         check_array("BindPose", "joint_origins", self.joint_origins, (j, 3), np.float64)
+        if self.poses is not None:
+            check_array("BindPose", "poses", self.poses, (None, j, 4, 4), np.float64)
 
     def joint_index(self, key) -> int:
         if isinstance(key, (int, np.integer)) and not isinstance(key, bool):
@@ -176,33 +191,62 @@ class BindPose:
 
 
 def bind_pose(character, motion, colliders=None) -> BindPose:
-    """The bind pose of attachments: frame 0 of `motion` (relative frame)."""
+    """The bind pose of attachments: frame 0 of `motion` (relative frame), with all its poses."""
     jw = np.ascontiguousarray(motion.joint_world[0], dtype=np.float64)  # bone-local -> relative frame
-    return BindPose(jw, np.ascontiguousarray(jw[:, :3, 3]), tuple(character.joint_names), colliders)
+    return BindPose(jw, np.ascontiguousarray(jw[:, :3, 3]), tuple(character.joint_names), colliders,
+                    np.ascontiguousarray(motion.joint_world, dtype=np.float64))
+
+
+def swept_attachments(bind: BindPose, local: np.ndarray, joints: np.ndarray, depth: float):
+    """Attached particles that a collider of another bone holds deeper than `depth` (m) at some
+    frame of bind.poses: ((M,) bool, names of those colliders).
+
+    local: (M, 3) bone-local positions, joints: (M,) the bones they follow. A particle's own bone's
+    colliders move rigidly with it and are not tested.
+    """
+    hit = np.zeros(len(joints), bool)
+    names = []
+    if bind.poses is None or bind.colliders is None or len(joints) == 0:
+        return hit, names
+    m = bind.poses[:, joints]
+    x = np.einsum("fmij,mj->fmi", m[..., :3, :3], local) + m[..., :3, 3]   # (F, M, 3) relative frame
+    inv = np.linalg.inv(bind.poses)
+    for bone, name, collider in _colliders(bind.colliders):
+        other = np.flatnonzero(joints != bone)
+        if other.size == 0:
+            continue
+        w = inv[:, bone]
+        p = np.einsum("fij,fmj->fmi", w[:, :3, :3], x[:, other]) + w[:, None, :3, 3]
+        deep = (_signed_distance(collider, p) < -depth).any(axis=0)
+        if deep.any():
+            hit[other[deep]] = True
+            names.append(name)
+    return hit, list(dict.fromkeys(names))   # a bone's hull and sphere share its name
+
+
+def _signed_distance(collider, p: np.ndarray) -> np.ndarray:
+    """(...) signed distance (m) of bone-local points (..., 3) to a hull collider (largest plane
+    distance: exact inside, a lower bound outside, near corners slightly more than the true
+    distance) or a sphere collider."""
+    if hasattr(collider, "simplified"):
+        pl = collider.simplified.planes
+        return (p @ pl[:, :3].T - pl[:, 3]).max(axis=-1)
+    return np.linalg.norm(p - collider.center, axis=-1) - collider.radius
+
+
+def _colliders(cs) -> list:
+    """(bone, name, collider) of every hull, then every sphere."""
+    return [(h.bone, h.name, h) for h in cs.hulls] + [(s.joint, s.name, s) for s in cs.spheres]
 
 
 def _collider_distances(bind: BindPose, points: np.ndarray):
-    """(C, N) signed distances of points to every collider and the (C,) bones they follow.
-
-    Hulls use the largest plane distance: exact inside, a lower bound outside (near corners it
-    selects slightly more than the true distance would).
-    """
-    cs = bind.colliders
-    dists, bones, names = [], [], []
-    for h in cs.hulls:
-        p = bind.to_local(h.bone, points)
-        pl = h.simplified.planes
-        dists.append((p @ pl[:, :3].T - pl[:, 3]).max(axis=1))
-        bones.append(h.bone)
-        names.append(h.name)
-    for s in cs.spheres:
-        p = bind.to_local(s.joint, points)
-        dists.append(np.linalg.norm(p - s.center, axis=1) - s.radius)
-        bones.append(s.joint)
-        names.append(s.name)
-    if not dists:
+    """(C, N) signed distances of points to every collider in the bind pose (`_signed_distance`),
+    the (C,) bones they follow and their names."""
+    cols = _colliders(bind.colliders)
+    if not cols:
         return np.zeros((0, points.shape[0])), np.zeros(0, np.int32), []
-    return np.array(dists), np.array(bones, np.int32), names
+    d = np.array([_signed_distance(c, bind.to_local(bone, points)) for bone, _, c in cols])
+    return d, np.array([b for b, _, _ in cols], np.int32), [n for _, n, _ in cols]
 
 
 def _nearest_bone(bind: BindPose, points: np.ndarray) -> np.ndarray:
@@ -321,7 +365,7 @@ def _repair(name: str, x: np.ndarray, rest: np.ndarray, tri: np.ndarray):
 
 def build_garment(name: str, positions, triangles, *, rest_positions=None, density: float = 0.2,
                   attachments=(), bind: BindPose | None = None, triangle_rest=None, extra_springs=None,
-                  extra_rest_lengths=None) -> Garment:
+                  extra_rest_lengths=None, yield_swept: bool = True) -> Garment:
     """A Garment from a triangle mesh.
 
     positions: (N, 3) initial positions, metres, relative frame at frame 0.
@@ -337,6 +381,9 @@ def build_garment(name: str, positions, triangles, *, rest_positions=None, densi
         triangles' areas (Heron); rest_positions are only used for welding.
     extra_springs: optional (K, 2) vertex index pairs added as stretch springs (e.g. seam springs
         pulling panel edges together while sewing), with extra_rest_lengths (K,) metres > 0.
+    yield_swept: the attached particles that a collider of another bone holds deeper than its
+        inflation delta at some frame of bind.poses keep their mass and yield to the collision
+        response (see Garment.attach_joint), with a warning (`swept_attachments`).
     """
     where = f"garment {name!r}"
     x = np.asarray(positions, dtype=np.float64)
@@ -424,7 +471,16 @@ def build_garment(name: str, positions, triangles, *, rest_positions=None, densi
         for j in np.unique(attach_joint[attach_joint >= 0]):
             sel = attach_joint == j
             attach_local[sel] = bind.to_local(int(j), x[sel])
-        inv_mass[attach_joint >= 0] = 0.0
+        rigid = attach_joint >= 0
+        if yield_swept and bind.colliders is not None:
+            att = np.flatnonzero(rigid)
+            swept, names = swept_attachments(bind, attach_local[att], attach_joint[att], bind.colliders.delta)
+            if swept.any():
+                warnings.warn(f"garment {name!r}: {int(swept.sum())} of {att.size} attached particles yield to "
+                              f"collisions: the colliders {', '.join(names)} pass through them during "
+                              f"the motion", stacklevel=2)
+                rigid[att[swept]] = False
+        inv_mass[rigid] = 0.0
     return Garment(name, np.ascontiguousarray(x), np.ascontiguousarray(rest), np.ascontiguousarray(tri),
                    springs, rest_len, kinds, inv_mass, attach_joint, attach_local, float(density))
 

@@ -125,7 +125,9 @@ class _System:
         springs = np.concatenate([g.springs + o for g, o in zip(garments, self.offsets)])
         rest = np.concatenate([g.rest_lengths for g in garments])
         kinds = np.concatenate([g.kinds for g in garments])
-        w = self.inv_mass
+        # springs, tethers and the aerodynamic force see every attached particle as pinned (yielding
+        # ones too: they yield to the collision response only, see Garment.attach_joint)
+        w = np.where(self.attach_joint >= 0, 0.0, self.inv_mass)
         wsum = w[springs[:, 0]] + w[springs[:, 1]]
         live = wsum > 0
         springs, rest, kinds, wsum = springs[live], rest[live], kinds[live], wsum[live]
