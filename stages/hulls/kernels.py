@@ -10,6 +10,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.affine import triangle_cross
+
+NUMBA_CACHE_DEPENDS = ("stages.affine",)
+
 LP_EPS = 1e-10       # feasibility slack of the LP, in the LP's normalised units
 BOX = 8.0            # LP box half-width, in units of the collapse region's radius
 PRIO_QEM = 0
@@ -147,15 +152,7 @@ def _shuffled(n, state):
 @njit(cache=True)
 def _face_plane(verts, i0, i1, i2, out):
     """out[:3] = unit normal of triangle (i0, i1, i2), out[3] = offset; returns twice the area."""
-    ax = verts[i1, 0] - verts[i0, 0]
-    ay = verts[i1, 1] - verts[i0, 1]
-    az = verts[i1, 2] - verts[i0, 2]
-    bx = verts[i2, 0] - verts[i0, 0]
-    by = verts[i2, 1] - verts[i0, 1]
-    bz = verts[i2, 2] - verts[i0, 2]
-    nx = ay * bz - az * by
-    ny = az * bx - ax * bz
-    nz = ax * by - ay * bx
+    nx, ny, nz = triangle_cross(verts, i0, i1, i2)
     area2 = np.sqrt(nx * nx + ny * ny + nz * nz)
     if area2 > 0:
         nx /= area2

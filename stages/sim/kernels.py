@@ -36,7 +36,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
-from stages.affine import apply_affine
+from stages.affine import apply_affine, triangle_cross
 from stages.fastmath import inv_sqrt
 from stages.maps.kernels import METHOD_NEAREST_PLANE, METHOD_PAPER, ZERO_DIR, hull_query, query_arrays
 from stages.maps.types import KIND_CYLINDER as KIND_CYLINDER_MAP
@@ -108,15 +108,7 @@ def _tri_aero(x, xp, tri_mass, t, a, b, c, h, s, d_prev, wind, k_drag, k_lift):
     wx = wind[0] - ((x[a, 0] - xp[a, 0]) + (x[b, 0] - xp[b, 0]) + (x[c, 0] - xp[c, 0]) + 3.0 * s * d_prev[0]) * ih
     wy = wind[1] - ((x[a, 1] - xp[a, 1]) + (x[b, 1] - xp[b, 1]) + (x[c, 1] - xp[c, 1]) + 3.0 * s * d_prev[1]) * ih
     wz = wind[2] - ((x[a, 2] - xp[a, 2]) + (x[b, 2] - xp[b, 2]) + (x[c, 2] - xp[c, 2]) + 3.0 * s * d_prev[2]) * ih
-    e1x = x[b, 0] - x[a, 0]
-    e1y = x[b, 1] - x[a, 1]
-    e1z = x[b, 2] - x[a, 2]
-    e2x = x[c, 0] - x[a, 0]
-    e2y = x[c, 1] - x[a, 1]
-    e2z = x[c, 2] - x[a, 2]
-    nx = e1y * e2z - e1z * e2y
-    ny = e1z * e2x - e1x * e2z
-    nz = e1x * e2y - e1y * e2x
+    nx, ny, nz = triangle_cross(x, a, b, c)
     n2 = nx * nx + ny * ny + nz * nz
     w2 = wx * wx + wy * wy + wz * wz
     if n2 <= 1e-40 or w2 <= 1e-20:
@@ -1036,15 +1028,10 @@ def refit_winding_tree(vertices, triangles, order, node_start, node_end, childre
                 a = triangles[t, 0]
                 b = triangles[t, 1]
                 c = triangles[t, 2]
-                e1x = vertices[b, 0] - vertices[a, 0]
-                e1y = vertices[b, 1] - vertices[a, 1]
-                e1z = vertices[b, 2] - vertices[a, 2]
-                e2x = vertices[c, 0] - vertices[a, 0]
-                e2y = vertices[c, 1] - vertices[a, 1]
-                e2z = vertices[c, 2] - vertices[a, 2]
-                nx = 0.5 * (e1y * e2z - e1z * e2y)
-                ny = 0.5 * (e1z * e2x - e1x * e2z)
-                nz = 0.5 * (e1x * e2y - e1y * e2x)
+                nx, ny, nz = triangle_cross(vertices, a, b, c)
+                nx *= 0.5
+                ny *= 0.5
+                nz *= 0.5
                 ar = math.sqrt(nx * nx + ny * ny + nz * nz) + 1e-300
                 sx += nx
                 sy += ny
