@@ -222,10 +222,18 @@ def log_maps(rec: rr.RecordingStream, character: Character, motion: Motion, maps
 def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result) -> dict:
     """Cloth meshes, penetration counts, step time and the parameters. Returns the summary figures."""
     colors = [(70, 130, 230), (230, 120, 60), (90, 190, 110), (200, 80, 160)]
-    for i, track in enumerate(result.garments):
+    for i, (track, g) in enumerate(zip(result.garments, garments)):
         c = colors[i % len(colors)]
         log_mesh_series(rec, f"sim/{track.name}/mesh", track.triangles, track.positions, result.times,
                         albedo=(*c, 255))
+        a = g.attached
+        if a.size:   # attached particles: rigid ones dark, yielding ones (see Garment.attach_joint) amber
+            path = f"sim/{track.name}/attached"
+            rgba = np.where((g.inverse_mass[a] > 0)[:, None], [[255, 170, 0, 255]], [[40, 40, 40, 255]]).astype(np.uint8)
+            rec.log(path, rr.Points3D.from_fields(colors=rgba, radii=[0.006]), static=True)
+            rec.send_columns(path, indexes=time_columns(result.times),
+                             columns=rr.Points3D.columns(positions=track.positions[:, a].reshape(-1, 3)).partition(
+                                 np.full(len(result.times), a.size)))
     log_scalar_series(rec, "sim/penetrations/colliders", result.penetrations_colliders, result.times,
                       name="inside a collider", color=(230, 80, 60))
     audited = bool(result.params.body_audit)

@@ -54,6 +54,14 @@ def test_per_frame_series_have_one_value_per_frame(default_run):
     assert [f for f, _ in cloth] == list(range(FRAMES))
     assert all(np.isfinite(v).all() for _, v in cloth)
     assert not np.allclose(cloth[0][1], cloth[-1][1])   # the cloth moved
+    pinned = rows(out, "sim/skirt/attached", "Points3D:positions")
+    assert [f for f, _ in pinned] == list(range(FRAMES))
+    # the attached points are mesh vertices, the same ones every frame: the waistband ring
+    idx = [np.flatnonzero((np.abs(cloth[f][1][:, None] - p[None]).max(axis=2) < 1e-7).any(axis=1))
+           for f, p in pinned]
+    assert all(len(i) == len(pinned[0][1]) > 0 for i in idx) and all(np.array_equal(i, idx[0]) for i in idx)
+    colors = rows(out, "sim/skirt/attached", "Points3D:colors", static=True)
+    assert len(colors) == 1 and len(colors[0][1]) == len(pinned[0][1])
 
 
 def test_skinned_mesh_in_the_recording_is_the_world_frame_skin(default_run):
