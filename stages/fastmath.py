@@ -5,13 +5,16 @@ as a sqrt then a divide that costs ~35 cycles of latency per spring in the Gauss
 speed is bound by that latency (benchmark: 3 rounds over the 50 x 50 drape, 170 -> 136 us).
 The estimate plus one Newton step (y <- y (1.5 - 0.5 x y^2)) is accurate to INV_SQRT_REL_ERROR:
 
-- x86-64 with AVX-512F (host CPU): vrsqrt14sd, 2^-14 estimate, error after Newton < 1e-8;
+- x86-64 with AVX-512F and VL (host CPU): vrsqrt14sd, 2^-14 estimate, error after Newton < 1e-8;
 - other x86-64: rsqrtss (SSE, float32), 1.5 * 2^-12 estimate, < 3e-7 after Newton; outside the
   float32 normal range the exact form is used;
 - other machines: the exact 1.0 / sqrt(x).
 
 The choice follows numba's target CPU (NUMBA_CPU_NAME set = a portable build: no AVX-512).
 x must be > 0 and finite; callers skip x <= 0 as they would for the exact form.
+
+`inv_sqrt_v4(builder, x)` emits the same computation on the 4 lanes of an LLVM <4 x double> (for
+intrinsics that work on vectors), lane by lane bit-identical to `inv_sqrt`.
 """
 from __future__ import annotations
 
@@ -30,7 +33,8 @@ def _cpu_kind() -> str:
     if config.CPU_NAME is None:         # compiling for this host
         import llvmlite.binding as ll
         try:
-            if ll.get_host_cpu_features().get("avx512f", False):
+            features = ll.get_host_cpu_features()
+            if features.get("avx512f", False) and features.get("avx512vl", False):   # VL: 256-bit form
                 return "avx512"
         except RuntimeError:            # features unknown: stay on the x86-64 baseline
             pass
@@ -92,3 +96,56 @@ def inv_sqrt_exact(x):
 
 
 inv_sqrt = {"avx512": inv_sqrt_avx512, "sse": inv_sqrt_sse, "exact": inv_sqrt_exact}[CPU_KIND]
+
+
+# -- 4 lanes at once: LLVM IR for intrinsics (<4 x double> in, <4 x double> out) --------------------
+V4 = ir.VectorType(ir.DoubleType(), 4)
+
+
+def _splat(value: float) -> ir.Constant:
+    return ir.Constant(V4, [value] * 4)
+
+
+def _newton_v4(builder, x, y):
+    """y (1.5 - 0.5 x y y), the scalar variants' Newton step in their operation order."""
+    return builder.fmul(y, builder.fsub(_splat(1.5), builder.fmul(builder.fmul(builder.fmul(_splat(0.5), x), y), y)))
+
+
+def _exact_v4(builder, x):
+    sqrt = cgutils.get_or_insert_function(builder.module, ir.FunctionType(V4, [V4]), "llvm.sqrt.v4f64")
+    return builder.fdiv(_splat(1.0), builder.call(sqrt, [x]))
+
+
+def inv_sqrt_v4_avx512(builder, x):
+    """IR: inv_sqrt_avx512 on 4 lanes (vrsqrt14pd ymm, AVX-512F + VL)."""
+    fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(V4, [V4, V4, ir.IntType(8)]),
+                                        "llvm.x86.avx512.rsqrt14.pd.256")
+    y = builder.call(fn, [x, ir.Constant(V4, None), ir.Constant(ir.IntType(8), -1)])
+    return _newton_v4(builder, x, y)
+
+
+def inv_sqrt_v4_sse(builder, x):
+    """IR: inv_sqrt_sse on 4 lanes (rsqrtps); lanes outside float32's normal range take the exact
+    form, computed only when there is one (a branch, not a select)."""
+    v4f = ir.VectorType(ir.FloatType(), 4)
+    fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(v4f, [v4f]), "llvm.x86.sse.rsqrt.ps")
+    y = builder.fpext(builder.call(fn, [builder.fptrunc(x, v4f)]), V4)
+    estimated = _newton_v4(builder, x, y)
+    outside = builder.or_(builder.fcmp_ordered("<", x, _splat(1e-36)), builder.fcmp_ordered(">", x, _splat(1e36)))
+    any_outside = builder.icmp_unsigned("!=", builder.bitcast(outside, ir.IntType(4)), ir.Constant(ir.IntType(4), 0))
+    start = builder.block
+    with builder.if_then(any_outside, likely=False):
+        mixed = builder.select(outside, _exact_v4(builder, x), estimated)
+        outside_block = builder.block
+    out = builder.phi(V4)
+    out.add_incoming(estimated, start)
+    out.add_incoming(mixed, outside_block)
+    return out
+
+
+def inv_sqrt_v4_exact(builder, x):
+    """IR: 1 / sqrt on 4 lanes."""
+    return _exact_v4(builder, x)
+
+
+inv_sqrt_v4 = {"avx512": inv_sqrt_v4_avx512, "sse": inv_sqrt_v4_sse, "exact": inv_sqrt_v4_exact}[CPU_KIND]

@@ -41,7 +41,8 @@ def test_springs_match_python_gauss_seidel():
     x = x0.copy()
     # tethers: particle 7 may be at most 0.05 from particle 0, particle 9 at most 1.0 from 3
     ti, ta, tl = np.array([7, 9], np.int32), np.array([0, 3], np.int32), np.array([0.05, 1.0])
-    K.correct_springs(x, *K.pack_springs(s[:, 0], s[:, 1], rest, wi, wj), part, ti, ta, tl, 3)
+    K.correct_springs(x, K.spring_scratch(len(x)), *K.pack_springs(s[:, 0], s[:, 1], rest, wi, wj, part, len(x)),
+                      ti, ta, tl, 3)
     ref = x0.copy()
     for _ in range(3):
         for q in range(len(s)):
@@ -93,15 +94,17 @@ def test_parallel_springs_match_sequential_block_order():
     no = np.zeros(0, np.int32)
     seq = x0.copy()
     one = np.array([0, len(s), len(s)], np.int64)  # everything as one sequential block
-    packed = K.pack_springs(s[:, 0], s[:, 1], rest, wi, wj)
-    K.correct_springs(seq, *packed, one, no, no, np.zeros(0), 3)
+    scratch = K.spring_scratch(len(x0))
+    K.correct_springs(seq, scratch, *K.pack_springs(s[:, 0], s[:, 1], rest, wi, wj, one, len(x0)), no, no,
+                      np.zeros(0), 3)
+    packed = K.pack_springs(s[:, 0], s[:, 1], rest, wi, wj, part, len(x0))
     out = []
     for t in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
         old = numba.get_num_threads()
         numba.set_num_threads(t)
         try:
             y = x0.copy()
-            K.correct_springs(y, *packed, part, no, no, np.zeros(0), 3)
+            K.correct_springs(y, scratch, *packed, no, no, np.zeros(0), 3)
         finally:
             numba.set_num_threads(old)
         out.append(y)
@@ -398,9 +401,13 @@ def test_springs_skip_coincident_ends_and_leave_pinned_particles():
     x = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.3, 0.4, 0.0]])
     si, sj = np.array([0, 1]), np.array([1, 2])
     rest, wi, wj = np.array([0.1, 0.25]), np.array([0.5, 0.0]), np.array([0.5, 1.0])
-    ij, sp = K.pack_springs(si, sj, rest, wi, wj)
-    assert ij.dtype == np.uint32 and list(ij) == [0, 3, 3, 6] and list(sp) == [0.1, 0.5, 0.5, 0.25, 0.0, 1.0]
+    ij, sp, group_start = K.pack_springs(si, sj, rest, wi, wj, np.array([0, 2, 2], np.int64), 3)
+    # spring 1 shares particle 1 with spring 0: two groups, each padded with dummies on row 3
+    assert ij.dtype == np.uint32 and list(group_start) == [0, 2, 2]
+    assert list(ij) == [0, 12, 12, 12, 4, 12, 12, 12, 4, 12, 12, 12, 8, 12, 12, 12]
+    assert list(sp[:12]) == [0.1, 0, 0, 0, 0.5, 0, 0, 0, 0.5, 0, 0, 0]
+    assert list(sp[12:]) == [0.25, 0, 0, 0, 0.0, 0, 0, 0, 1.0, 0, 0, 0]
     no = np.zeros(0, np.int32)
-    K.correct_springs(x, ij, sp, np.array([0, 2, 2], np.int64), no, no, np.zeros(0), 1)
+    K.correct_springs(x, K.spring_scratch(3), ij, sp, group_start, no, no, np.zeros(0), 1)
     np.testing.assert_array_equal(x[:2], 0.0)
     np.testing.assert_allclose(x[2], [0.15, 0.2, 0.0], atol=1e-15)

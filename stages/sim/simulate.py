@@ -132,14 +132,16 @@ class _System:
         live = wsum > 0
         springs, rest, kinds, wsum = springs[live], rest[live], kinds[live], wsum[live]
         stiff = np.where(kinds == BEND, params.bend_stiffness, params.stretch_stiffness)
-        order, self.part_start = K.partition_springs(self.x, springs, n_parts=2)
+        order, part_start = K.partition_springs(self.x, springs, n_parts=2)
         springs, rest, stiff, wsum = springs[order], rest[order], stiff[order], wsum[order]
         self.si = np.ascontiguousarray(springs[:, 0], dtype=np.int32)
         self.sj = np.ascontiguousarray(springs[:, 1], dtype=np.int32)
         self.rest = np.ascontiguousarray(rest)
         self.wi = np.ascontiguousarray(stiff * w[self.si] / wsum)
         self.wj = np.ascontiguousarray(stiff * w[self.sj] / wsum)
-        self.ij, self.sp = K.pack_springs(self.si, self.sj, self.rest, self.wi, self.wj)
+        self.ij, self.sp, self.group_start = K.pack_springs(self.si, self.sj, self.rest, self.wi, self.wj,
+                                                            part_start, n)
+        self.x4 = K.spring_scratch(n)
         self.tris = np.ascontiguousarray(np.concatenate([g.triangles + o for g, o in zip(garments, self.offsets)]),
                                          dtype=np.int32)
         # mass of each triangle's free vertices (a third of each lumped mass; aerodynamic force cap)
@@ -161,8 +163,8 @@ class _System:
     def cloth(self) -> tuple:
         """The kernels' `cloth` tuple (see stages/sim/kernels.py)."""
         return (self.x, self.xp, self.inv_mass, self.attach_joint, self.attach_local, self.ij, self.sp,
-                self.part_start, self.ti, self.ta, self.tl, self.tris, self.tri_mass, self.tri_force,
-                self.vt_start, self.vt_tri)
+                self.group_start, self.ti, self.ta, self.tl, self.tris, self.tri_mass, self.tri_force,
+                self.vt_start, self.vt_tri, self.x4)
 
     def set_colliders(self, n_colliders: int):
         """The collision kernel's per particle and collider face cache, all unknown (-1)."""
