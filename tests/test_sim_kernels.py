@@ -187,7 +187,7 @@ def _collide(col, x, xp, friction=0.0, method=0, passes=4, contact=None):
     corr, ins, sp = np.zeros(n, np.uint8), np.zeros(n, np.uint8), np.zeros(n)
     contact = np.full((n, col.joint.size), -1, np.int32) if contact is None else contact
     K.build_grid(col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.fq, col.cw, col.grid_start,
-                 col.grid_items, col.grid_box, col.grid_dims)
+                 col.grid_items, col.grid_runs, col.grid_box, col.grid_dims)
     K.collide(out, xp, np.ones(n), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.tq0, col.fq,
               col.cw, col.grid_start, col.grid_items, col.grid_box, col.grid_dims, col.face_edges, col.src_range,
               friction, passes, corr, ins, sp, contact, 1 / 30)

@@ -21,7 +21,7 @@ Cloth-side argument tuples (built once by simulate.py, unpacked for free inside 
     cloth = (x, xp, inv_mass, attach_joint, attach_local, ij, sp, part_start, ti, ta, tl, tris,
              tri_mass, tri_force, vt_start, vt_tri)
     cols  = (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
-             tq, tq0, fq, cw, grid_start, grid_items, grid_box, grid_dims, face_edges, src_range)
+             tq, tq0, fq, cw, grid_start, grid_items, grid_runs, grid_box, grid_dims, face_edges, src_range)
     prm   = (h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method)
     flags = (corrected, inside, speed2, contact)
 """
@@ -419,53 +419,82 @@ def _query_box(c, m, col_kind, col_index, sph_radius):
     return m.half[idx, 0] + e, m.half[idx, 1] + e, m.half[idx, 2] + e
 
 
+@njit(cache=True, inline="always")
+def _k_range(q, s, inv_s, lim, ka, kb):
+    """[ka, kb] narrowed to the reals k with |q + k s| <= lim (empty: ka > kb); inv_s = 1 / s."""
+    if s > 0.0:
+        return max(ka, (-lim - q) * inv_s), min(kb, (lim - q) * inv_s)
+    if s < 0.0:
+        return max(ka, (lim - q) * inv_s), min(kb, (-lim - q) * inv_s)
+    if abs(q) > lim:
+        return ka, ka - 1.0
+    return ka, kb
+
+
 @njit(cache=True, _nrt=False)
-def _grid_pass(fill, m, col_kind, col_index, sph_radius, use_obb, tq, fq, cw, grid_start, grid_items, grid_box,
-               grid_dims):
-    """One pass over the cells each collider may reach (build_grid): count them into
-    grid_start[cell + 1] (fill False), or write c at grid_start[cell] and advance it (fill True)."""
+def _collider_runs(c, m, col_kind, col_index, sph_radius, use_obb, tq, fq, cw, grid_start, grid_runs, nr, grid_box,
+                   grid_dims):
+    """Append to grid_runs[nr:] the runs (c, first cell, cells) of consecutive cells (along axis 2)
+    that collider c may reach, counting each cell into grid_start[cell]; returns the new run count.
+    Per row (i, j) of the collider's world box, the k whose cell (widened against round-off) meets
+    its world sphere and, when use_obb, its query-frame box: on each query axis the cell, a
+    parallelepiped there, has half-width hc sum|tq row| around its centre, which moves linearly in k."""
     g0 = grid_box[0]
     g1 = grid_box[1]
     g2 = grid_box[2]
     inv = grid_box[3]
     cs = 1.0 / inv
-    n0 = grid_dims[0]
     n1 = grid_dims[1]
     n2 = grid_dims[2]
-    e = 1e-9 * (cs + abs(g0) + abs(g1) + abs(g2))     # the cell of floor((p - g) / cs), widened for round-off
-    hc = 0.5 * cs + e
-    for c in range(cw.shape[0]):
-        lo0, lo1, lo2, hi0, hi1, hi2 = _world_box(c, m, col_kind, col_index, sph_radius, use_obb, fq, cw)
-        b0, b1, b2 = _query_box(c, m, col_kind, col_index, sph_radius)
-        # a cell's half-width along each query axis (the cell is a parallelepiped there)
-        w0 = hc * (abs(tq[c, 0]) + abs(tq[c, 1]) + abs(tq[c, 2]))
-        w1 = hc * (abs(tq[c, 4]) + abs(tq[c, 5]) + abs(tq[c, 6]))
-        w2 = hc * (abs(tq[c, 8]) + abs(tq[c, 9]) + abs(tq[c, 10]))
-        for i in range(int((lo0 - g0) * inv), min(int((hi0 - g0) * inv), n0 - 1) + 1):
-            x = g0 + (i + 0.5) * cs
-            d0 = max(abs(x - cw[c, 0]) - hc, 0.0)
-            for j in range(int((lo1 - g1) * inv), min(int((hi1 - g1) * inv), n1 - 1) + 1):
-                y = g1 + (j + 0.5) * cs
-                d1 = max(abs(y - cw[c, 1]) - hc, 0.0)
-                for k in range(int((lo2 - g2) * inv), min(int((hi2 - g2) * inv), n2 - 1) + 1):
-                    z = g2 + (k + 0.5) * cs
-                    d2 = max(abs(z - cw[c, 2]) - hc, 0.0)
-                    if d0 * d0 + d1 * d1 + d2 * d2 >= cw[c, 4]:
-                        continue
-                    if use_obb:
-                        q0, q1, q2 = _apply12(tq, c, x, y, z)
-                        if abs(q0) > b0 + w0 or abs(q1) > b1 + w1 or abs(q2) > b2 + w2:
-                            continue
-                    cell = (i * n1 + j) * n2 + k
-                    if fill:
-                        grid_items[grid_start[cell]] = c
-                        grid_start[cell] += 1
-                    else:
-                        grid_start[cell + 1] += 1
+    hc = 0.5 * cs + 1e-9 * (cs + abs(g0) + abs(g1) + abs(g2))   # cells widened against round-off
+    lo0, lo1, lo2, hi0, hi1, hi2 = _world_box(c, m, col_kind, col_index, sph_radius, use_obb, fq, cw)
+    b0, b1, b2 = _query_box(c, m, col_kind, col_index, sph_radius)
+    l0 = b0 + hc * (abs(tq[c, 0]) + abs(tq[c, 1]) + abs(tq[c, 2]))
+    l1 = b1 + hc * (abs(tq[c, 4]) + abs(tq[c, 5]) + abs(tq[c, 6]))
+    l2 = b2 + hc * (abs(tq[c, 8]) + abs(tq[c, 9]) + abs(tq[c, 10]))
+    s0 = cs * tq[c, 2]
+    s1 = cs * tq[c, 6]
+    s2 = cs * tq[c, 10]
+    i0 = 1.0 / s0 if s0 != 0.0 else 0.0
+    i1 = 1.0 / s1 if s1 != 0.0 else 0.0
+    i2 = 1.0 / s2 if s2 != 0.0 else 0.0
+    r2 = cw[c, 4]
+    z0 = g2 + 0.5 * cs          # the centre of cell k = 0 along axis 2
+    k0 = float(int((lo2 - g2) * inv))
+    k1 = float(int((hi2 - g2) * inv))
+    for i in range(int((lo0 - g0) * inv), int((hi0 - g0) * inv) + 1):
+        x = g0 + (i + 0.5) * cs
+        d0 = max(abs(x - cw[c, 0]) - hc, 0.0)
+        for j in range(int((lo1 - g1) * inv), int((hi1 - g1) * inv) + 1):
+            y = g1 + (j + 0.5) * cs
+            d1 = max(abs(y - cw[c, 1]) - hc, 0.0)
+            rem = r2 - d0 * d0 - d1 * d1
+            if rem <= 0.0:
+                continue
+            ka, kb = _k_range((z0 - cw[c, 2]) * inv, 1.0, 1.0, (hc + math.sqrt(rem)) * inv, k0, k1)
+            if use_obb:
+                q0, q1, q2 = _apply12(tq, c, x, y, z0)
+                ka, kb = _k_range(q0, s0, i0, l0, ka, kb)
+                ka, kb = _k_range(q1, s1, i1, l1, ka, kb)
+                ka, kb = _k_range(q2, s2, i2, l2, ka, kb)
+            ka = math.ceil(ka)
+            kb = math.floor(kb)
+            if ka > kb:
+                continue
+            first = (i * n1 + j) * n2 + int(ka)
+            count = int(kb) - int(ka) + 1
+            grid_runs[nr, 0] = c
+            grid_runs[nr, 1] = first
+            grid_runs[nr, 2] = count
+            nr += 1
+            for cell in range(first, first + count):
+                grid_start[cell] += 1
+    return nr
 
 
 @njit(cache=True, _nrt=False)
-def build_grid(m, method, col_kind, col_index, sph_radius, tq, fq, cw, grid_start, grid_items, grid_box, grid_dims):
+def build_grid(m, method, col_kind, col_index, sph_radius, tq, fq, cw, grid_start, grid_items, grid_runs, grid_box,
+               grid_dims):
     """Broad phase: a uniform grid over the colliders' world boxes (_world_box), rebuilt per step.
 
     grid_box (4,): the grid's low corner and 1 / cell size; grid_dims (3,): cells per axis, at most
@@ -474,7 +503,7 @@ def build_grid(m, method, col_kind, col_index, sph_radius, tq, fq, cw, grid_star
     list per cell, ascending c, of every collider whose world sphere and query-frame box (not with
     METHOD_NEAREST_PLANE, which does not test the OBB) meet the cell: no other can hold a point of
     it. A point off the grid is outside every collider. Cells of about the smallest collider's
-    world radius, larger when that would exceed the cell budget.
+    world radius, larger when that would exceed the cell budget. grid_runs (C cells, 3): scratch.
     """
     nc = cw.shape[0]
     grid_dims[:] = 0
@@ -512,15 +541,18 @@ def build_grid(m, method, col_kind, col_index, sph_radius, tq, fq, cw, grid_star
     grid_dims[2] = n2
     nce = n0 * n1 * n2
     grid_start[:nce + 1] = 0
-    _grid_pass(False, m, col_kind, col_index, sph_radius, use_obb, tq, fq, cw, grid_start, grid_items, grid_box,
-               grid_dims)
-    for b in range(nce):
-        grid_start[b + 1] += grid_start[b]
-    _grid_pass(True, m, col_kind, col_index, sph_radius, use_obb, tq, fq, cw, grid_start, grid_items, grid_box,
-               grid_dims)
-    for b in range(nce, 0, -1):     # the fill advanced grid_start[b] to the end of cell b: shift back
-        grid_start[b] = grid_start[b - 1]
-    grid_start[0] = 0
+    nr = 0
+    for c in range(nc):     # count each cell's colliders into grid_start[cell]
+        nr = _collider_runs(c, m, col_kind, col_index, sph_radius, use_obb, tq, fq, cw, grid_start, grid_runs, nr,
+                            grid_box, grid_dims)
+    for b in range(1, nce):     # grid_start[b]: the end of cell b's list
+        grid_start[b] += grid_start[b - 1]
+    grid_start[nce] = grid_start[nce - 1]
+    for r in range(nr - 1, -1, -1):     # descending c, each list filled from its end: ascending lists,
+        c = grid_runs[r, 0]             # and grid_start[b] moves back to the start of cell b's list
+        for cell in range(grid_runs[r, 1], grid_runs[r, 1] + grid_runs[r, 2]):
+            grid_start[cell] -= 1
+            grid_items[grid_start[cell]] = c
 
 
 @njit(cache=True, inline="always")
@@ -1028,7 +1060,7 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
     (x, xp, inv_mass, attach_joint, attach_local, ij, sp, part_start, ti, ta, tl, tris, tri_mass,
      tri_force, vt_start, vt_tri) = cloth
     (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
-     tq, tq0, fq, cw, grid_start, grid_items, grid_box, grid_dims, face_edges, src_range) = cols
+     tq, tq0, fq, cw, grid_start, grid_items, grid_runs, grid_box, grid_dims, face_edges, src_range) = cols
     h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method = prm
     corrected, inside, speed2, contact = flags
     for k in range(k0, k1):
@@ -1042,7 +1074,8 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
         t2 = cycles()
         collider_frames(fwd[k], inv[k], inv0[k], m, col_joint, col_kind, col_index, col_bcenter, col_bradius,
                         sph_center, tq, tq0, fq, cw)
-        build_grid(m, method, col_kind, col_index, sph_radius, tq, fq, cw, grid_start, grid_items, grid_box, grid_dims)
+        build_grid(m, method, col_kind, col_index, sph_radius, tq, fq, cw, grid_start, grid_items, grid_runs, grid_box,
+                   grid_dims)
         collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
                 grid_start, grid_items, grid_box, grid_dims, face_edges, src_range, friction, passes, corrected, inside,
                 speed2, contact, h)
