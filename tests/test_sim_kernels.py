@@ -181,7 +181,6 @@ def _collider_arrays(cs, maps, fwd, inv0=None):
     inv = np.linalg.inv(fwd)
     K.collider_frames(fwd, inv, inv if inv0 is None else inv0, col.m, col.joint, col.kind, col.index, col.bcenter,
                       col.bradius, col.sph_center, col.tq, col.tq0, col.fq, col.cw)
-    K.build_bins(col.cw, col.bin_start, col.bin_items, col.bin_range)
     return col
 
 
@@ -190,9 +189,11 @@ def _collide(col, x, xp, friction=0.0, method=0, passes=4, contact=None):
     out, xp = x.copy(), xp.copy()
     corr, ins, sp = np.zeros(n, np.uint8), np.zeros(n, np.uint8), np.zeros(n)
     contact = np.full((n, col.joint.size), -1, np.int32) if contact is None else contact
+    K.build_grid(col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.fq, col.cw, col.grid_start,
+                 col.grid_items, col.grid_runs, col.grid_box, col.grid_dims)
     K.collide(out, xp, np.ones(n), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.tq0, col.fq,
-              col.cw, col.bin_start, col.bin_items, col.bin_range, col.face_edges, col.src_range, friction, passes,
-              corr, ins, sp, contact, 1 / 30)
+              col.cw, col.grid_start, col.grid_items, col.grid_box, col.grid_dims, col.face_edges, col.src_range,
+              friction, passes, corr, ins, sp, contact, 1 / 30)
     return out, xp, corr, ins
 
 

@@ -14,14 +14,14 @@ array argument of each helper inlined into the loop, which cost more than the hu
 Collisions: per step each collider gets a world bounding sphere and one 3x4 matrix world ->
 *query frame* (hulls: the OBB-local frame of the maps; spheres: bone-local with the centre at the
 origin); a particle is transformed only after the world sphere test, a hull only queried inside
-its OBB, the hull response reports its exit face (the contact normal, no face scan), and after a
-push the particle is re-checked only against the colliders whose world sphere holds it.
+its OBB, the hull response reports its exit face (the contact normal, no face scan), and a particle
+visits only the colliders listed in its cell of a per-step uniform grid (build_grid).
 
 Cloth-side argument tuples (built once by simulate.py, unpacked for free inside njit):
     cloth = (x, xp, inv_mass, attach_joint, attach_local, ij, sp, group_start, ti, ta, tl, tris,
              tri_mass, tri_force, vt_start, vt_tri, x4)
     cols  = (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
-             tq, tq0, fq, cw, bin_start, bin_items, bin_range, face_edges, src_range)
+             tq, tq0, fq, cw, grid_start, grid_items, grid_runs, grid_box, grid_dims, face_edges, src_range)
     prm   = (h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method)
     flags = (corrected, inside, speed2, contact)
 """
@@ -48,7 +48,7 @@ KIND_HULL = 0
 KIND_SPHERE = 1
 PUSH_EPS = 1e-7      # m: responded particles end this far outside, so the inclusive inside test says "out"
 TOUCH_EPS = 1e-9     # m: a response moving a particle less than this is a touch, not a penetration
-N_BINS = 64          # broad phase: horizontal slabs over the colliders' height range
+GRID_CELLS = 4096    # broad phase: at most this many grid cells over the colliders' world boxes
 _EYE3 = np.eye(3)    # the query frame of a sphere is not rotated
 
 # timer slots (CPU cycles; simulate.py converts to seconds)
@@ -471,45 +471,192 @@ def collider_frames(fwd, inv, inv0, m, col_joint, col_kind, col_index, col_bcent
         cw[c, 4] = rad * rad
 
 
-@njit(cache=True, _nrt=False)
-def build_bins(cw, bin_start, bin_items, bin_range):
-    """Horizontal slabs over the colliders' world bounding spheres cw (C, 5).
+@njit(cache=True, inline="always")
+def _world_box(c, m, col_kind, col_index, sph_radius, use_obb, fq, cw):
+    """(lo0, lo1, lo2, hi0, hi1, hi2): a world axis-aligned box holding every point collider c can
+    report inside: its world sphere's box, cut to the box of its query-frame box (hull: the OBB
+    widened by the maps' convexity tolerance; sphere: the cube around it) when use_obb; widened by
+    1e-9 of its size and position against round-off between fq and tq."""
+    r = cw[c, 3]
+    e = 1e-9 * (r + abs(cw[c, 0]) + abs(cw[c, 1]) + abs(cw[c, 2]))
+    lo0 = cw[c, 0] - r
+    lo1 = cw[c, 1] - r
+    lo2 = cw[c, 2] - r
+    hi0 = cw[c, 0] + r
+    hi1 = cw[c, 1] + r
+    hi2 = cw[c, 2] + r
+    if use_obb:
+        b0, b1, b2 = _query_box(c, m, col_kind, col_index, sph_radius)
+        x0 = abs(fq[c, 0]) * b0 + abs(fq[c, 1]) * b1 + abs(fq[c, 2]) * b2
+        x1 = abs(fq[c, 4]) * b0 + abs(fq[c, 5]) * b1 + abs(fq[c, 6]) * b2
+        x2 = abs(fq[c, 8]) * b0 + abs(fq[c, 9]) * b1 + abs(fq[c, 10]) * b2
+        lo0 = max(lo0, fq[c, 3] - x0)
+        lo1 = max(lo1, fq[c, 7] - x1)
+        lo2 = max(lo2, fq[c, 11] - x2)
+        hi0 = min(hi0, fq[c, 3] + x0)
+        hi1 = min(hi1, fq[c, 7] + x1)
+        hi2 = min(hi2, fq[c, 11] + x2)
+    return lo0 - e, lo1 - e, lo2 - e, hi0 + e, hi1 + e, hi2 + e
 
-    bin_range (2,): y of the first slab and the slab height. bin_start (N_BINS + 1,), bin_items
-    (C * N_BINS,): CSR list of the colliders whose sphere overlaps each slab (ascending c).
+
+@njit(cache=True, inline="always")
+def _query_box(c, m, col_kind, col_index, sph_radius):
+    """Half extents of a query-frame box around collider c: hull, its OBB widened by the maps'
+    convexity tolerance (CONVEX_TOL = 1e-6 of the longest half extent: a face plane may pass that
+    far outside a vertex); sphere, the cube around it."""
+    idx = col_index[c]
+    if col_kind[c] == KIND_SPHERE:
+        r = sph_radius[idx] * (1.0 + 1e-9)
+        return r, r, r
+    e = 1e-6 * m.half[idx, 0]
+    return m.half[idx, 0] + e, m.half[idx, 1] + e, m.half[idx, 2] + e
+
+
+@njit(cache=True, inline="always")
+def _k_range(q, s, inv_s, lim, ka, kb):
+    """[ka, kb] narrowed to the reals k with |q + k s| <= lim (empty: ka > kb); inv_s = 1 / s."""
+    if s > 0.0:
+        return max(ka, (-lim - q) * inv_s), min(kb, (lim - q) * inv_s)
+    if s < 0.0:
+        return max(ka, (lim - q) * inv_s), min(kb, (-lim - q) * inv_s)
+    if abs(q) > lim:
+        return ka, ka - 1.0
+    return ka, kb
+
+
+@njit(cache=True, _nrt=False)
+def _collider_runs(c, m, col_kind, col_index, sph_radius, use_obb, tq, fq, cw, grid_start, grid_runs, nr, grid_box,
+                   grid_dims):
+    """Append to grid_runs[nr:] the runs (c, first cell, cells) of consecutive cells (along axis 2)
+    that collider c may reach, counting each cell into grid_start[cell]; returns the new run count.
+    Per row (i, j) of the collider's world box, the k whose cell (widened against round-off) meets
+    its world sphere and, when use_obb, its query-frame box: on each query axis the cell, a
+    parallelepiped there, has half-width hc sum|tq row| around its centre, which moves linearly in k."""
+    g0 = grid_box[0]
+    g1 = grid_box[1]
+    g2 = grid_box[2]
+    inv = grid_box[3]
+    cs = 1.0 / inv
+    n1 = grid_dims[1]
+    n2 = grid_dims[2]
+    hc = 0.5 * cs + 1e-9 * (cs + abs(g0) + abs(g1) + abs(g2))   # cells widened against round-off
+    lo0, lo1, lo2, hi0, hi1, hi2 = _world_box(c, m, col_kind, col_index, sph_radius, use_obb, fq, cw)
+    b0, b1, b2 = _query_box(c, m, col_kind, col_index, sph_radius)
+    l0 = b0 + hc * (abs(tq[c, 0]) + abs(tq[c, 1]) + abs(tq[c, 2]))
+    l1 = b1 + hc * (abs(tq[c, 4]) + abs(tq[c, 5]) + abs(tq[c, 6]))
+    l2 = b2 + hc * (abs(tq[c, 8]) + abs(tq[c, 9]) + abs(tq[c, 10]))
+    s0 = cs * tq[c, 2]
+    s1 = cs * tq[c, 6]
+    s2 = cs * tq[c, 10]
+    i0 = 1.0 / s0 if s0 != 0.0 else 0.0
+    i1 = 1.0 / s1 if s1 != 0.0 else 0.0
+    i2 = 1.0 / s2 if s2 != 0.0 else 0.0
+    r2 = cw[c, 4]
+    z0 = g2 + 0.5 * cs          # the centre of cell k = 0 along axis 2
+    k0 = float(int((lo2 - g2) * inv))
+    k1 = float(int((hi2 - g2) * inv))
+    for i in range(int((lo0 - g0) * inv), int((hi0 - g0) * inv) + 1):
+        x = g0 + (i + 0.5) * cs
+        d0 = max(abs(x - cw[c, 0]) - hc, 0.0)
+        for j in range(int((lo1 - g1) * inv), int((hi1 - g1) * inv) + 1):
+            y = g1 + (j + 0.5) * cs
+            d1 = max(abs(y - cw[c, 1]) - hc, 0.0)
+            rem = r2 - d0 * d0 - d1 * d1
+            if rem <= 0.0:
+                continue
+            ka, kb = _k_range((z0 - cw[c, 2]) * inv, 1.0, 1.0, (hc + math.sqrt(rem)) * inv, k0, k1)
+            if use_obb:
+                q0, q1, q2 = _apply12(tq, c, x, y, z0)
+                ka, kb = _k_range(q0, s0, i0, l0, ka, kb)
+                ka, kb = _k_range(q1, s1, i1, l1, ka, kb)
+                ka, kb = _k_range(q2, s2, i2, l2, ka, kb)
+            ka = math.ceil(ka)
+            kb = math.floor(kb)
+            if ka > kb:
+                continue
+            first = (i * n1 + j) * n2 + int(ka)
+            count = int(kb) - int(ka) + 1
+            grid_runs[nr, 0] = c
+            grid_runs[nr, 1] = first
+            grid_runs[nr, 2] = count
+            nr += 1
+            for cell in range(first, first + count):
+                grid_start[cell] += 1
+    return nr
+
+
+@njit(cache=True, _nrt=False)
+def build_grid(m, method, col_kind, col_index, sph_radius, tq, fq, cw, grid_start, grid_items, grid_runs, grid_box,
+               grid_dims):
+    """Broad phase: a uniform grid over the colliders' world boxes (_world_box), rebuilt per step.
+
+    grid_box (4,): the grid's low corner and 1 / cell size; grid_dims (3,): cells per axis, at most
+    grid_start.size - 1 cells in all; cell (i, j, k) = (i n1 + j) n2 + k holds the world points p
+    with int((p - low) / size) = (i, j, k). grid_start (cells + 1,), grid_items (C cells,): CSR
+    list per cell, ascending c, of every collider whose world sphere and query-frame box (not with
+    METHOD_NEAREST_PLANE, which does not test the OBB) meet the cell: no other can hold a point of
+    it. A point off the grid is outside every collider. Cells of about the smallest collider's
+    world radius, larger when that would exceed the cell budget. grid_runs (C cells, 3): scratch.
     """
     nc = cw.shape[0]
-    nb = bin_start.size - 1
+    grid_dims[:] = 0
+    grid_start[0] = 0
     if nc == 0:
-        bin_start[:] = 0
-        bin_range[0] = 0.0
-        bin_range[1] = 1.0
         return
-    lo = np.inf
-    hi = -np.inf
+    use_obb = method != METHOD_NEAREST_PLANE
+    g0 = g1 = g2 = np.inf
+    t0 = t1 = t2 = -np.inf
+    rmin = np.inf
     for c in range(nc):
-        lo = min(lo, cw[c, 1] - cw[c, 3])
-        hi = max(hi, cw[c, 1] + cw[c, 3])
-    bh = (hi - lo) / nb + 1e-12
-    bin_range[0] = lo
-    bin_range[1] = bh
-    bin_start[:] = 0
-    for c in range(nc):
-        b0 = max(0, int((cw[c, 1] - cw[c, 3] - lo) / bh))
-        b1 = min(nb - 1, int((cw[c, 1] + cw[c, 3] - lo) / bh))
-        for b in range(b0, b1 + 1):
-            bin_start[b + 1] += 1
-    for b in range(nb):
-        bin_start[b + 1] += bin_start[b]
-    for c in range(nc):   # fill slab b from bin_start[b]; bin_start[b] is restored below
-        b0 = max(0, int((cw[c, 1] - cw[c, 3] - lo) / bh))
-        b1 = min(nb - 1, int((cw[c, 1] + cw[c, 3] - lo) / bh))
-        for b in range(b0, b1 + 1):
-            bin_items[bin_start[b]] = c
-            bin_start[b] += 1
-    for b in range(nb, 0, -1):
-        bin_start[b] = bin_start[b - 1]
-    bin_start[0] = 0
+        lo0, lo1, lo2, hi0, hi1, hi2 = _world_box(c, m, col_kind, col_index, sph_radius, use_obb, fq, cw)
+        g0 = min(g0, lo0)
+        g1 = min(g1, lo1)
+        g2 = min(g2, lo2)
+        t0 = max(t0, hi0)
+        t1 = max(t1, hi1)
+        t2 = max(t2, hi2)
+        rmin = min(rmin, cw[c, 3])
+    cap = grid_start.size - 1
+    inv = 1.0 / max(rmin, ((t0 - g0) * (t1 - g1) * (t2 - g2) / cap) ** (1.0 / 3.0))
+    while True:
+        n0 = int((t0 - g0) * inv) + 1
+        n1 = int((t1 - g1) * inv) + 1
+        n2 = int((t2 - g2) * inv) + 1
+        if n0 * n1 * n2 <= cap:
+            break
+        inv *= 0.9
+    grid_box[0] = g0
+    grid_box[1] = g1
+    grid_box[2] = g2
+    grid_box[3] = inv
+    grid_dims[0] = n0
+    grid_dims[1] = n1
+    grid_dims[2] = n2
+    nce = n0 * n1 * n2
+    grid_start[:nce + 1] = 0
+    nr = 0
+    for c in range(nc):     # count each cell's colliders into grid_start[cell]
+        nr = _collider_runs(c, m, col_kind, col_index, sph_radius, use_obb, tq, fq, cw, grid_start, grid_runs, nr,
+                            grid_box, grid_dims)
+    for b in range(1, nce):     # grid_start[b]: the end of cell b's list
+        grid_start[b] += grid_start[b - 1]
+    grid_start[nce] = grid_start[nce - 1]
+    for r in range(nr - 1, -1, -1):     # descending c, each list filled from its end: ascending lists,
+        c = grid_runs[r, 0]             # and grid_start[b] moves back to the start of cell b's list
+        for cell in range(grid_runs[r, 1], grid_runs[r, 1] + grid_runs[r, 2]):
+            grid_start[cell] -= 1
+            grid_items[grid_start[cell]] = c
+
+
+@njit(cache=True, inline="always")
+def _grid_cell(grid_box, grid_dims, px, py, pz):
+    """The grid cell of the world point (build_grid), -1 off the grid (non-finite points too)."""
+    u0 = (px - grid_box[0]) * grid_box[3]
+    u1 = (py - grid_box[1]) * grid_box[3]
+    u2 = (pz - grid_box[2]) * grid_box[3]
+    if not (0.0 <= u0 < grid_dims[0] and 0.0 <= u1 < grid_dims[1] and 0.0 <= u2 < grid_dims[2]):
+        return -1
+    return (int(u0) * grid_dims[1] + int(u1)) * grid_dims[2] + int(u2)
 
 
 # -- collider queries -----------------------------------------------------------------------------
@@ -838,20 +985,20 @@ def escape_union(c, last, col_kind, col_index, sph_radius, method, tq, cw,
 
 @njit(cache=True, parallel=True, _nrt=False)
 def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
-            bin_start, bin_items, bin_range, face_edges, src_range, friction, passes, corrected, inside, speed2,
-            contact, h):
+            grid_start, grid_items, grid_box, grid_dims, face_edges, src_range, friction, passes, corrected, inside,
+            speed2, contact, h):
     """Collision detection and response of every free particle against every collider.
 
-    Per particle: the colliders of its y slab whose world bounding sphere holds it are tested in
-    their query frame (spheres: paper eq. 5-6; hulls: OBB rejection, then stages.maps.kernels.hull_query
-    with `method`). After a push by collider c the particle is outside c (by PUSH_EPS; friction
-    slides it along the contact plane); the colliders of the slab of its new position are then visited
-    cyclically (world sphere test first) until every one has been checked at the current position
-    without a push, at most `passes` x (number of colliders) visits. A particle still inside one when the budget is spent is
-    being pushed back and forth between overlapping colliders: `escape_union` moves it to a point
-    outside all of them (no friction, inelastic along the escape). The response gets Coulomb friction
-    relative to the collider: its tangential travel over the step loses up to `friction` times the
-    push's normal depth.
+    Per particle: the colliders listed in its grid cell (build_grid) whose world bounding sphere
+    holds it are tested in their query frame (spheres: paper eq. 5-6; hulls: OBB rejection, then
+    stages.maps.kernels.hull_query with `method`). After a push by collider c the particle is outside c
+    (by PUSH_EPS; friction slides it along the contact plane); the colliders of the cell of its new
+    position are then visited cyclically after c (world sphere test first) until every one has been
+    checked at the current position without a push, at most `passes` x (number of colliders) visits.
+    A particle still inside one when the budget is spent is being pushed back and forth between
+    overlapping colliders: `escape_union` moves it to a point outside all of them (no friction,
+    inelastic along the escape). The response gets Coulomb friction relative to the collider: its
+    tangential travel over the step loses up to `friction` times the push's normal depth.
     corrected[i] |= 1 if the particle was pushed; inside[i] = 1 if it is still inside a collider at
     the end; speed2[i] = |x - xp|^2 / h^2 at the end (divergence check).
     Temporal coherence (METHOD_PAPER): contact (N, C) int32 holds per particle and hull the face of
@@ -862,9 +1009,6 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
     """
     (half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base, cell_start, cell_tris,
      loc_base, loc_x, loc_start, loc_y, loc_face) = query_arrays(m)
-    y0 = bin_range[0]
-    bh = bin_range[1]
-    nb = bin_start.size - 1
     nc = cw.shape[0]
     ih2 = 1.0 / (h * h)
     for i in prange(x.shape[0]):   # particles are independent: any thread count, same result
@@ -872,19 +1016,19 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
         py = x[i, 1]
         pz = x[i, 2]
         inside[i] = 0
-        b = int(math.floor((py - y0) / bh)) if nc > 0 else -1
-        if inv_mass[i] > 0.0 and 0 <= b < nb:
+        b = _grid_cell(grid_box, grid_dims, px, py, pz) if inv_mass[i] > 0.0 else -1
+        if b >= 0:
             # one visiting loop (a single inlined query site keeps the loop small):
-            # stage 0, the slab's colliders; stage 1, after a push, the others cyclically until all
+            # stage 0, the cell's colliders; stage 1, after a push, the others cyclically until all
             # were seen without a push; stage 2, the budget spent: only detect (no push).
-            e = bin_start[b]
-            e1 = bin_start[b + 1]
+            e = grid_start[b]
+            e1 = grid_start[b + 1]
             stage = 0
             last = -1
             streak = 0
             budget = passes * nc
             c = 0
-            k = k0 = k1 = 0             # stages 1-2: the slab list of the current position, its cursor
+            k = k0 = k1 = 0             # stages 1-2: the cell list of the current position, its cursor
             while True:
                 if stage == 0:
                     if e == e1:
@@ -893,25 +1037,25 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
                         stage = 1
                         streak = -1
                         continue
-                    c = bin_items[e]
+                    c = grid_items[e]
                     e += 1
                 else:
-                    if streak < 0:      # a new position: cycle over its slab's colliders (no other can hold it)
-                        bb = int(math.floor((py - y0) / bh))
-                        if bb < 0 or bb >= nb:
+                    if streak < 0:      # a new position: cycle over its cell's colliders (no other can hold it)
+                        bb = _grid_cell(grid_box, grid_dims, px, py, pz)
+                        if bb < 0:
                             break
-                        k0 = bin_start[bb]
-                        k1 = bin_start[bb + 1]
-                        k = k1 - 1
+                        k0 = grid_start[bb]
+                        k1 = grid_start[bb + 1]
+                        k = k1 - 1      # the cursor before the first collider after `last` (cyclic)
                         streak = 0
-                        for j in range(k0, k1):     # `last` is left outside by its own push: seen
-                            if bin_items[j] == last:
+                        for j in range(k0, k1):
+                            if grid_items[j] <= last:
                                 k = j
-                                streak = 1
+                                streak = int(grid_items[j] == last)     # `last` is left outside by its push: seen
                     if streak >= k1 - k0:
                         break
                     k = k + 1 if k + 1 < k1 else k0
-                    c = bin_items[k]
+                    c = grid_items[k]
                     if stage == 1:
                         budget -= 1
                         if budget < 0:
@@ -1009,7 +1153,7 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
     (x, xp, inv_mass, attach_joint, attach_local, ij, sp, group_start, ti, ta, tl, tris, tri_mass,
      tri_force, vt_start, vt_tri, x4) = cloth
     (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
-     tq, tq0, fq, cw, bin_start, bin_items, bin_range, face_edges, src_range) = cols
+     tq, tq0, fq, cw, grid_start, grid_items, grid_runs, grid_box, grid_dims, face_edges, src_range) = cols
     h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method = prm
     corrected, inside, speed2, contact = flags
     for k in range(k0, k1):
@@ -1023,10 +1167,11 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
         t2 = cycles()
         collider_frames(fwd[k], inv[k], inv0[k], m, col_joint, col_kind, col_index, col_bcenter, col_bradius,
                         sph_center, tq, tq0, fq, cw)
-        build_bins(cw, bin_start, bin_items, bin_range)
+        build_grid(m, method, col_kind, col_index, sph_radius, tq, fq, cw, grid_start, grid_items, grid_runs, grid_box,
+                   grid_dims)
         collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
-                bin_start, bin_items, bin_range, face_edges, src_range, friction, passes, corrected, inside, speed2,
-                contact, h)
+                grid_start, grid_items, grid_box, grid_dims, face_edges, src_range, friction, passes, corrected, inside,
+                speed2, contact, h)
         t3 = cycles()
         timers[T_INTEGRATE] += t1 - t0
         timers[T_CONSTRAINTS] += t2 - t1

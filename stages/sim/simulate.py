@@ -259,14 +259,17 @@ class _Colliders:
         self.tq0 = np.zeros((nc, 12))
         self.fq = np.zeros((nc, 12))
         self.cw = np.zeros((nc, 5))
-        self.bin_start = np.zeros(K.N_BINS + 1, np.int64)
-        self.bin_items = np.zeros(max(nc * K.N_BINS, 1), np.int32)
-        self.bin_range = np.zeros(2)
+        self.grid_start = np.zeros(K.GRID_CELLS + 1, np.int64)
+        self.grid_items = np.zeros(max(nc * K.GRID_CELLS, 1), np.int32)
+        self.grid_runs = np.zeros((max(nc * K.GRID_CELLS, 1), 3), np.int32)
+        self.grid_box = np.zeros(4)
+        self.grid_dims = np.zeros(3, np.int64)
 
     def cols(self) -> tuple:
         """The kernels' `cols` tuple (see stages/sim/kernels.py)."""
         return (self.joint, self.kind, self.index, self.bcenter, self.bradius, self.sph_center, self.sph_radius,
-                self.tq, self.tq0, self.fq, self.cw, self.bin_start, self.bin_items, self.bin_range,
+                self.tq, self.tq0, self.fq, self.cw, self.grid_start, self.grid_items, self.grid_runs,
+                self.grid_box, self.grid_dims,
                 self.face_edges, self.src_range)
 
 
