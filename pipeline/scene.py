@@ -195,7 +195,7 @@ SCENE_SPEC = {
         "stretch_stiffness": Field("float", 1.0, "share of a stretch correction applied", lo=0.0, lo_open=True, hi=1.0),
         "bend_stiffness": Field("float", 1.0, "share of a bend correction applied", lo=0.0, hi=1.0),
         "body_audit": Field("bool", True, "count particles inside the true skinned mesh per frame"),
-        "threads": Field("any", "auto", "worker threads for the simulation kernels, a count (1..256) or 'auto': "
+        "threads": Field("any", 1, "worker threads for the simulation kernels, a count (1..256) or 'auto': "
                          "1 or all, chosen every 4 frames by timing both (results are identical for any count)",
                          check=_check_threads),
     }),
