@@ -347,8 +347,6 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 finally:
                     bar.close()
                 r.sizes.update(steps=result.steps)
-                r.sizes.update({"threads": n.removeprefix("threads auto: ") for n in result.notes
-                                if n.startswith("threads auto: ")})
             summary.penetrations = logs.log_sim(rec, motion, garments, result)
         logs.log_text(rec, "meta/summary", summary.markdown())
     summary.output = out

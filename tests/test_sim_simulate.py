@@ -136,37 +136,9 @@ def test_two_runs_are_identical():
     p = SimParams(friction=0.8, wind=(1.0, 0.0, 0.5))
     a = simulate(ch, toy_motion(30), cs, maps, [g], p)
     b = simulate(ch, toy_motion(30), cs, maps, [g], p, threads=2)   # parallel loops: same result
-    c = simulate(ch, toy_motion(30), cs, maps, [g], p, threads="auto")   # switching between chunks too
-    for r in (b, c):
-        np.testing.assert_array_equal(a.garments[0].positions, r.garments[0].positions)
-        np.testing.assert_array_equal(a.penetrations_body, r.penetrations_body)
-        np.testing.assert_array_equal(a.corrected, r.corrected)
-    import numba
-    if numba.config.NUMBA_NUM_THREADS > 1:   # the first two chunks run on 1 and on all threads
-        note = next(n for n in c.notes if n.startswith("threads auto: "))
-        assert " on 1" in note and f" on {numba.config.NUMBA_NUM_THREADS}" in note
-
-
-def test_thread_chooser_runs_the_faster_and_backs_off_losing_retries():
-    from stages.sim.simulate import AUTO_RETRY, ThreadChooser
-
-    def play(cost_at, n):
-        c, seq = ThreadChooser(2), []
-        for k in range(n):
-            t = c.next()
-            seq.append(t)
-            c.report(t, cost_at(k)[t])
-        return seq
-
-    # 2 threads ten times slower (a loaded second core): probed once, retried after 8, then 16 chunks
-    seq = play(lambda k: {1: 100.0, 2: 1000.0}, 60)
-    retries = [k for k, t in enumerate(seq) if t == 2]
-    assert retries == [1, 2 + AUTO_RETRY, 2 + AUTO_RETRY + 1 + 2 * AUTO_RETRY]
-    # 2 threads faster until chunk 20, then much slower: it switches back at once
-    seq = play(lambda k: {1: 100.0, 2: 60.0 if k < 20 else 400.0}, 30)
-    assert seq[2:20].count(2) >= 16 and seq[20] == 2 and seq[21:26] == [1] * 5
-    with pytest.raises(Exception, match="threads must be"):
-        simulate(_char(), toy_motion(2), None, None, [build_garment("c", *_cloth(4))], SimParams(), threads=0)
+    np.testing.assert_array_equal(a.garments[0].positions, b.garments[0].positions)
+    np.testing.assert_array_equal(a.penetrations_body, b.penetrations_body)
+    np.testing.assert_array_equal(a.corrected, b.corrected)
 
 
 def test_world_obstacle_catches_the_cloth():

@@ -55,7 +55,7 @@ def _strain(result, garments) -> dict:
     return {"mean": round(float(np.abs(strain).mean()), 4), "max": round(float(np.abs(strain).max()), 4)}
 
 
-def _run(scene, params: SimParams, repeats: int, threads) -> dict:
+def _run(scene, params: SimParams, repeats: int, threads: int) -> dict:
     """Best of `repeats` timed runs, plus the strain with 10 correction rounds."""
     ch, motion, cs, maps, garments = scene
     best = None
@@ -63,7 +63,6 @@ def _run(scene, params: SimParams, repeats: int, threads) -> dict:
         t0 = time.perf_counter()
         r = simulate(ch, motion, cs, maps, garments, params, threads=threads)
         fig = _figures(r, garments, time.perf_counter() - t0)
-        fig.update({"threads_used": n.removeprefix("threads auto: ") for n in r.notes if n.startswith("threads auto: ")})
         if best is None or fig["steps_per_s"] > best["steps_per_s"]:
             best = fig
     r10 = simulate(ch, motion, cs, maps, garments, replace(params, iterations=10, body_audit=False), threads=threads)
@@ -91,7 +90,7 @@ def drape_scene(frames: int = 150):
 DRAPE_FRICTION = 2.0
 
 
-def drape(frames: int = 150, threads=1, repeats: int = 3) -> dict:
+def drape(frames: int = 150, threads: int = 1, repeats: int = 3) -> dict:
     scene = drape_scene(frames)
     params = SimParams(friction=DRAPE_FRICTION, body_audit=True)
     simulate(*scene[:4], scene[4], replace(params, body_audit=False), threads=threads)  # compile / warm
@@ -144,7 +143,7 @@ def walk_scene(frames: int = 90):
     return ch, motion, cs, maps, [shirt, skirt]
 
 
-def walk(frames: int = 90, threads=1, repeats: int = 3) -> dict:
+def walk(frames: int = 90, threads: int = 1, repeats: int = 3) -> dict:
     scene = walk_scene(frames)
     cs = scene[2]
     out = _run(scene, SimParams(friction=0.5, body_audit=True), repeats, threads)
@@ -153,8 +152,8 @@ def walk(frames: int = 90, threads=1, repeats: int = 3) -> dict:
     return out
 
 
-def run_benchmark(frames_drape: int = 150, frames_walk: int = 90, threads=(1, 2, "auto"), repeats: int = 3) -> dict:
-    """Both scenes at each thread count and with "auto" (same results; only the speed differs). Targets on the
+def run_benchmark(frames_drape: int = 150, frames_walk: int = 90, threads=(1, 2), repeats: int = 3) -> dict:
+    """Both scenes at each thread count (same results; only the speed differs). Targets on the
     2-core machine: drape >= 5,000 steps/s, walk >= 2,000 steps/s (3 correction rounds, no recording)."""
     out = {"machine": {"cpus": os.cpu_count(), "load_avg_1min": os.getloadavg()[0]}}
     for t in threads:

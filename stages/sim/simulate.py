@@ -44,8 +44,6 @@ from stages.sim.types import GarmentTrack, SimParams, SimResult, SimulationDiver
 
 _CYCLES_PER_S = None
 FRAME_CHUNK = 32     # frames per kernel call (bounds the pose arrays; progress is reported per chunk)
-AUTO_CHUNK = 4       # threads="auto": frames per kernel call, i.e. how often the thread count may change
-AUTO_RETRY = 8       # threads="auto": every 8th chunk runs on the thread count not in use
 
 
 def cycles_per_second() -> float:
@@ -393,85 +391,31 @@ def winding_number(vertices, triangles, points, *, exact: bool = False, beta: fl
 
 
 # -- the stage ----------------------------------------------------------------------------------------
-class ThreadChooser:
-    """threads="auto": the thread count of each chunk of frames, 1 or `most`.
-
-    Results do not depend on the thread count, so it may change between any two kernel calls. A
-    second thread pays on an idle core, but costs far more than it gains when another process holds
-    that core (every parallel loop waits for the slower thread), and a shared machine's load changes
-    while a scene runs. So the chooser times every chunk (median cycles per frame), runs the first
-    two on 1 and `most` threads, then the faster of the latest times, and tries the other count
-    again after AUTO_RETRY chunks, doubling that wait each time the retry loses (a retry on a
-    loaded core is expensive).
-    """
-
-    def __init__(self, most: int):
-        self.options = (1, int(most))
-        self.cost = {}                  # thread count -> latest median cycles per frame
-        self.chunks = 0
-        self.wait = AUTO_RETRY
-        self.retry_at = 2 + AUTO_RETRY
-        self.used = {t: 0 for t in self.options}
-
-    def best(self) -> int:
-        return min(self.options, key=lambda t: (self.cost.get(t, np.inf), t))
-
-    def next(self) -> int:
-        k = self.chunks
-        if k < 2:
-            t = self.options[k]
-        elif k >= self.retry_at:
-            t = self.options[1] if self.best() == 1 else 1
-        else:
-            t = self.best()
-        self.used[t] += 1
-        return t
-
-    def report(self, threads: int, cycles_per_frame: float) -> None:
-        retry = self.chunks >= 2 and self.chunks >= self.retry_at
-        self.cost[threads] = float(cycles_per_frame)
-        if retry:
-            self.wait = AUTO_RETRY if self.best() == threads else 2 * self.wait
-            self.retry_at = self.chunks + 1 + self.wait
-        self.chunks += 1
-
-    def note(self) -> str:
-        return "threads auto: " + ", ".join(f"{n} chunks of {AUTO_CHUNK} frames on {t}" for t, n in self.used.items())
-
-
 def simulate(character, motion, colliders, maps, garments, params: SimParams, *, obstacles=None,
-             progress=None, threads: int | str | None = 1) -> SimResult:
-    """See `_simulate`. threads: numba threads for the parallel kernels during the call: a count,
-    "auto" (1 or all, chosen per chunk of frames by timing them, see ThreadChooser) or None (the
+             progress=None, threads: int | None = 1) -> SimResult:
+    """See `_simulate`. threads: numba threads for the parallel kernels during the call (None = the
     current numba setting). Results do not depend on it (every parallel loop writes disjoint
     particles). Default 1: on the shared 2-core machine a second thread pays only when a core is
     idle (see stages/sim/bench.py)."""
     if threads is None:
-        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, None)
+        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress)
     import numba
-    most = numba.config.NUMBA_NUM_THREADS
-    if threads == "auto":
-        chooser, fixed = (ThreadChooser(most), 1) if most > 1 else (None, 1)
-    elif isinstance(threads, (int, np.integer)) and not isinstance(threads, bool) and threads >= 1:
-        chooser, fixed = None, min(int(threads), most)
-    else:
-        raise ContractError(f"simulate: threads must be a positive count, 'auto' or None, got {threads!r}")
     old = numba.get_num_threads()
-    numba.set_num_threads(fixed)
+    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     try:
-        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, chooser)
+        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress)
     finally:
         numba.set_num_threads(old)
 
 
-def _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, chooser) -> SimResult:
+def _simulate(character, motion, colliders, maps, garments, params, obstacles, progress) -> SimResult:
     """Simulate `garments` on `character` playing `motion` (see the module docstring).
 
     character: stages.rig.types.Character; motion: Motion sampled every params.dt seconds;
     colliders: ColliderSet (or None: no colliders); maps: MapSet of colliders.hulls (None: built
     with defaults); garments: sequence of Garment (relative frame at frame 0);
     obstacles: optional ObstacleSet (paper B environment, world frame) collided after the colliders;
-    progress: optional callable(frames_done, n_frames); chooser: optional ThreadChooser.
+    progress: optional callable(frames_done, n_frames).
     Raises SimulationDiverged (with the partial result) when the cloth blows up.
     """
     t_start = time.perf_counter()
@@ -582,11 +526,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     d_last = None
     f0 = 1
     while f0 < nf:
-        f1 = min(nf, f0 + (1 if ocol is not None else AUTO_CHUNK if chooser is not None else FRAME_CHUNK))
-        if chooser is not None:
-            import numba
-            n_threads = chooser.next()
-            numba.set_num_threads(n_threads)
+        f1 = min(nf, f0 + (1 if ocol is not None else FRAME_CHUNK))
         t0 = time.perf_counter()
         fwd, inv, inv0, d_prev, d_next, tr, d_last = _chunk_poses(motion, f0, f1, ss, s, d_last)
         timings["poses"] += time.perf_counter() - t0
@@ -615,14 +555,10 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
             step_cycles[f] = K.read_cycles() - c0
             if not K.record_frame(sysm.x, flags, max2, sysm.goff, rel[f], pen_col[f], counts[f]):
                 raise diverged(f)
-        if chooser is not None:
-            chooser.report(n_threads, float(np.median(step_cycles[f0:f1])))
         audit_frames(f0, f1)
         if progress is not None:
             progress(f1, nf)
         f0 = f1
-    if chooser is not None:
-        notes.append(chooser.note())
     timings["total"] = time.perf_counter() - t_start
     return result(nf)
 
