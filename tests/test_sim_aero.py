@@ -44,10 +44,11 @@ def test_aero_forces_match_the_formula(seed, n, t):
     x, xp, tri_mass, tris, wind, rng = _scene(seed, n, t)
     h, s, d_prev = 1 / 90, rng.uniform(0, 1), rng.normal(0, 0.01, 3)
     k_drag, k_lift = rng.uniform(0, 2), rng.uniform(0, 1)
-    out = np.full((t, 3), np.nan)
+    out = np.full((t, 4), np.nan)
     K.aero_forces(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, out)
+    assert np.all(out[:, 3] == 0.0)
     ref = _reference(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift)
-    err = np.linalg.norm(out - ref, axis=1)
+    err = np.linalg.norm(out[:, :3] - ref, axis=1)
     # one 1/sqrt estimate enters the lift term up to squared; the cap's sqrt is exact; a degenerate
     # triangle's fused cross product is a rounding error, not 0 (its force: < 1e-12 N)
     assert np.all(err <= (4 * INV_SQRT_REL_ERROR + 1e-12) * np.linalg.norm(ref, axis=1) + 1e-12)
@@ -58,17 +59,17 @@ def test_each_triangle_is_computed_alone():
     last group) or the thread count: bit-identical."""
     x, xp, tri_mass, tris, _, rng = _scene(7, 40, 61)
     args = (1 / 90, 0.7, rng.normal(0, 0.01, 3), np.array([2.0, -1.0, 0.5]), 1.2, 0.4)
-    full = np.zeros((61, 3))
+    full = np.zeros((61, 4))
     K.aero_forces(x, xp, tri_mass, tris, *args, full)
     assert np.any(full != 0)
     for t in range(61):
-        one = np.zeros((1, 3))
+        one = np.zeros((1, 4))
         K.aero_forces(x, xp, tri_mass[t:t + 1], tris[t:t + 1], *args, one)
         assert np.array_equal(one[0], full[t])
     old = numba.get_num_threads()
     try:
         numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
-        two = np.zeros((61, 3))
+        two = np.zeros((61, 4))
         K.aero_forces(x, xp, tri_mass, tris, *args, two)
     finally:
         numba.set_num_threads(old)

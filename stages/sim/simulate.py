@@ -147,11 +147,10 @@ class _System:
         # mass of each triangle's free vertices (a third of each lumped mass; aerodynamic force cap)
         third = np.where(w > 0, 1.0 / (3.0 * np.where(w > 0, w, 1.0)), 0.0)
         self.tri_mass = np.ascontiguousarray(third[self.tris].sum(axis=1))
-        self.tri_force = np.zeros((self.tris.shape[0], 3))
-        flat = self.tris.ravel()
-        o = np.argsort(flat, kind="stable")
-        self.vt_tri = (o // 3).astype(np.int32)
-        self.vt_start = np.searchsorted(flat[o], np.arange(n + 1)).astype(np.int64)
+        # per triangle (x, y, z, 0) aerodynamic force, row T zero (the padding of vt_table): the layout
+        # of the spring scratch, 32-byte aligned rows
+        self.tri_force = K.spring_scratch(self.tris.shape[0])
+        self.vt_table = K.vertex_triangles(self.tris, n)
         self.corrected = np.zeros(n, np.uint8)
         self.inside = np.zeros(n, np.uint8)
         self.speed2 = np.zeros(n)
@@ -164,7 +163,7 @@ class _System:
         """The kernels' `cloth` tuple (see stages/sim/kernels.py)."""
         return (self.x, self.xp, self.inv_mass, self.attach_joint, self.attach_local, self.ij, self.sp,
                 self.group_start, self.ti, self.ta, self.tl, self.tris, self.tri_mass, self.tri_force,
-                self.vt_start, self.vt_tri, self.x4)
+                self.vt_table, self.x4)
 
     def set_colliders(self, n_colliders: int):
         """The collision kernel's per particle and collider face cache, all unknown (-1)."""
