@@ -234,10 +234,18 @@ def _aero_group(typingctx, x, xp, tris, tri_mass, out, t0, ih, c3x, c3y, c3z, wi
         z23 = _shuffle(builder, fz, zero, [2, 6, 3, 7])
         rows = (_shuffle(builder, xy01, z01, [0, 1, 4, 5]), _shuffle(builder, xy01, z01, [2, 3, 6, 7]),
                 _shuffle(builder, xy23, z23, [0, 1, 4, 5]), _shuffle(builder, xy23, z23, [2, 3, 6, 7]))
-        for lane, v in enumerate(rows):
-            with builder.if_then(builder.icmp_signed("<", builder.add(t0, ir.Constant(i64, lane)), n_tri), likely=True):
-                ptr = builder.gep(out_data, [builder.mul(builder.add(t0, ir.Constant(i64, lane)), ir.Constant(i64, 4))])
-                builder.store(v, builder.bitcast(ptr, _V4.as_pointer()), align=8)
+        base = builder.mul(t0, ir.Constant(i64, 4))
+        full = builder.icmp_signed("<=", builder.add(t0, ir.Constant(i64, 4)), n_tri)
+        with builder.if_else(full, likely=True) as (whole, tail):
+            with whole:
+                for lane, v in enumerate(rows):
+                    ptr = builder.gep(out_data, [builder.add(base, ir.Constant(i64, 4 * lane))])
+                    builder.store(v, builder.bitcast(ptr, _V4.as_pointer()), align=8)
+            with tail:
+                for lane, v in enumerate(rows):
+                    with builder.if_then(builder.icmp_signed("<", builder.add(t0, ir.Constant(i64, lane)), n_tri)):
+                        ptr = builder.gep(out_data, [builder.add(base, ir.Constant(i64, 4 * lane))])
+                        builder.store(v, builder.bitcast(ptr, _V4.as_pointer()), align=8)
         return context.get_dummy_value()
 
     arrays = ((x, types.float64, 2), (xp, types.float64, 2), (tri_mass, types.float64, 1), (out, types.float64, 2))
@@ -252,9 +260,9 @@ def _aero_group(typingctx, x, xp, tris, tri_mass, out, t0, ih, c3x, c3y, c3z, wi
 
 @njit(cache=True, parallel=True, fastmath=True, _nrt=False)
 def aero_forces(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, out):
-    """Per-triangle aerodynamic forces (N) into rows 0..T-1 of out (at least T rows of (x, y, z, 0)), from the air velocity relative to each
-    triangle. tri_mass (T,): the mass of the triangle's free vertices (a third of each free vertex's
-    lumped mass), kg.
+    """Per-triangle aerodynamic forces (N) into rows 0..T-1 of out (rows (x, y, z, 0), 4 columns), from
+    the air velocity relative to each triangle. tri_mass (T,): the mass of the triangle's free vertices
+    (a third of each free vertex's lumped mass), kg.
 
     Vertex velocity v = (x - xp + s d_prev) / h (Verlet estimate, world velocity scaled by the
     inertia scale s). w = wind - mean v; n' = unit normal oriented along w; c = n'.w/|w|.
@@ -293,8 +301,8 @@ def vertex_triangles(tris: np.ndarray, n_particles: int) -> np.ndarray:
 def _force_sums(typingctx, tri_force, vt_table, i0):
     """(x, y, z) of vertices i0..i0+3 (those < N; later lanes repeat the last vertex): each the sum of
     the tri_force rows listed in its row of vt_table, in the table's order. One <4 x double> load and
-    add per row, 4 independent sums interleaved (one is a chain of dependent additions), a fixed trip
-    count (no mispredicted loop exit)."""
+    add per row, 4 independent sums interleaved (each is a chain of dependent additions), a fixed
+    trip count (no mispredicted loop exit)."""
     def codegen(context, builder, signature, args):
         force, table = (context.make_array(ty)(context, builder, a) for ty, a in zip(signature.args[:2], args[:2]))
         i64 = ir.IntType(64)
@@ -314,8 +322,8 @@ def _force_sums(typingctx, tri_force, vt_table, i0):
                 f = builder.load(builder.bitcast(ptr, _V4.as_pointer()), align=8)
                 builder.store(builder.fadd(builder.load(sum_ptr), f), sum_ptr)
         sums = [builder.load(p) for p in acc]
-        return context.make_tuple(builder, signature.return_type,
-                                  [builder.extract_element(v, ir.Constant(ir.IntType(32), k)) for v in sums for k in range(3)])
+        xyz = [builder.extract_element(v, ir.Constant(ir.IntType(32), k)) for v in sums for k in range(3)]
+        return context.make_tuple(builder, signature.return_type, xyz)
 
     if not (isinstance(tri_force, types.Array) and tri_force.ndim == 2 and tri_force.layout == "C"
             and tri_force.dtype == types.float64 and isinstance(vt_table, types.Array) and vt_table.ndim == 2
