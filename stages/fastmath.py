@@ -102,18 +102,19 @@ inv_sqrt = {"avx512": inv_sqrt_avx512, "sse": inv_sqrt_sse, "exact": inv_sqrt_ex
 V4 = ir.VectorType(ir.DoubleType(), 4)
 
 
-def _splat(value: float) -> ir.Constant:
+def v4_const(value: float) -> ir.Constant:
+    """The constant `value` on the 4 lanes of a V4."""
     return ir.Constant(V4, [value] * 4)
 
 
 def _newton_v4(builder, x, y):
     """y (1.5 - 0.5 x y y), the scalar variants' Newton step in their operation order."""
-    return builder.fmul(y, builder.fsub(_splat(1.5), builder.fmul(builder.fmul(builder.fmul(_splat(0.5), x), y), y)))
+    return builder.fmul(y, builder.fsub(v4_const(1.5), builder.fmul(builder.fmul(builder.fmul(v4_const(0.5), x), y), y)))
 
 
 def _exact_v4(builder, x):
     sqrt = cgutils.get_or_insert_function(builder.module, ir.FunctionType(V4, [V4]), "llvm.sqrt.v4f64")
-    return builder.fdiv(_splat(1.0), builder.call(sqrt, [x]))
+    return builder.fdiv(v4_const(1.0), builder.call(sqrt, [x]))
 
 
 def inv_sqrt_v4_avx512(builder, x):
@@ -131,7 +132,7 @@ def inv_sqrt_v4_sse(builder, x):
     fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(v4f, [v4f]), "llvm.x86.sse.rsqrt.ps")
     y = builder.fpext(builder.call(fn, [builder.fptrunc(x, v4f)]), V4)
     estimated = _newton_v4(builder, x, y)
-    outside = builder.or_(builder.fcmp_ordered("<", x, _splat(1e-36)), builder.fcmp_ordered(">", x, _splat(1e36)))
+    outside = builder.or_(builder.fcmp_ordered("<", x, v4_const(1e-36)), builder.fcmp_ordered(">", x, v4_const(1e36)))
     any_outside = builder.icmp_unsigned("!=", builder.bitcast(outside, ir.IntType(4)), ir.Constant(ir.IntType(4), 0))
     start = builder.block
     with builder.if_then(any_outside, likely=False):

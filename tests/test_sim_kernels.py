@@ -41,7 +41,7 @@ def test_springs_match_python_gauss_seidel():
     x = x0.copy()
     # tethers: particle 7 may be at most 0.05 from particle 0, particle 9 at most 1.0 from 3
     ti, ta, tl = np.array([7, 9], np.int32), np.array([0, 3], np.int32), np.array([0.05, 1.0])
-    K.correct_springs(x, K.spring_scratch(len(x)), *K.pack_springs(s[:, 0], s[:, 1], rest, wi, wj, part, len(x)),
+    K.correct_springs(x, K.padded_rows(len(x)), *K.pack_springs(s[:, 0], s[:, 1], rest, wi, wj, part, len(x)),
                       ti, ta, tl, 3)
     ref = x0.copy()
     for _ in range(3):
@@ -94,7 +94,7 @@ def test_parallel_springs_match_sequential_block_order():
     no = np.zeros(0, np.int32)
     seq = x0.copy()
     one = np.array([0, len(s), len(s)], np.int64)  # everything as one sequential block
-    scratch = K.spring_scratch(len(x0))
+    scratch = K.padded_rows(len(x0))
     K.correct_springs(seq, scratch, *K.pack_springs(s[:, 0], s[:, 1], rest, wi, wj, one, len(x0)), no, no,
                       np.zeros(0), 3)
     packed = K.pack_springs(s[:, 0], s[:, 1], rest, wi, wj, part, len(x0))
@@ -407,6 +407,6 @@ def test_springs_skip_coincident_ends_and_leave_pinned_particles():
     assert list(sp[:12]) == [0.1, 0, 0, 0, 0.5, 0, 0, 0, 0.5, 0, 0, 0]
     assert list(sp[12:]) == [0.25, 0, 0, 0, 0.0, 0, 0, 0, 1.0, 0, 0, 0]
     no = np.zeros(0, np.int32)
-    K.correct_springs(x, K.spring_scratch(3), ij, sp, group_start, no, no, np.zeros(0), 1)
+    K.correct_springs(x, K.padded_rows(3), ij, sp, group_start, no, no, np.zeros(0), 1)
     np.testing.assert_array_equal(x[:2], 0.0)
     np.testing.assert_allclose(x[2], [0.15, 0.2, 0.0], atol=1e-15)

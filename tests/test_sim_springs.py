@@ -78,12 +78,12 @@ def test_grouped_correction_equals_the_scalar_loop_bit_for_bit(seed, n, s):
     x = x0.copy()
     packed = K.pack_springs(si, sj, rest, wi, wj, np.array([0, s, s], np.int64), n)
     no = np.zeros(0, np.int32)
-    K.correct_springs(x, K.spring_scratch(n), *packed, no, no, np.zeros(0), 3)
+    K.correct_springs(x, K.padded_rows(n), *packed, no, no, np.zeros(0), 3)
     np.testing.assert_array_equal(x, ref)
 
 
 def test_scratch_rows_are_aligned_and_its_contents_do_not_matter():
-    x4 = K.spring_scratch(10)
+    x4 = K.padded_rows(10)
     assert x4.shape == (11, 4) and x4.ctypes.data % 32 == 0 and x4.flags.c_contiguous
     rng = np.random.default_rng(3)
     si, sj, rest, wi, wj = _random_springs(rng, 10, 30)

@@ -37,7 +37,7 @@ from numba.extending import intrinsic
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.affine import apply_affine, triangle_cross
-from stages.fastmath import inv_sqrt, inv_sqrt_v4
+from stages.fastmath import V4, inv_sqrt, inv_sqrt_v4, v4_const
 from stages.maps.kernels import METHOD_NEAREST_PLANE, METHOD_PAPER, ZERO_DIR, hull_query, query_arrays
 from stages.maps.types import KIND_CYLINDER as KIND_CYLINDER_MAP
 
@@ -92,27 +92,20 @@ def _rotate12(a, c, x, y, z):
 
 
 # -- vector IR helpers (intrinsics on 4 lanes of <4 x double>) ---------------------------------------
-_V4 = ir.VectorType(ir.DoubleType(), 4)
-
-
 def _shuffle(builder, a, b, lanes):
     return builder.shuffle_vector(a, b, ir.Constant(ir.VectorType(ir.IntType(32), len(lanes)), lanes))
 
 
 def _fmuladd(builder, a, b, c):
     """a b + c, fused where the CPU has FMA (as fastmath contracts the scalar loop)."""
-    fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(_V4, [_V4] * 3), "llvm.fmuladd.v4f64")
+    fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(V4, [V4] * 3), "llvm.fmuladd.v4f64")
     return builder.call(fn, [a, b, c])
 
 
 def _splat(builder, value):
     """A float64 scalar on 4 lanes."""
-    return _shuffle(builder, builder.insert_element(ir.Constant(_V4, None), value, ir.Constant(ir.IntType(32), 0)),
-                    ir.Constant(_V4, None), [0, 0, 0, 0])
-
-
-def _splat_const(value: float) -> ir.Constant:
-    return ir.Constant(_V4, [value] * 4)
+    return _shuffle(builder, builder.insert_element(ir.Constant(V4, None), value, ir.Constant(ir.IntType(32), 0)),
+                    ir.Constant(V4, None), [0, 0, 0, 0])
 
 
 def _transpose(builder, r0, r1, r2, r3):
@@ -154,19 +147,19 @@ def _aero_group(typingctx, x, xp, tris, tri_mass, out, t0, ih, c3x, c3y, c3z, wi
         ih, c3, wind, kd2, kl2, ihh = c[0], c[1:4], c[4:7], c[7], c[8], c[9]
         mask3 = ir.Constant(ir.VectorType(ir.IntType(1), 4), [1, 1, 1, 0])
         row_load = cgutils.get_or_insert_function(
-            builder.module, ir.FunctionType(_V4, [x_data.type, ir.IntType(32), mask3.type, _V4]),
+            builder.module, ir.FunctionType(V4, [x_data.type, ir.IntType(32), mask3.type, V4]),
             "llvm.masked.load.v4f64.p0")
 
         def row(data, vertex):
             """(x, y, z, 0) of row vertex of an (N, 3) array: a masked load stays inside the array."""
             ptr = builder.gep(data, [builder.mul(vertex, ir.Constant(i64, 3))])
-            return builder.call(row_load, [ptr, ir.Constant(ir.IntType(32), 8), mask3, ir.Constant(_V4, None)])
+            return builder.call(row_load, [ptr, ir.Constant(ir.IntType(32), 8), mask3, ir.Constant(V4, None)])
 
         tri = []     # per lane: its triangle, clamped to the last one (lanes past T compute it again)
         for lane in range(4):
             t = builder.add(t0, ir.Constant(i64, lane))
             tri.append(builder.select(builder.icmp_signed("<", t, n_tri), t, last))
-        vel, e1, e2, mass = [], [], [], ir.Constant(_V4, None)
+        vel, e1, e2, mass = [], [], [], ir.Constant(V4, None)
         for lane, t in enumerate(tri):
             xr, pr = [], []
             for q in range(3):
@@ -198,36 +191,36 @@ def _aero_group(typingctx, x, xp, tris, tri_mass, out, t0, ih, c3x, c3y, c3z, wi
         n2 = dot(nx, ny, nz, nx, ny, nz)
         w2 = dot(wx, wy, wz, wx, wy, wz)
         nw = dot(nx, ny, nz, wx, wy, wz)
-        live = builder.and_(builder.fcmp_unordered(">", n2, _splat_const(1e-40)),
-                            builder.fcmp_unordered(">", w2, _splat_const(1e-20)))
-        r = inv_sqrt_v4(builder, builder.select(live, builder.fmul(w2, n2), _splat_const(1.0)))
-        fabs = cgutils.get_or_insert_function(builder.module, ir.FunctionType(_V4, [_V4]), "llvm.fabs.v4f64")
+        live = builder.and_(builder.fcmp_unordered(">", n2, v4_const(1e-40)),
+                            builder.fcmp_unordered(">", w2, v4_const(1e-20)))
+        r = inv_sqrt_v4(builder, builder.select(live, builder.fmul(w2, n2), v4_const(1.0)))
+        fabs = cgutils.get_or_insert_function(builder.module, ir.FunctionType(V4, [V4]), "llvm.fabs.v4f64")
         fd = builder.fmul(kd2, builder.call(fabs, [nw]))
         fl = builder.fmul(builder.fmul(builder.fmul(kl2, nw), w2), r)
         minus_g = builder.fneg(builder.fmul(builder.fmul(builder.fmul(nw, n2), r), r))
         f = [_fmuladd(builder, fd, wk, builder.fmul(fl, _fmuladd(builder, minus_g, wk, nk)))
              for wk, nk in ((wx, nx), (wy, ny), (wz, nz))]
-        f = [builder.select(live, fk, ir.Constant(_V4, None)) for fk in f]
+        f = [builder.select(live, fk, ir.Constant(V4, None)) for fk in f]
         f2 = dot(*f, *f)
         cap2 = builder.fmul(builder.fmul(builder.fmul(mass, mass), w2), ihh)
-        capped = builder.and_(builder.fcmp_ordered(">", mass, ir.Constant(_V4, None)),
+        capped = builder.and_(builder.fcmp_ordered(">", mass, ir.Constant(V4, None)),
                               builder.fcmp_ordered(">", f2, cap2))
         any_capped = builder.icmp_unsigned("!=", builder.bitcast(capped, ir.IntType(4)), ir.Constant(ir.IntType(4), 0))
         start = builder.block
         with builder.if_then(any_capped, likely=False):
-            sqrt = cgutils.get_or_insert_function(builder.module, ir.FunctionType(_V4, [_V4]), "llvm.sqrt.v4f64")
-            k = builder.select(capped, builder.call(sqrt, [builder.fdiv(cap2, f2)]), _splat_const(1.0))
+            sqrt = cgutils.get_or_insert_function(builder.module, ir.FunctionType(V4, [V4]), "llvm.sqrt.v4f64")
+            k = builder.select(capped, builder.call(sqrt, [builder.fdiv(cap2, f2)]), v4_const(1.0))
             scaled = [builder.fmul(fk, k) for fk in f]
             capped_block = builder.block
         out_f = []
         for fk, sk in zip(f, scaled):
-            phi = builder.phi(_V4)
+            phi = builder.phi(V4)
             phi.add_incoming(fk, start)
             phi.add_incoming(sk, capped_block)
             out_f.append(phi)
         fx, fy, fz = out_f
         # (T + 1, 4) rows (x, y, z, 0) of the 4 triangles: 16 consecutive doubles
-        zero = ir.Constant(_V4, None)
+        zero = ir.Constant(V4, None)
         xy01 = _shuffle(builder, fx, fy, [0, 4, 1, 5])
         xy23 = _shuffle(builder, fx, fy, [2, 6, 3, 7])
         z01 = _shuffle(builder, fz, zero, [0, 4, 1, 5])
@@ -240,12 +233,12 @@ def _aero_group(typingctx, x, xp, tris, tri_mass, out, t0, ih, c3x, c3y, c3z, wi
             with whole:
                 for lane, v in enumerate(rows):
                     ptr = builder.gep(out_data, [builder.add(base, ir.Constant(i64, 4 * lane))])
-                    builder.store(v, builder.bitcast(ptr, _V4.as_pointer()), align=8)
+                    builder.store(v, builder.bitcast(ptr, V4.as_pointer()), align=8)
             with tail:
                 for lane, v in enumerate(rows):
                     with builder.if_then(builder.icmp_signed("<", builder.add(t0, ir.Constant(i64, lane)), n_tri)):
                         ptr = builder.gep(out_data, [builder.add(base, ir.Constant(i64, 4 * lane))])
-                        builder.store(v, builder.bitcast(ptr, _V4.as_pointer()), align=8)
+                        builder.store(v, builder.bitcast(ptr, V4.as_pointer()), align=8)
         return context.get_dummy_value()
 
     arrays = ((x, types.float64, 2), (xp, types.float64, 2), (tri_mass, types.float64, 1), (out, types.float64, 2))
@@ -314,12 +307,12 @@ def _force_sums(typingctx, tri_force, vt_table, i0):
         for lane in range(4):
             i = builder.add(i0, ir.Constant(i64, lane))
             rows.append(builder.mul(builder.select(builder.icmp_signed("<", i, n), i, last), width))
-        acc = [cgutils.alloca_once_value(builder, ir.Constant(_V4, None)) for _ in range(4)]
+        acc = [cgutils.alloca_once_value(builder, ir.Constant(V4, None)) for _ in range(4)]
         with cgutils.for_range(builder, width) as loop:
             for row, sum_ptr in zip(rows, acc):
                 t = builder.load(builder.gep(table.data, [builder.add(row, loop.index)]))
                 ptr = builder.gep(force.data, [builder.mul(builder.sext(t, i64), ir.Constant(i64, 4))])
-                f = builder.load(builder.bitcast(ptr, _V4.as_pointer()), align=8)
+                f = builder.load(builder.bitcast(ptr, V4.as_pointer()), align=8)
                 builder.store(builder.fadd(builder.load(sum_ptr), f), sum_ptr)
         sums = [builder.load(p) for p in acc]
         xyz = [builder.extract_element(v, ir.Constant(ir.IntType(32), k)) for v in sums for k in range(3)]
@@ -417,13 +410,14 @@ def integrate(x, xp, inv_mass, attach_joint, attach_local, fwd, h, gravity, damp
 # same order as the scalar loop, so the result is bit-identical to it (drape: 138 -> 79 us a step).
 
 
-def spring_scratch(n_particles: int) -> np.ndarray:
-    """The (N + 1, 4) float64 work array of `correct_springs` (row N: the dummy particle of padding
-    springs), its rows 32-byte aligned (a row across two cache lines costs ~8 %)."""
-    size = 4 * (n_particles + 1)
+def padded_rows(n_rows: int) -> np.ndarray:
+    """(n + 1, 4) float64 zeros, rows 32-byte aligned (a row across two cache lines costs ~8 %):
+    the layout of `correct_springs`' position scratch (row N: the dummy particle of padding springs)
+    and of the per-triangle aerodynamic forces (row T: the padding of `vertex_triangles`)."""
+    size = 4 * (n_rows + 1)
     buf = np.zeros(size + 4)
     skip = (-buf.ctypes.data % 32) // 8
-    return buf[skip:skip + size].reshape(n_particles + 1, 4)
+    return buf[skip:skip + size].reshape(n_rows + 1, 4)
 
 
 @njit(cache=True)
@@ -499,7 +493,7 @@ def _correct_group(typingctx, xf, ij, sp, g):
         for lane in range(8):       # 4 particles i, then 4 particles j
             offset = builder.zext(builder.load(builder.gep(ij_data, [builder.add(builder.mul(g, at(8)), at(lane))])),
                                   ir.IntType(64))
-            rows.append(builder.bitcast(builder.gep(x_data, [offset]), _V4.as_pointer()))
+            rows.append(builder.bitcast(builder.gep(x_data, [offset]), V4.as_pointer()))
         xi = [builder.load(rows[k], align=8) for k in range(4)]
         xj = [builder.load(rows[4 + k], align=8) for k in range(4)]
         d = [builder.fsub(xj[k], xi[k]) for k in range(4)]
@@ -512,12 +506,12 @@ def _correct_group(typingctx, xf, ij, sp, g):
         dy = _shuffle(builder, y_01, y_23, [0, 1, 4, 5])
         dz = _shuffle(builder, xz01, xz23, [2, 3, 6, 7])
         d2 = _fmuladd(builder, dz, dz, _fmuladd(builder, dy, dy, builder.fmul(dx, dx)))
-        live = builder.fcmp_unordered(">", d2, ir.Constant(_V4, [1e-24] * 4))       # not (d2 <= 1e-24)
-        d2 = builder.select(live, d2, ir.Constant(_V4, [1.0] * 4))                 # no inf / nan in dead lanes
+        live = builder.fcmp_unordered(">", d2, v4_const(1e-24))       # not (d2 <= 1e-24)
+        d2 = builder.select(live, d2, v4_const(1.0))                 # no inf / nan in dead lanes
         rest, wi, wj = (builder.load(builder.bitcast(builder.gep(sp_data, [builder.add(builder.mul(g, at(12)), at(4 * q))]),
-                                                     _V4.as_pointer()), align=8) for q in range(3))
-        c = builder.fsub(ir.Constant(_V4, [1.0] * 4), builder.fmul(rest, inv_sqrt_v4(builder, d2)))
-        c = builder.select(live, c, ir.Constant(_V4, None))
+                                                     V4.as_pointer()), align=8) for q in range(3))
+        c = builder.fsub(v4_const(1.0), builder.fmul(rest, inv_sqrt_v4(builder, d2)))
+        c = builder.select(live, c, ir.Constant(V4, None))
         a = builder.fmul(wi, c)
         b = builder.fneg(builder.fmul(wj, c))
         for k in range(4):
@@ -536,7 +530,7 @@ def correct_springs(x, x4, ij, sp, group_start, ti, ta, tl, iterations):
     """`iterations` rounds of Gauss-Seidel position correction (stretch and compression), each: the
     spring blocks of `partition_springs` in parallel (they touch disjoint particles, so the result
     does not depend on the thread count), then the springs crossing blocks (last block) in order,
-    then the tethers. x (N, 3) C-contiguous, worked on in x4 = `spring_scratch(N)`; ij, sp,
+    then the tethers. x (N, 3) C-contiguous, worked on in x4 = `padded_rows(N)`; ij, sp,
     group_start from `pack_springs` with wi, wj per spring: stiffness * w_i / (w_i + w_j) and
     stiffness * w_j / (w_i + w_j).
 

@@ -141,15 +141,14 @@ class _System:
         self.wj = np.ascontiguousarray(stiff * w[self.sj] / wsum)
         self.ij, self.sp, self.group_start = K.pack_springs(self.si, self.sj, self.rest, self.wi, self.wj,
                                                             part_start, n)
-        self.x4 = K.spring_scratch(n)
+        self.x4 = K.padded_rows(n)
         self.tris = np.ascontiguousarray(np.concatenate([g.triangles + o for g, o in zip(garments, self.offsets)]),
                                          dtype=np.int32)
         # mass of each triangle's free vertices (a third of each lumped mass; aerodynamic force cap)
         third = np.where(w > 0, 1.0 / (3.0 * np.where(w > 0, w, 1.0)), 0.0)
         self.tri_mass = np.ascontiguousarray(third[self.tris].sum(axis=1))
-        # per triangle (x, y, z, 0) aerodynamic force, row T zero (the padding of vt_table): the layout
-        # of the spring scratch, 32-byte aligned rows
-        self.tri_force = K.spring_scratch(self.tris.shape[0])
+        # per triangle (x, y, z, 0) aerodynamic force, row T zero (the padding of vt_table)
+        self.tri_force = K.padded_rows(self.tris.shape[0])
         self.vt_table = K.vertex_triangles(self.tris, n)
         self.corrected = np.zeros(n, np.uint8)
         self.inside = np.zeros(n, np.uint8)
