@@ -3,11 +3,11 @@ two leg hems), waistband pinned to the pelvis, clear of the body before and afte
 import numpy as np
 import pytest
 
-from stages.garments.library import KINDS, garment_measurements, library_pattern, make_garment
+from stages.garments.library import KINDS, garment_measurements, library_pattern
 from stages.garments.sewing import merge_pairs
 from stages.garments.triangulate import triangulate_pattern
 from stages.garments.types import boundary_loops
-from tests.test_garments_sewing import _check_manifold, scene  # noqa: F401  (module fixture)
+from tests.test_garments_sewing import _check_manifold, scene, sew_clear  # noqa: F401  (module fixture)
 
 
 def _run_length(pattern, panel, edge):
@@ -38,26 +38,15 @@ def test_pants_pattern_topology_and_sizes(scene, kind):
 
 
 def _sew_and_check(scene, kind):
-    from stages.sim import winding_number
-    c, m, cols, maps, body = scene
-    meas = garment_measurements(c, cols, m)
-    p = library_pattern(kind, meas)
-    g, log, build = make_garment(p, c, m, cols, maps)
-    assert np.all(winding_number(body, c.triangles, build.placed_positions) < 0.5)
-    assert np.all(winding_number(body, c.triangles, g.positions) < 0.5)
-    _check_manifold(g.triangles, g.n_particles)
-    loops = boundary_loops(g.triangles)
-    assert len(loops) == 3
-    centres = np.array([g.positions[lp].mean(axis=0) for lp in loops])
-    order = np.argsort(centres[:, 1])
-    waist, hems = centres[order[-1]], centres[order[:2]]
+    c = scene[0]
+    g, log, meas, loops, centres = sew_clear(scene, kind, 3)
+    waist, hems = centres[-1], centres[:2]
     # the waist on top near the waist height, the hems below the crotch, one on each leg
     assert waist[1] == pytest.approx(min(meas["waist_y"], meas["skirt_top"]), abs=0.03)
     assert np.all(hems[:, 1] < meas["crotch_y"] - 0.1)
     assert sorted(np.sign(hems[:, 0])) == [-1, 1]
     # the waistband is pinned to the pelvis (root)
-    top = loops[order[-1]]
-    assert np.all(g.attach_joint[top] == c.root_joint)
+    assert np.all(g.attach_joint[loops[-1]] == c.root_joint)
     return g, log, meas
 
 
@@ -66,8 +55,9 @@ def test_shorts_sew(scene):
     assert log.converged and log.gap_max[-1] <= 0.004
 
 
-@pytest.mark.xfail(reason="known: on the built-in character the thigh hulls nearly touch at the mid-plane; the "
-                          "trouser legs' inseams between them stall at ~5.5 mm (tolerance 4 mm)", strict=False)
+@pytest.mark.xfail(reason="known: in the walk's first frame the left leg's inseam buckles beside the bent right "
+                          "knee (3 pairs, ~28 mm clear of any collider) and stalls at ~5.5 mm (tolerance 4 mm)",
+                   strict=False)
 def test_trousers_sew(scene):
     g, log, meas = _sew_and_check(scene, "trousers")
     assert log.converged and log.gap_max[-1] <= 0.004

@@ -60,24 +60,34 @@ def test_merge_pairs_groups_chains():
     assert r[0] == r[3] == r[5] and r[1] == r[2] and len(set(r.tolist())) == 3 and r.max() == 2
 
 
+def sew_clear(scene, kind: str, n_openings: int):
+    """Sew the library garment `kind` on the scene's character and check what every sewn garment
+    must be: nothing inside the body, placed or sewn; one oriented manifold with `n_openings`
+    boundary loops. Returns (garment, sewing log, measurements, loops, loop centres), the loops
+    ordered by the height of their centre, lowest first."""
+    from stages.sim import winding_number
+    c, m, cols, maps, body = scene
+    meas = garment_measurements(c, cols, m)
+    g, log, build = make_garment(library_pattern(kind, meas), c, m, cols, maps)
+    assert np.all(winding_number(body, c.triangles, build.placed_positions) < 0.5)
+    assert np.all(winding_number(body, c.triangles, g.positions) < 0.5)
+    _check_manifold(g.triangles, g.n_particles)
+    loops = boundary_loops(g.triangles)
+    assert len(loops) == n_openings
+    centres = np.array([g.positions[lp].mean(axis=0) for lp in loops])
+    order = np.argsort(centres[:, 1])
+    return g, log, meas, [loops[k] for k in order], centres[order]
+
+
 def test_tshirt_sews(scene):
     """The T-shirt sized to the colliders sews on the built-in character: every seam closed, nothing
     inside the body, one manifold with four openings (neck, hem, two sleeve ends)."""
-    from stages.sim import winding_number
-    c, m, cols, maps, body = scene
-    p = library_pattern("tshirt", garment_measurements(c, cols, m))
-    g, log, build = make_garment(p, c, m, cols, maps)
+    c, m = scene[:2]
+    g, log, _, _, centres = sew_clear(scene, "tshirt", 4)
     assert log.converged and log.gap_max[-1] <= 0.004
-    assert np.all(winding_number(body, c.triangles, g.positions) < 0.5)
-    assert np.all(winding_number(body, c.triangles, build.placed_positions) < 0.5)
-    _check_manifold(g.triangles, g.n_particles)
-    loops = boundary_loops(g.triangles)
-    assert len(loops) == 4
     # the openings are where they belong: the neck on top, the hem lowest, the sleeve ends outside
-    centres = np.array([g.positions[lp].mean(axis=0) for lp in loops])
-    order = np.argsort(centres[:, 1])
-    hem, neck = centres[order[0]], centres[order[-1]]
-    cuffs = centres[order[1:3]]
+    hem, neck = centres[0], centres[-1]
+    cuffs = centres[1:3]
     assert neck[1] > m.joint_world[0][c.joint_names.index("chest"), 1, 3]
     assert abs(hem[0]) < 0.03 and abs(neck[0]) < 0.03
     assert sorted(np.sign(cuffs[:, 0])) == [-1, 1] and np.all(np.abs(cuffs[:, 0]) > 0.25)
