@@ -1,4 +1,4 @@
-"""`python -m pipeline bench [hulls] [maps] [sim] [obstacles]`: the stage benchmarks, with the machine.
+"""`python -m pipeline bench [hulls] [maps] [sim] [obstacles] [coverage]`: the stage benchmarks, with the machine.
 
 Benchmarks are separate from the tests (no timing is asserted anywhere); figures are printed as
 JSON and optionally written to a file.
@@ -18,6 +18,7 @@ BENCHES = {
     "maps": "stages.maps.bench",
     "sim": "stages.sim.bench",
     "obstacles": "stages.obstacles.bench",
+    "coverage": "stages.coverage.bench",
 }
 
 

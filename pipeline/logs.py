@@ -117,7 +117,8 @@ def _convex_mesh(rec, entity: str, mesh, color) -> None:
 def log_colliders(rec: rr.RecordingStream, character: Character, motion: Motion, colliders) -> str:
     """Hulls (raw / inflated / simplified) and spheres in bone frames under per-frame transforms.
 
-    Returns the fit report as a markdown table (also logged at colliders/report).
+    Returns the fit report as a markdown table (the caller logs it at colliders/report, with the
+    coverage table when there is one).
     """
     world = world_joint_matrices(character, motion)
     colors = palette(character.n_joints)
@@ -130,10 +131,14 @@ def log_colliders(rec: rr.RecordingStream, character: Character, motion: Motion,
         _convex_mesh(rec, f"{base}/raw", h.raw, (*c, 90))
         _convex_mesh(rec, f"{base}/inflated", h.inflated, (*c, 60))
         _convex_mesh(rec, f"{base}/simplified", h.simplified, (*c, 200))
-        rec.log(f"{base}/region", rr.Points3D(h.region_points.astype(np.float32), radii=0.003,
+        # the region's vertices in the bind pose (region_points add the bone's core and, for a
+        # swept hull, every pose)
+        ib = character.inverse_bind[h.bone]
+        pts = character.vertices[h.region_vertices] @ ib[:3, :3].T + ib[:3, 3]
+        rec.log(f"{base}/region", rr.Points3D(pts.astype(np.float32), radii=0.003,
                                               colors=[(40, 40, 40, 255)]), static=True)
         r = h.report
-        rows.append(f"| {h.name} | {r.faces_raw} / {r.faces_inflated} / {r.faces_simplified} | "
+        rows.append(f"| {h.name}{' (swept)' if h.kind == 'swept' else ''} | {r.faces_raw} / {r.faces_inflated} / {r.faces_simplified} | "
                     f"{r.volume_raw * 1e6:.1f} | {r.excess_volume * 1e6:.1f} | {r.hausdorff * 1e3:.2f} | "
                     f"{'yes' if r.contains_region else 'NO'} | {r.worst_violation * 1e3:.3f} |")
     for sp in colliders.spheres:
@@ -153,7 +158,44 @@ def log_colliders(rec: rr.RecordingStream, character: Character, motion: Motion,
                     f"{'yes' if all(r.contains_region for r in reps) else 'NO'} | "
                     f"{max(r.worst_violation for r in reps) * 1e3:.3f} |")
     table = "\n".join(rows)
-    log_text(rec, "colliders/report", table)
+    if colliders.notes:
+        table += "\n\n" + "\n".join(f"- {n}" for n in colliders.notes)
+    return table
+
+
+def coverage_table(coverage) -> str:
+    """Markdown: per sampled frame and per collider, coverage / excess / shell (stages.coverage)."""
+    t = coverage.totals()
+    rows = [f"worst of {t['frames']} sampled frames: coverage {t['coverage_min'] * 100:.2f} %, excess p50 "
+            f"{t['excess_p50'] * 100:.1f} / p95 {t['excess_p95'] * 100:.1f} / max {t['excess_max'] * 100:.1f} cm, "
+            f"shell {t['shell_share'] * 100:.0f} % of the body volume ({t['interior_samples_min']}+ body samples per "
+            f"frame, grid cell {coverage.cell * 1000:.1f} mm, {coverage.surface_samples} collider-surface samples)", "",
+            "| frame | coverage (%) | excess p50 / p95 / max (cm) | shell (% of body) |", "| ---: | ---: | --- | ---: |"]
+    for k, f in enumerate(coverage.frames):
+        rows.append(f"| {int(f)} | {coverage.coverage[k] * 100:.2f} | {coverage.excess_p50[k] * 100:.1f} / "
+                    f"{coverage.excess_p95[k] * 100:.1f} / {coverage.excess_max[k] * 100:.1f} | {coverage.shell_share[k] * 100:.0f} |")
+    rows += ["", "| collider | kind | coverage near it (%) | excess p50 / p95 / max (cm) | shell (% of body) |",
+             "| --- | --- | ---: | --- | ---: |"]
+    for c in coverage.colliders:
+        cov = "–" if np.isnan(c.coverage) else f"{c.coverage * 100:.2f}"
+        rows.append(f"| {c.name} | {c.kind} | {cov} | {c.excess_p50 * 100:.1f} / {c.excess_p95 * 100:.1f} / "
+                    f"{c.excess_max * 100:.1f} | {c.shell_share * 100:.1f} |")
+    return "\n".join(rows)
+
+
+def log_coverage(rec: rr.RecordingStream, motion: Motion, coverage, fit_table: str) -> str:
+    """colliders/report (fit table + coverage table) and colliders/fit/* series at the sampled frames."""
+    table = coverage_table(coverage)
+    log_text(rec, "colliders/report", "## Coverage and excess\n\n" + table + "\n\n## Hull fit\n\n" + fit_table)
+    index = [rr.TimeColumn("frame", sequence=coverage.frames),
+             rr.TimeColumn("sim_time", duration=motion.times[coverage.frames])]
+    for key, name, values, color in (
+            ("coverage", "coverage (%)", coverage.coverage * 100, (60, 160, 90)),
+            ("excess_p95", "excess p95 (cm)", coverage.excess_p95 * 100, (230, 140, 40)),
+            ("excess_max", "excess max (cm)", coverage.excess_max * 100, (220, 70, 50)),
+            ("shell", "shell (% of body volume)", coverage.shell_share * 100, (90, 110, 200))):
+        rec.log(f"colliders/fit/{key}", rr.SeriesLines(names=name, colors=[color]), static=True)
+        rec.send_columns(f"colliders/fit/{key}", indexes=index, columns=rr.Scalars.columns(scalars=values))
     return table
 
 

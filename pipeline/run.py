@@ -142,6 +142,29 @@ def sample_scene_motion(scene: Scene, character, times: np.ndarray):
     return sample_motion(character, clip, times, blend_frames=blend)
 
 
+def collider_poses(scene: Scene, character, motion) -> np.ndarray:
+    """(F, J, 4, 4) joint transforms the colliders are fitted over: the scene's frames plus every
+    key of its clip, or, for `clip: rest`, the built-in range-of-motion sample."""
+    from stages.rig.motion_range import range_of_motion
+    from stages.rig.skinning import sample_motion
+    clip = scene["character"]["clip"]
+    if clip == "rest" or not character.clips:
+        return np.concatenate([motion.joint_world, range_of_motion(character)])
+    c = character.clip(clip)
+    keys = sample_motion(character, clip, c.times - c.times[0]).joint_world
+    return np.concatenate([motion.joint_world, keys])
+
+
+def split_and_fit(scene: Scene, character, motion):
+    """The region split and the colliders of the scene's `colliders` settings: (split, colliders)."""
+    from stages.hulls.fit import fit_character
+    c = scene["colliders"]
+    poses = collider_poses(scene, character, motion) if (c["split"], c["flexible"]) != ("weights", "sphere") else None
+    return fit_character(character, poses, split=c["split"], flexible=c["flexible"], delta=c["delta"],
+                         motion_tolerance=c["motion_tolerance"], rigid_threshold=c["rigid_threshold"],
+                         min_triangles=c["min_triangles"], max_offset=c["max_offset"])
+
+
 def pattern_options(kind: str) -> tuple[str, ...]:
     """The size options a built-in pattern kind accepts (its generator's keyword arguments)."""
     import inspect
@@ -271,7 +294,6 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     from pipeline import logs
     from pipeline.progress import Progress
     from pipeline.recording import atomic_recording
-    from stages.rig.regions import split_regions
     from stages.rig.skinning import skin
 
     out = Path(output) if output is not None else scene.output
@@ -288,20 +310,35 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             times = motion.times
             summary.frames = len(times)
             skinned = skin(character, motion)
-            split = split_regions(character, threshold=s["colliders"]["rigid_threshold"])
             r.sizes.update(vertices=character.vertices.shape[0], triangles=character.triangles.shape[0],
-                           joints=character.n_joints, hulls=len(split.hull_bones), spheres=len(split.sphere_joints))
-        logs.log_rig(rec, character, split, motion, skinned)
+                           joints=character.n_joints)
 
         say("colliders")
-        from stages.hulls import fit_colliders
         with _Timer(summary, "colliders") as r:
-            colliders = fit_colliders(character, split, delta=s["colliders"]["delta"],
-                                      min_triangles=s["colliders"]["min_triangles"],
-                                      max_offset=s["colliders"]["max_offset"])
+            split, colliders = split_and_fit(scene, character, motion)
             faces = [h.report.faces_simplified for h in colliders.hulls]
-            r.sizes.update(hulls=len(colliders.hulls), spheres=len(colliders.spheres), faces=int(np.sum(faces)))
+            r.sizes.update(split=split.method, rigid_hulls=len(split.hull_bones),
+                           swept_hulls=sum(h.kind == "swept" for h in colliders.hulls),
+                           spheres=len(colliders.spheres), faces=int(np.sum(faces)))
+        logs.log_rig(rec, character, split, motion, skinned)
         summary.tables["collider fit"] = logs.log_colliders(rec, character, motion, colliders)
+        if s["colliders"]["report_every"] > 0:
+            say("collider coverage")
+            from stages.coverage import measure_coverage
+            with _Timer(summary, "coverage") as r:
+                coverage = measure_coverage(character, motion, colliders, every=s["colliders"]["report_every"],
+                                            seed=s["seed"])
+                t = coverage.totals()
+                r.sizes.update(frames=t["frames"], coverage=f"{t['coverage_min'] * 100:.2f} %",
+                               excess_p95=f"{t['excess_p95'] * 100:.1f} cm", excess_max=f"{t['excess_max'] * 100:.1f} cm",
+                               shell=f"{t['shell_share'] * 100:.0f} %")
+            summary.tables["collider coverage"] = logs.log_coverage(rec, motion, coverage,
+                                                                    summary.tables["collider fit"])
+            import warnings
+            for w in coverage.warnings():
+                warnings.warn(w, stacklevel=1)
+        else:
+            logs.log_text(rec, "colliders/report", summary.tables["collider fit"])
 
         say("maps")
         from stages.maps.build import build_maps

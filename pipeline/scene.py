@@ -160,9 +160,17 @@ SCENE_SPEC = {
     }),
     "colliders": Field("section", {}, "collider fitting (paper A §2)", fields={
         "delta": Field("float", 0.01, "inflation thickness, m", lo=0.0, hi=0.5),
-        "rigid_threshold": Field("float", 0.9, "dominant skin weight that makes a vertex rigid", lo=0.0, lo_open=True, hi=1.0),
+        "split": Field("str", "motion", "motion: a vertex is rigid for the bone it moves with over the clip (within "
+                       "motion_tolerance) | weights: dominant skin weight >= rigid_threshold (paper)",
+                       choices=("motion", "weights")),
+        "motion_tolerance": Field("float", 0.5, "split: motion: how far (as a fraction of delta) a rigid vertex may "
+                                  "move in its bone's frame", lo=0.0, hi=10.0),
+        "rigid_threshold": Field("float", 0.9, "split: weights: dominant skin weight that makes a vertex rigid", lo=0.0, lo_open=True, hi=1.0),
+        "flexible": Field("str", "swept", "swept: hulls of the flexible vertices over the motion, in the frame of the "
+                          "bone each moves least with | sphere: one sphere per joint (paper)", choices=("swept", "sphere")),
         "min_triangles": Field("int", 40, "simplification stops at this many hull faces", lo=4),
-        "max_offset": Field("float", 0.02, "simplified hull stays within this distance (m) of the inflated one; null = unbounded (paper)", lo=0.0, lo_open=True),
+        "max_offset": Field("float", 0.005, "simplified hull stays within this distance (m) of the inflated one; null = unbounded (paper)", lo=0.0, lo_open=True),
+        "report_every": Field("int", 10, "measure coverage and excess every this many frames (and the last); 0 = off", lo=0),
         "map": Field("section", {}, "map volume per hull", fields={
             "type": Field("str", "auto", "auto | sphere | cylinder", choices=("auto", "sphere", "cylinder")),
             "n_theta": Field("int", 12, "cells around", lo=3, hi=720),

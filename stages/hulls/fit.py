@@ -1,4 +1,5 @@
-"""Colliders of a character: a simplified inflated hull per rigid region, a sphere per flexible one.
+"""Colliders of a character: a simplified inflated hull per rigid region; per flexible region a
+sphere (paper A) or swept hulls (stages/hulls/swept.py).
 
 Frames: every collider lives in the bone-local frame of its joint, x_local = inverse_bind[j] @ x_model
 (stages/rig/types.py), so it follows its bone rigidly at run time.
@@ -76,12 +77,19 @@ def fit_hull(points_local: np.ndarray, delta: float, min_triangles: int, *, sour
 
 
 def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.01,
-                  min_triangles: int = 40, priority: str = "qem", max_offset: float | None = None) -> ColliderSet:
-    """Hull colliders for split.hull_bones and sphere colliders for split.sphere_joints.
+                  min_triangles: int = 40, priority: str = "qem", max_offset: float | None = None,
+                  flexible: str = "sphere", poses: np.ndarray | None = None,
+                  deviation: np.ndarray | None = None, core: bool = True) -> ColliderSet:
+    """Hull colliders for split.hull_bones; for split.sphere_joints spheres (flexible='sphere', the
+    paper) or swept hulls (flexible='swept', stages/hulls/swept.py).
 
     delta: inflation thickness (m), also added to sphere radii. min_triangles: simplification floor.
     priority / max_offset: see simplify_hull (max_offset None = only the floor stops simplification,
     as in the paper; with a low floor, set it to bound how far a hull may grow past the inflated one).
+    poses: (F, J, 4, 4) joint world transforms of the motion sample (needed by 'swept');
+    deviation: (V, K) from stages.rig.motion_range.bone_deviation over those poses (computed if None).
+    core: add to each hull the points of its bone inside the body near its region (swept.bone_core),
+    so hulls of patches of skin meet inside the body.
     Bone-local points = inverse_bind[b] @ bind-pose vertices. Sphere centre = the joint origin in its
     own frame: inverse_bind[j] @ (translation of inv(inverse_bind[j])), ~0 up to rounding.
     """
@@ -90,17 +98,56 @@ def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.
     if split.dominant_joint.shape[0] != character.vertices.shape[0]:
         raise ContractError(f"fit_colliders: split has {split.dominant_joint.shape[0]} vertices, "
                             f"character {character.vertices.shape[0]}")
+    if flexible not in ("sphere", "swept"):
+        raise ContractError(f"fit_colliders: flexible must be 'sphere' or 'swept', got {flexible!r}")
+    if flexible == "swept" and poses is None:
+        raise ContractError("fit_colliders: flexible='swept' needs the poses of the motion sample")
+
+    def hull(bone, name, idx, pts, kind="rigid", joint=-1):
+        raw, inflated, simplified, report = fit_hull(pts, delta, min_triangles, source=f"hull {name!r}",
+                                                     priority=priority, max_offset=max_offset)
+        return HullCollider(bone=int(bone), name=name, region_points=pts, raw=raw, inflated=inflated,
+                            simplified=simplified, report=report, kind=kind,
+                            region_vertices=np.asarray(idx, np.int64), joint=int(joint))
+
+    from stages.hulls import swept
+    core = core and character.triangles.shape[0] > 0      # "inside the body" needs a surface
+    if core:
+        from stages.coverage.measure import SkinDistance
+        body = SkinDistance(character)
+        body.refit(character.vertices)
+
+    def with_core(b, idx, pts):
+        if not core:
+            return pts
+        c = swept.bone_core(character, b, idx)
+        c = c[body.inside(c)] if c.size else c
+        return np.ascontiguousarray(np.concatenate([pts, transform_points(character.inverse_bind[b], c)]))
+
     hulls = []
     for b in split.hull_bones:
-        name = character.joint_names[b]
         idx = split.rigid_vertices(b)
         pts = np.ascontiguousarray(transform_points(character.inverse_bind[b], character.vertices[idx]))
-        raw, inflated, simplified, report = fit_hull(pts, delta, min_triangles, source=f"hull of bone {name!r}",
-                                                     priority=priority, max_offset=max_offset)
-        hulls.append(HullCollider(bone=int(b), name=name, region_points=pts, raw=raw, inflated=inflated,
-                                  simplified=simplified, report=report))
+        hulls.append(hull(b, character.joint_names[b], idx, with_core(b, idx, pts)))
+    sphere_joints, notes = list(split.sphere_joints), []
+    if flexible == "swept" and sphere_joints:
+        from stages.rig.motion_range import bone_deviation, skin_poses
+        skinned = skin_poses(character, poses)
+        if deviation is None:
+            deviation = bone_deviation(character, poses, skinned)
+        parts, notes = swept.swept_parts(character, split, deviation)
+        sphere_joints = []
+        for (j, b, idx), name in zip(parts, swept.part_names(character, parts)):
+            ring, pts = swept.swept_points(character, poses, skinned, b, idx)
+            if not swept.can_sweep(pts):
+                sphere_joints.append(j)
+                notes.append(f"flexible region of joint {character.joint_names[j]!r}: too small or flat "
+                             "for a swept hull; a joint sphere instead")
+                continue
+            hulls.append(hull(b, name, ring, with_core(b, idx, pts), kind="swept", joint=j))
+        sphere_joints = sorted(set(sphere_joints))
     spheres = []
-    for j in split.sphere_joints:
+    for j in sphere_joints:
         name = character.joint_names[j]
         idx = split.flexible_vertices(j)
         ib = character.inverse_bind[j]
@@ -110,9 +157,38 @@ def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.
             center, radius = joint_sphere(pts, transform_points(ib, joint_model[None])[0], delta)
         except InputError as err:
             raise InputError(f"sphere of joint {name!r}", err.problem) from None
-        spheres.append(SphereCollider(joint=int(j), name=name, center=center, radius=radius, region_points=pts))
+        spheres.append(SphereCollider(joint=int(j), name=name, center=center, radius=radius, region_points=pts,
+                                      region_vertices=idx.astype(np.int64)))
     return ColliderSet(hulls=tuple(hulls), spheres=tuple(spheres), delta=float(delta),
-                       min_triangles=int(min_triangles))
+                       min_triangles=int(min_triangles), flexible=flexible, notes=tuple(notes))
+
+
+def fit_character(character: Character, poses: np.ndarray | None, *, split: str = "motion",
+                  flexible: str = "swept", delta: float = 0.01, motion_tolerance: float = 0.5,
+                  rigid_threshold: float = 0.9, min_triangles: int = 40,
+                  max_offset: float | None = 0.005) -> tuple[RegionSplit, ColliderSet]:
+    """Region split and colliders in one call: (split, colliders).
+
+    split 'motion' (rigid within motion_tolerance * delta of its bind position in its bone's frame
+    over `poses`) or 'weights' (dominant weight >= rigid_threshold, the paper); flexible 'swept' or
+    'sphere' (the paper). poses: (F, J, 4, 4) joint transforms of the motion sample (needed unless
+    split='weights' and flexible='sphere')."""
+    from stages.rig.motion_range import bone_deviation
+    from stages.rig.regions import split_by_motion, split_regions
+    deviation = None
+    if split == "motion" or flexible == "swept":
+        if poses is None:
+            raise ContractError(f"fit_character: split={split!r} / flexible={flexible!r} need the motion's poses")
+        deviation = bone_deviation(character, poses)
+    if split == "motion":
+        regions = split_by_motion(character, deviation, motion_tolerance * delta)
+    elif split == "weights":
+        regions = split_regions(character, threshold=rigid_threshold)
+    else:
+        raise ContractError(f"fit_character: split must be 'motion' or 'weights', got {split!r}")
+    colliders = fit_colliders(character, regions, delta=delta, min_triangles=min_triangles, max_offset=max_offset,
+                              flexible=flexible, poses=poses, deviation=deviation)
+    return regions, colliders
 
 
 def fit_report_totals(colliders: ColliderSet) -> dict:

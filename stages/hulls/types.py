@@ -5,7 +5,7 @@ rigid regions do not deform, so everything built here is valid for the whole ani
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -59,11 +59,16 @@ class HullFitReport:
 
 @dataclass(frozen=True)
 class HullCollider:
-    """The collider of one rigid region.
+    """The collider of one rigid region, or of part of a flexible region swept over the motion.
 
-    bone: joint index whose bone-local frame the meshes are in; name: that joint's name.
-    region_points: (p, 3) float64, the region's bind-pose vertices in bone-local coordinates.
+    bone: joint index whose bone-local frame the meshes are in; name: the collider's name (the
+        joint's name for a rigid hull, '<joint>_flex' or '<joint>_flex_<bone>' for a swept one).
+    region_points: (p, 3) float64, bone-local: a rigid hull's region vertices in the bind pose; a
+        swept hull's vertices at every pose of the motion sample (and the bind pose).
     raw / inflated / simplified: the hull at each step; `simplified` is what collides.
+    kind: 'rigid' (a rigid region, paper A §2) or 'swept' (flexible vertices over the motion).
+    region_vertices: (n,) int64, the character's vertices the collider was built around.
+    joint: the joint whose flexible region a swept hull belongs to (= bone for a rigid hull).
     """
 
     bone: int
@@ -73,9 +78,18 @@ class HullCollider:
     inflated: ConvexMesh
     simplified: ConvexMesh
     report: HullFitReport
+    kind: str = "rigid"
+    region_vertices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    joint: int = -1
 
     def __post_init__(self):
-        check_array(f"HullCollider[{self.name!r}]", "region_points", self.region_points, (None, 3), np.float64)
+        o = f"HullCollider[{self.name!r}]"
+        check_array(o, "region_points", self.region_points, (None, 3), np.float64)
+        check_array(o, "region_vertices", self.region_vertices, (None,), np.int64)
+        if self.kind not in ("rigid", "swept"):
+            raise ContractError(f"{o}.kind: expected 'rigid' or 'swept', got {self.kind!r}")
+        if self.joint < 0:
+            object.__setattr__(self, "joint", int(self.bone))
 
 
 @dataclass(frozen=True)
@@ -91,28 +105,42 @@ class SphereCollider:
     center: np.ndarray
     radius: float
     region_points: np.ndarray
+    region_vertices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     def __post_init__(self):
         o = f"SphereCollider[{self.name!r}]"
         check_array(o, "center", self.center, (3,), np.float64)
         check_array(o, "region_points", self.region_points, (None, 3), np.float64)
+        check_array(o, "region_vertices", self.region_vertices, (None,), np.int64)
         if not (np.isfinite(self.radius) and self.radius > 0):
             raise ContractError(f"{o}.radius: expected a positive radius, got {self.radius}")
 
 
 @dataclass(frozen=True)
 class ColliderSet:
-    """Every collider of a character, plus the parameters they were fitted with."""
+    """Every collider of a character, plus the parameters they were fitted with.
+
+    hulls: rigid hulls (at most one per bone) and swept hulls of flexible regions, names unique.
+    spheres: joint spheres (at most one per joint). flexible: how flexible regions were fitted,
+    'sphere' (paper A) or 'swept'. notes: fallbacks taken (e.g. a region too flat for a hull).
+    """
 
     hulls: tuple[HullCollider, ...]
     spheres: tuple[SphereCollider, ...]
     delta: float              # inflation thickness, metres
     min_triangles: int        # simplification floor
+    flexible: str = "sphere"
+    notes: tuple[str, ...] = ()
 
     def __post_init__(self):
-        bones = [h.bone for h in self.hulls]
+        bones = [h.bone for h in self.hulls if h.kind == "rigid"]
         if len(set(bones)) != len(bones):
-            raise ContractError("ColliderSet.hulls: at most one hull per bone")
+            raise ContractError("ColliderSet.hulls: at most one rigid hull per bone")
+        names = [h.name for h in self.hulls]
+        if len(set(names)) != len(names):
+            raise ContractError("ColliderSet.hulls: hull names must be unique")
+        if self.flexible not in ("sphere", "swept"):
+            raise ContractError(f"ColliderSet.flexible: expected 'sphere' or 'swept', got {self.flexible!r}")
         joints = [s.joint for s in self.spheres]
         if len(set(joints)) != len(joints):
             raise ContractError("ColliderSet.spheres: at most one sphere per joint")

@@ -158,36 +158,48 @@ def _phi(x) -> float:
 
 def _axis_ray_hits(a, b, c, sign: float, tol: float) -> bool:
     """Does the ray from the origin along sign * axis 0 hit triangle abc (inclusive)?"""
-    d = np.array([sign, 0.0, 0.0])
-    e1, e2 = b - a, c - a
-    pv = np.cross(d, e2)
-    det = e1 @ pv
+    d = (sign, 0.0, 0.0)
+    e1 = (b[0] - a[0], b[1] - a[1], b[2] - a[2])
+    e2 = (c[0] - a[0], c[1] - a[1], c[2] - a[2])
+    pv = _cross(d, e2)
+    det = _dot(e1, pv)
     if abs(det) <= 1e-300:
         return False
-    tv = -a
-    u = (tv @ pv) / det
-    qv = np.cross(tv, e1)
-    v = (d @ qv) / det
-    t = (e2 @ qv) / det
+    tv = (-a[0], -a[1], -a[2])
+    u = _dot(tv, pv) / det
+    qv = _cross(tv, e1)
+    v = _dot(d, qv) / det
+    t = _dot(e2, qv) / det
     return u >= -tol and v >= -tol and u + v <= 1 + tol and t >= -tol
 
 
+def _cross(a, b) -> tuple:
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _norm(a) -> float:
+    return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+
+
 def _edge_phi_range(a, b):
-    """Min and max of phi over the segment a-b (which does not pass through the origin)."""
+    """Min and max of phi over the segment a-b (which does not pass through the origin).
+
+    Plain floats on 3-tuples: called per face, wedge and edge, where numpy's per-call overhead
+    was 80 % of the map build."""
     pa, pb = _phi(a), _phi(b)
     lo, hi = min(pa, pb), max(pa, pb)
-    m = np.cross(a, b)
-    mn = np.linalg.norm(m)
-    if mn <= 1e-14 * np.linalg.norm(a) * np.linalg.norm(b):
+    m = _cross(a, b)
+    mn = _norm(m)
+    if mn <= 1e-14 * _norm(a) * _norm(b):
         return lo, hi
-    m = m / mn
-    f = np.array([1.0, 0.0, 0.0]) - m[0] * m
-    fn = np.linalg.norm(f)
+    m = (m[0] / mn, m[1] / mn, m[2] / mn)
+    f = (1.0 - m[0] * m[0], -m[0] * m[1], -m[0] * m[2])
+    fn = _norm(f)
     if fn <= 1e-14:
         return lo, hi
-    f = f / fn
-    for g, is_min in ((f, True), (-f, False)):
-        if np.cross(a, g) @ m >= -1e-14 and np.cross(g, b) @ m >= -1e-14:
+    f = (f[0] / fn, f[1] / fn, f[2] / fn)
+    for g, is_min in ((f, True), ((-f[0], -f[1], -f[2]), False)):
+        if _dot(_cross(a, g), m) >= -1e-14 and _dot(_cross(g, b), m) >= -1e-14:
             if is_min:
                 lo = min(lo, _phi(g))
             else:

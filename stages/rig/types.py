@@ -190,8 +190,12 @@ class RegionSplit:
     region_joint: (V,) int32. Rigid vertex: the bone (joint) whose hull it belongs to. Flexible
         vertex: the joint between its two heaviest bones (the child bone's origin joint).
     hull_bones: joints that get a hull, ascending. sphere_joints: joints that get a sphere, ascending.
-    threshold: the rigid-weight threshold used.
+    threshold: the rigid-weight threshold used (1 for the motion split).
     notes: human-readable merges and rejections (regions too small or flat for a hull).
+    method: 'weights' (dominant weight >= threshold) or 'motion' (moves with a bone within
+        `tolerance` metres over the motion sample).
+    deviation: (V,) float64, m, motion split only: the smallest, over the vertex's bones, of its
+        largest distance from its bind position in that bone's frame over the sample (None otherwise).
     """
 
     dominant_joint: np.ndarray
@@ -202,6 +206,9 @@ class RegionSplit:
     sphere_joints: tuple[int, ...]
     threshold: float
     notes: tuple[str, ...] = field(default_factory=tuple)
+    method: str = "weights"
+    tolerance: float = 0.0
+    deviation: np.ndarray | None = None
 
     def __post_init__(self):
         o = "RegionSplit"
@@ -212,6 +219,10 @@ class RegionSplit:
         check_array(o, "region_joint", self.region_joint, (nv,), np.int32)
         if not 0.0 < self.threshold <= 1.0:
             raise ContractError(f"{o}.threshold: expected a weight in (0, 1], got {self.threshold}")
+        if self.method not in ("weights", "motion"):
+            raise ContractError(f"{o}.method: expected 'weights' or 'motion', got {self.method!r}")
+        if self.deviation is not None:
+            check_array(o, "deviation", self.deviation, (nv,), np.float64)
         hb = set(self.hull_bones)
         if any(b not in hb for b in np.unique(self.region_joint[self.rigid])):
             raise ContractError(f"{o}.hull_bones: a rigid vertex belongs to a bone without a hull")

@@ -100,18 +100,24 @@ def drape(frames: int = 150, threads: int = 1, repeats: int = 3) -> dict:
     return out
 
 
-def walk_scene(frames: int = 90):
-    """The built-in character walking in a T-shirt-like tube and a short skirt (~3,200 particles)."""
-    from stages.hulls import fit_colliders
+def walk_scene(frames: int = 90, colliders: str = "default"):
+    """The built-in character walking in a T-shirt-like tube and a short skirt (~3,200 particles).
+
+    colliders: 'default' (motion split, swept flexible hulls, max_offset 0.005, as scenes) or
+    'paper' (weight split, joint spheres, max_offset unbounded)."""
+    from stages.hulls.fit import fit_character
     from stages.maps.build import build_maps
     from stages.rig.procedural import procedural_character
-    from stages.rig.regions import split_regions
     from stages.rig.skinning import sample_motion
 
     ch = procedural_character()
     motion = sample_motion(ch, "walk", np.arange(frames) / 30.0)
-    split = split_regions(ch)
-    cs = fit_colliders(ch, split, delta=0.01, min_triangles=40)
+    clip = ch.clip("walk")
+    poses = np.concatenate([motion.joint_world, sample_motion(ch, "walk", clip.times - clip.times[0]).joint_world])
+    if colliders == "paper":
+        _, cs = fit_character(ch, None, split="weights", flexible="sphere", max_offset=None)
+    else:
+        _, cs = fit_character(ch, poses)
     maps = build_maps(cs)
     bind = bind_pose(ch, motion, cs)
     v = ch.vertices
@@ -143,11 +149,11 @@ def walk_scene(frames: int = 90):
     return ch, motion, cs, maps, [shirt, skirt]
 
 
-def walk(frames: int = 90, threads: int = 1, repeats: int = 3) -> dict:
-    scene = walk_scene(frames)
+def walk(frames: int = 90, threads: int = 1, repeats: int = 3, colliders: str = "default") -> dict:
+    scene = walk_scene(frames, colliders)
     cs = scene[2]
     out = _run(scene, SimParams(friction=0.5, body_audit=True), repeats, threads)
-    out.update(hulls=len(cs.hulls), spheres=len(cs.spheres),
+    out.update(colliders=colliders, hulls=len(cs.hulls), spheres=len(cs.spheres),
                hull_faces=int(sum(h.simplified.faces.shape[0] for h in cs.hulls)), threads=threads)
     return out
 
@@ -163,6 +169,7 @@ def run_benchmark(frames_drape: int = 150, frames_walk: int = 90, threads=(1, 2)
             out[f"walk_t{t}"] = walk(frames_walk, t, repeats)
         except ImportError as err:  # a stage the walk needs is missing
             out[f"walk_t{t}"] = {"skipped": f"{err}"}
+    out["walk_paper_colliders_t1"] = walk(frames_walk, 1, repeats, colliders="paper")
     out["machine"]["load_avg_1min_end"] = os.getloadavg()[0]
     return out
 
