@@ -90,7 +90,8 @@ def load_character(scene: Scene):
         from stages.rig.gltf import load_gltf
         return load_gltf(path, scale=c["scale"], up_axis=c["up_axis"])
     from stages.rig.bvh import load_bvh_character
-    return load_bvh_character(path, scale=c["scale"], body=body_params(scene.settings))
+    return load_bvh_character(path, scale=c["scale"], body=body_params(scene.settings),
+                              bind_pose=c["bind_pose"] or "neutral")
 
 
 def frame_times(scene: Scene, frames: int | None = None) -> np.ndarray:

@@ -131,6 +131,8 @@ def _check_character(c):
         return f"source {c['source']!r} needs a 'path'"
     if c["source"] == "procedural" and c["path"]:
         return "source 'procedural' takes no 'path' (did you mean source: gltf or bvh?)"
+    if c["bind_pose"] is not None and c["source"] != "bvh":
+        return f"bind_pose applies to source 'bvh' only (source is {c['source']!r})"
     return None
 
 
@@ -143,6 +145,8 @@ SCENE_SPEC = {
         "clip": Field("any", 0, "clip name or index ('rest' = no motion)"),
         "scale": Field("float", 1.0, "length scale applied to the asset", lo=0.0, lo_open=True),
         "up_axis": Field("str", "y", "up axis of the asset", choices=("y", "z")),
+        "bind_pose": Field("str", None, "bvh: pose the skin is built and bound in (default neutral)",
+                           choices=("neutral", "frame0", "rest")),
         "body": Field("section", {}, "built-in character / generated BVH skin sizes", fields={
             "height": Field("float", 1.75, "m", lo=0.5, hi=3.0),
             "chest": Field("float", 1.0, "girth scale", lo=0.3, hi=3.0),

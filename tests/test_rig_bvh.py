@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 from stages.errors import InputError
 from stages.rig.bvh import bvh_clip, parse_bvh
 from stages.rig.transforms import forward_kinematics, trs_to_matrix
+from tests.bvh_humanoid import HUMANOID, bind_positions, edge_ratios, humanoid_bvh, skin_gap, unit
 
 
 # ------------------------------------------------------------- independent reference (no scipy)
@@ -368,7 +369,7 @@ def test_character_frame_zero_is_the_bind_pose_on_the_floor(tmp_path):
     from stages.rig.bvh import load_bvh_character
 
     path = write(tmp_path, FIGURE, "figure.bvh")
-    ch = load_bvh_character(path)
+    ch = load_bvh_character(path, bind_pose="frame0")
     assert ch.name == "figure" and ch.source == str(path) and ch.root_joint == 0
     assert ch.joint_names == ("Hips", "Spine", "Spine_end", "LeftLeg", "LeftLeg_end", "RightLeg", "RightLeg_end")
     assert ch.vertices[:, 1].min() == pytest.approx(0.0, abs=1e-12)
@@ -381,7 +382,7 @@ def test_character_frame_zero_is_the_bind_pose_on_the_floor(tmp_path):
     np.testing.assert_allclose(clip.translations[0, 0, [0, 2]], 0.0, atol=1e-12)
     np.testing.assert_array_equal(clip.translations[:, 1:], raw.translations[:, 1:])
     np.testing.assert_array_equal(clip.rotations, raw.rotations)
-    # Frame 0 (the default bind frame) reproduces the bind mesh exactly.
+    # Frame 0 (the bind frame) reproduces the bind mesh exactly.
     frames = skinned_frames(ch, clip.times)
     np.testing.assert_allclose(frames[0], ch.vertices, atol=1e-9)
     # The bind skeleton is frame 0's pose: world joints match FK of the clip's first key.
@@ -395,7 +396,7 @@ def test_character_rest_pose_bind(tmp_path):
     from stages.rig.bvh import load_bvh_character
 
     path = write(tmp_path, FIGURE, "figure.bvh")
-    ch = load_bvh_character(path, bind_frame=None)
+    ch = load_bvh_character(path, bind_pose="rest")
     data = parse_bvh(path)
     # Rest pose: no rotation, offsets only (root lifted onto the floor).
     np.testing.assert_allclose(ch.rest_local[:, :3, :3], np.broadcast_to(np.eye(3), (7, 3, 3)), atol=1e-12)
@@ -405,6 +406,32 @@ def test_character_rest_pose_bind(tmp_path):
     v0 = skinned_frames(ch, [0.0])[0]
     assert v0[:, 1].min() == pytest.approx(0.0, abs=1e-9)
     np.testing.assert_allclose(ch.clip(0).translations[0, 0, [0, 2]], 0.0, atol=1e-12)
+
+
+def test_armless_figure_falls_back_to_frame_zero_with_a_warning(tmp_path):
+    from stages.rig.bvh import load_bvh_character
+
+    path = write(tmp_path, FIGURE, "figure.bvh")
+    with pytest.warns(UserWarning, match="no neutral bind pose, no humanoid shape found.*frame 0 instead"):
+        ch = load_bvh_character(path)
+    old = load_bvh_character(path, bind_pose="frame0")
+    np.testing.assert_array_equal(ch.vertices, old.vertices)
+    np.testing.assert_array_equal(ch.inverse_bind, old.inverse_bind)
+
+
+def test_bind_options_are_checked(tmp_path):
+    from stages.rig.bvh import load_bvh_character
+
+    path = write(tmp_path, FIGURE, "figure.bvh")
+    with pytest.raises(ValueError, match="bind_pose must be one of neutral, frame0, rest, got 'tpose'"):
+        load_bvh_character(path, bind_pose="tpose")
+    with pytest.raises(ValueError, match="bind_pose='rest'"):
+        load_bvh_character(path, bind_frame=None)  # the old spelling of the rest pose
+    with pytest.raises(ValueError, match=r"bind_frame 3 out of range \[0, 3\)"):
+        load_bvh_character(path, bind_pose="frame0", bind_frame=3)
+    later = load_bvh_character(path, bind_pose="frame0", bind_frame=2)
+    frames = skinned_frames(later, later.clip(0).times)
+    np.testing.assert_allclose(frames[2] - frames[2].min(axis=0), later.vertices - later.vertices.min(axis=0), atol=1e-9)
 
 
 @pytest.fixture(scope="module")
@@ -430,8 +457,11 @@ def test_cmu_character_skin(cmu_character):
     end = [j for j, n in enumerate(ch.joint_names) if n.endswith("_end")]
     assert len(end) == 7
     assert not np.any(np.isin(ch.skin_joints, end) & (ch.skin_weights > 0))
+    # Frame 0 (hands on hips, not the bind pose) stands on the floor with its root over the origin.
     frames = skinned_frames(ch, [0.0, 5.0])
-    np.testing.assert_allclose(frames[0], ch.vertices, atol=1e-9)
+    assert frames[0][:, 1].min() == pytest.approx(0.0, abs=1e-9)
+    root0 = forward_kinematics(ch.parents, trs_to_matrix(ch.clip(0).translations[0], ch.clip(0).rotations[0]))[0, :3, 3]
+    np.testing.assert_allclose(root0[[0, 2]], 0.0, atol=1e-12)
     # 5 s in, the subject is walking along +Z, still on the floor (within 3 cm of mocap noise).
     assert frames[1][:, 2].mean() - frames[0][:, 2].mean() > 1.0
     assert abs(frames[1][:, 1].min()) < 0.03
@@ -445,3 +475,105 @@ def test_crlf_bom_and_compact_header(tmp_path):
     assert a.joint_names == b.joint_names
     np.testing.assert_array_equal(a.frames, b.frames)
     assert a.frame_time == b.frame_time
+
+
+# ------------------------------------------------------------------------ neutral bind pose
+
+@pytest.mark.parametrize("variant", ["clavicles", "no clavicles", "anonymous", "floor root"])
+def test_neutral_bind_pose_of_a_humanoid(tmp_path, variant):
+    """Limbs found by shape (also with meaningless names), re-posed: legs down and slightly apart,
+    arms 40 degrees from the body with straight elbows, spine upright, facing as frame 0."""
+    from stages.rig.bvh import load_bvh_character
+    from stages.rig.neutral_pose import ARM_ANGLE_DEG, LEG_SPLAY_DEG
+
+    rename = {n: f"j{k}" for k, (n, _, _) in enumerate(HUMANOID)} if variant == "anonymous" else None
+    path = write(tmp_path, humanoid_bvh(rename, clavicles=variant != "no clavicles", floor_root=variant == "floor root"), "h.bvh")
+    ch = load_bvh_character(path)
+    back = {v: k for k, v in (rename or {}).items()}
+    back.update({v + "_end": k + "_end" for k, v in (rename or {}).items()})
+    p = {back.get(n, n): x for n, x in bind_positions(ch).items()}
+    np.testing.assert_allclose(ch.inverse_bind, np.linalg.inv(forward_kinematics(ch.parents, ch.rest_local)), atol=1e-12)
+    up = np.array([0.0, 1.0, 0.0])
+    assert np.dot(unit(p["Head"] - p["Spine"]), up) > 0.9999
+    # the left-right axis of frame 0 (turned 20 degrees about Y) is the bind pose's
+    first = forward_kinematics(ch.parents, trs_to_matrix(ch.clip(0).translations[0], ch.clip(0).rotations[0]))
+    f0 = {back.get(n, n): first[j, :3, 3] for j, n in enumerate(ch.joint_names)}
+    lateral = unit(p["LeftUpLeg"] - p["RightUpLeg"])
+    np.testing.assert_allclose(lateral, unit(f0["LeftUpLeg"] - f0["RightUpLeg"]), atol=1e-9)
+    for side, s in (("Left", 1), ("Right", -1)):
+        for a, b in ((f"{side}UpLeg", f"{side}Leg"), (f"{side}Leg", f"{side}Foot")):
+            d = unit(p[b] - p[a])
+            assert np.degrees(np.arccos(-d[1])) == pytest.approx(LEG_SPLAY_DEG, abs=1e-6)
+            assert s * np.dot(d, lateral) > 0  # outward
+        assert abs(p[f"{side}Toe"][1] - p[f"{side}Foot"][1]) == pytest.approx(0.05, abs=1e-9)  # foot flat
+        for a, b in ((f"{side}Arm", f"{side}ForeArm"), (f"{side}ForeArm", f"{side}Hand"), (f"{side}Hand", f"{side}Hand_end")):
+            d = unit(p[b] - p[a])
+            assert np.degrees(np.arccos(-d[1])) == pytest.approx(ARM_ANGLE_DEG, abs=1e-6)
+            assert s * np.dot(d, lateral) > 0
+        if variant != "no clavicles":  # the clavicle keeps its rest direction: level, sideways
+            assert abs(p[f"{side}Arm"][1] - p[f"{side}Shoulder"][1]) < 1e-9
+        assert skin_gap(ch, f"{side}Hand" if rename is None else rename[f"{side}Hand"],
+                        [rename.get(n, n) if rename else n for n in ("Hips", "LeftUpLeg", "RightUpLeg")]) > 0.10
+
+
+def test_neutral_bind_does_not_web_hands_to_hips(tmp_path):
+    """Frame 0 has the hands on the hips: bound there, the skin joins them and the web stretches
+    as the arms swing; bound in the neutral pose no edge passes 4x the median at any frame."""
+    from stages.rig.bvh import load_bvh_character
+
+    path = write(tmp_path, humanoid_bvh(), "h.bvh")
+    old = load_bvh_character(path, bind_pose="frame0")
+    assert skin_gap(old, "LeftHand", ("Hips", "LeftUpLeg")) < 0.03  # touching at frame 0
+    assert edge_ratios(old).max() > 6.0
+    ch = load_bvh_character(path)
+    assert edge_ratios(ch).max() < 4.0
+    frames = skinned_frames(ch, ch.clip(0).times)  # placement: frame 0 on the floor, over the origin
+    assert frames[0][:, 1].min() == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_allclose(ch.clip(0).translations[0, 0, [0, 2]], 0.0, atol=1e-12)
+
+
+@pytest.mark.assets
+def test_cmu_neutral_bind_has_no_long_edges(cmu_character, assets_dir):
+    """CMU walk: bound at frame 0 the arm-hip web reaches 0.86 m (34x the median edge); bound in
+    the neutral pose no edge is longer than 4x the median at any of the 995 frames."""
+    from stages.rig.bvh import load_bvh_character
+
+    ratios = edge_ratios(cmu_character)
+    assert ratios.size == 995 and ratios.max() < 4.0
+    for side in ("Left", "Right"):
+        assert skin_gap(cmu_character, f"{side}Wrist", ("Hips", "LHipJoint", "RHipJoint", "LeftHip", "RightHip")) > 0.10
+    old = load_bvh_character(assets_dir / "cmu_131_01_walk.bvh", bind_pose="frame0")
+    assert edge_ratios(old, every=5).max() > 20.0
+
+
+def test_limbs_found_by_names_when_the_shape_is_ambiguous(tmp_path):
+    """Arms straight up in the rest pose and in every frame: a hand is the highest joint, so the
+    shape alone finds no head; the names do. Without names the skin falls back to frame 0."""
+    from stages.rig.bvh import load_bvh_character, parse_bvh
+    from stages.rig.neutral_pose import ARM_ANGLE_DEG, neutral_pose
+
+    still = [((0.0, 0.95, 0.0), {})] * 2
+    data = parse_bvh(write(tmp_path, humanoid_bvh(arms_up=True, frames=still), "up.bvh"))
+    rots, body, _ = neutral_pose(data.parents, data.offsets, data.joint_names)
+    assert body.found_by == "names"
+    names = data.joint_names
+    assert [names[c[0]] for c in body.arms] == ["LeftShoulder", "RightShoulder"]
+    assert [names[j] for j in body.thighs] == ["LeftUpLeg", "RightUpLeg"]
+    world = forward_kinematics(data.parents, trs_to_matrix(data.offsets, rots))[:, :3, 3]
+    d = unit(world[names.index("LeftHand")] - world[names.index("LeftArm")])
+    assert np.degrees(np.arccos(-d[1])) == pytest.approx(ARM_ANGLE_DEG, abs=1e-6)
+    rename = {n: f"j{k}" for k, (n, _, _) in enumerate(HUMANOID)}
+    path = write(tmp_path, humanoid_bvh(rename, arms_up=True, frames=still), "anon.bvh")
+    with pytest.warns(UserWarning, match="no humanoid shape found"):
+        load_bvh_character(path)
+
+
+def test_scene_bind_pose_reaches_the_loader(tmp_path):
+    from pipeline.run import load_character
+    from pipeline.scene import parse_scene_text
+    from stages.rig.bvh import load_bvh_character
+
+    path = write(tmp_path, humanoid_bvh(), "h.bvh")
+    for key, expect in (("", "neutral"), ("bind_pose: frame0", "frame0")):
+        scene = parse_scene_text(f"character: {{source: bvh, path: {path}, {key}}}".replace(", }", "}"))
+        np.testing.assert_array_equal(load_character(scene).vertices, load_bvh_character(path, bind_pose=expect).vertices)

@@ -50,6 +50,8 @@ def test_nested_key_path_in_list():
     ("colliders: {map: {type: cone}}", "colliders.map.type", "not one of auto, sphere, cylinder"),
     ("character: {source: fbx}", "character.source", "not one of"),
     ("character: {source: gltf}", "character", "needs a 'path'"),
+    ("character: {source: bvh, path: w.bvh, bind_pose: tpose}", "character.bind_pose", "not one of neutral, frame0, rest"),
+    ("character: {source: gltf, path: m.glb, bind_pose: rest}", "character", "bind_pose applies to source 'bvh' only"),
     ("garments: [{name: x}]", "garments[0].type", "missing required key"),
     ("garments: [{type: tubr, name: x}]", "garments[0].type", "did you mean 'tube'"),
     ("garments: [{type: tube, name: x, pin: {}}]", "garments[0].pin", "at least one of"),
@@ -61,6 +63,12 @@ def test_wrong_types_and_ranges(text, key, expect):
     msg = error_of(text)
     assert f": {key}:" in msg, msg
     assert expect in msg, msg
+
+
+def test_bvh_bind_pose_key():
+    assert parse_scene_text("character: {source: bvh, path: w.bvh}")["character"]["bind_pose"] is None  # neutral
+    s = parse_scene_text("character: {source: bvh, path: w.bvh, bind_pose: frame0}")
+    assert s["character"]["bind_pose"] == "frame0"
 
 
 def test_duplicate_keys_are_refused():

@@ -17,10 +17,11 @@ Blender's importer):
 - MOTION: 'Frames: N' and 'Frame Time: dt' (colon optional), then N x C numbers, one frame per
   line as usual or in any whitespace layout when the total count is exactly N x C.
 
-Character bind pose: the BVH rest pose (all channels zero) is often not a stance at all; in the
-CMU capture (shared assets) it has the legs splayed ~20 degrees outward with the feet 0.69 m apart
-and the arms hanging straight, while frame 0 is the subject standing still. So
-`load_bvh_character` binds at frame 0 by default (`bind_frame=None` picks the rest pose).
+Character bind pose (`load_bvh_character(bind_pose=...)`): the skin is generated around it, so
+whatever touches there stays joined for the whole clip. 'neutral' (default, `stages.rig.neutral_pose`)
+re-poses the skeleton upright with the limbs apart; 'frame0' is a frame of the clip, where the CMU
+subject has the hands on the hips; 'rest' is the BVH rest pose (all channels zero), in the CMU
+capture legs splayed ~20 degrees and arms straight down.
 
 CMU 131_01 (measured): 31 joints + 7 end sites = 38 Character joints, 96 channels, 995 frames,
 Frame Time 0.008333 s (120 Hz), metres, Y up, facing +Z; the subject stands (~0-2.5 s), kneels
@@ -29,6 +30,7 @@ on one knee (~2.7-3.7 s), walks ~2.3 m along +Z (~4-6.7 s) and stands.
 from __future__ import annotations
 
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -502,19 +504,32 @@ def bvh_world(data: BvhData, frames=None) -> np.ndarray:
 # -------------------------------------------------------------------------------------- character
 
 
-def _bind_locals(data: BvhData, clip: Clip, bind_frame: int | None) -> tuple[np.ndarray, np.ndarray]:
-    """Bind-pose local translations (J, 3) and rotations (J, 4), root moved over the origin."""
-    if bind_frame is None:  # BVH rest pose: offsets only, no rotation
-        trans = data.offsets.copy()
-        rots = np.zeros((data.n_joints, 4))
-        rots[:, 3] = 1.0
-    else:
-        if not -data.n_frames <= bind_frame < data.n_frames:
-            raise ValueError(f"bind_frame {bind_frame} out of range [0, {data.n_frames})")
-        trans = clip.translations[bind_frame].copy()
-        rots = clip.rotations[bind_frame].copy()
+BIND_POSES = ("neutral", "frame0", "rest")
+
+
+def _bind_locals(data: BvhData, clip: Clip, bind_pose: str, bind_frame: int):
+    """Bind-pose local translations (J, 3) and rotations (J, 4), root moved over the origin, and
+    the `Humanoid` parts when the neutral pose was built (else None)."""
+    from stages.rig.neutral_pose import neutral_pose
+
+    if bind_pose not in BIND_POSES:
+        raise ValueError(f"bind_pose must be one of {', '.join(BIND_POSES)}, got {bind_pose!r}")
+    if bind_frame is None or not -data.n_frames <= bind_frame < data.n_frames:
+        hint = " (the BVH rest pose is bind_pose='rest')" if bind_frame is None else ""
+        raise ValueError(f"bind_frame {bind_frame} out of range [0, {data.n_frames}){hint}")
+    trans, rots, parts = clip.translations[bind_frame].copy(), clip.rotations[bind_frame].copy(), None
+    if bind_pose == "rest":  # offsets only, no rotation
+        trans, rots = data.offsets.copy(), np.tile([0.0, 0.0, 0.0, 1.0], (data.n_joints, 1))
+    elif bind_pose == "neutral":
+        first = forward_kinematics(data.parents, trs_to_matrix(clip.translations[0], clip.rotations[0]))
+        neutral, parts, note = neutral_pose(data.parents, clip.translations[0], data.joint_names, first[:, :3, 3])
+        if neutral is None:
+            warnings.warn(f"{data.source}: no neutral bind pose, {note}; the skin is built around "
+                          f"frame {bind_frame} instead", stacklevel=3)
+        else:
+            trans, rots = clip.translations[0].copy(), neutral
     trans[0, [0, 2]] = 0.0  # the root's horizontal position is not part of the pose
-    return trans, rots
+    return trans, rots, parts
 
 
 def _lowest_skinned_point(vertices, skin_joints, skin_weights, joint_matrices) -> float:
@@ -524,27 +539,31 @@ def _lowest_skinned_point(vertices, skin_joints, skin_weights, joint_matrices) -
     return float((skin_weights * y).sum(axis=1).min())
 
 
-def load_bvh_character(path, *, scale: float = 1.0, body=None, bind_frame: int | None = 0,
-                       name: str | None = None) -> Character:
+def load_bvh_character(path, *, scale: float = 1.0, body=None, bind_pose: str = "neutral",
+                       bind_frame: int = 0, name: str | None = None) -> Character:
     """A skinned character from a BVH file: its skeleton, a generated skin and its motion.
 
-    Bind pose: frame `bind_frame`'s joint rotations (default 0) with the root moved over the
-    origin; `bind_frame=None` uses the BVH rest pose (offsets only). For the CMU capture the rest
-    pose is not a natural stance (legs splayed ~20 degrees, feet 0.69 m apart, arms straight down)
-    while frame 0 is the subject standing still, so frame 0 is the default.
+    bind_pose: the pose the skin is generated around and bound in (`inverse_bind`, `rest_local`):
+    'neutral' (default): the skeleton upright, legs straight and slightly apart, arms in an A-pose,
+    facing as at the clip's frame 0 (`stages.rig.neutral_pose`), so no limb is fused to another;
+    a skeleton not recognised as a humanoid falls back to frame `bind_frame` with a warning.
+    'frame0': frame `bind_frame`'s pose (default 0, the first frame). 'rest': the BVH rest pose
+    (offsets only). The root is moved over the origin in every case.
     Skin: `stages.rig.procedural.skin_skeleton` around the bind-pose joint positions (end sites
-    included), with `body` (a `BodyParams`, default when None); weights from that generator.
+    included), with `body` (a `BodyParams`, default when None); weights from that generator, and
+    in the neutral pose smoothed across the crotch (`stages.rig.neutral_pose.soften_seam`).
     Placement: the bind mesh is shifted to stand on y = 0; the clip's root translation is shifted
     by one constant so that at the clip's frame 0 the root is over the origin (x = z = 0) and the
-    skinned mesh's lowest point is on y = 0 (with the default bind_frame=0, frame 0 IS the bind
+    skinned mesh's lowest point is on y = 0 (with 'frame0' and bind_frame=0, frame 0 IS the bind
     pose). Y up, metres after `scale`; the root joint (index 0) is the character's root.
     """
+    from stages.rig.neutral_pose import soften_seam, subtree
     from stages.rig.procedural import BodyParams, skin_skeleton  # the skin generator's own module
 
     data = parse_bvh(path, scale=scale)
     stem = Path(path).stem
     clip = bvh_clip(data, name=stem)
-    bind_t, bind_r = _bind_locals(data, clip, bind_frame)
+    bind_t, bind_r, parts = _bind_locals(data, clip, bind_pose, bind_frame)
     rest_local = trs_to_matrix(bind_t, bind_r)
     bind_world = forward_kinematics(data.parents, rest_local)
     vertices, triangles, skin_joints, skin_weights = skin_skeleton(
@@ -552,6 +571,9 @@ def load_bvh_character(path, *, scale: float = 1.0, body=None, bind_frame: int |
     vertices = np.asarray(vertices, dtype=np.float64)
     skin_joints = np.asarray(skin_joints, dtype=np.int32)
     skin_weights = np.asarray(skin_weights, dtype=np.float64)
+    if parts is not None:  # the thighs touch at the crotch: spread the jump between them
+        legs = [subtree(data.parents, chain[0]) for chain in parts.legs]
+        skin_joints, skin_weights = soften_seam(triangles, skin_joints, skin_weights, *legs)
 
     lift = -float(vertices[:, 1].min())
     vertices = vertices + [0.0, lift, 0.0]
