@@ -292,6 +292,9 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             r.sizes.update(vertices=character.vertices.shape[0], triangles=character.triangles.shape[0],
                            joints=character.n_joints, hulls=len(split.hull_bones), spheres=len(split.sphere_joints))
         logs.log_rig(rec, character, split, motion, skinned)
+        if character.notes:  # e.g. the up axis a glTF was found to have, its floor shift
+            summary.tables["character"] = "\n".join(f"- {n}" for n in character.notes)
+            logs.log_text(rec, "rig/notes", summary.tables["character"])
 
         say("colliders")
         from stages.hulls import fit_colliders

@@ -142,7 +142,8 @@ SCENE_SPEC = {
         "path": Field("path", None, ".glb/.gltf or .bvh file, relative to the scene file"),
         "clip": Field("any", 0, "clip name or index ('rest' = no motion)"),
         "scale": Field("float", 1.0, "length scale applied to the asset", lo=0.0, lo_open=True),
-        "up_axis": Field("str", "y", "up axis of the asset", choices=("y", "z")),
+        "up_axis": Field("str", "auto", "up axis of a glTF asset: auto (where two limbs hang down), y or z",
+                         choices=("auto", "y", "z")),
         "body": Field("section", {}, "built-in character / generated BVH skin sizes", fields={
             "height": Field("float", 1.75, "m", lo=0.5, hi=3.0),
             "chest": Field("float", 1.0, "girth scale", lo=0.3, hi=3.0),
