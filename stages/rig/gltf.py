@@ -18,14 +18,16 @@ node (also the non-joint nodes above the skeleton, with any rotation, translatio
   K (root) or Lb_p^-1 K Lb_p (Lb_p: parent's bind-pose linear part below P), the root's local
   transform is pre-multiplied by A, inverse_bind' = (Lb^-1 K Lb) @ inverse_bind @ U^-1 and
   vertices' = U @ vertices; bone-local frames stay rigid (when the file's bind transforms are).
-- Rotation + translation + uniform scale above the root (K = s * I, the common case: Z-up fixes,
-  cm -> m): skinned positions are exactly U applied to the glTF world positions, in every pose.
+- Rotation + translation + uniform scale above the root (K = s * I to 1e-5, the common case:
+  Z-up fixes, cm -> m): skinned positions are exactly U applied to the glTF world positions, in
+  every pose.
 - Non-uniform scale or shear above the root: a rigid bone cannot follow the shear a glTF viewer
   shows when a bone turns inside a stretched frame. Exact: the bind pose (skinning it gives the
   bind mesh), the root's trajectory (root translation keys map by K), and every pose in which each
-  joint keeps its bind-pose orientation relative to P up to rotations that commute with K. Else
-  a vertex is off by at most (largest - smallest principal stretch of K) x (its distance from its
-  joints' origins + the bone lengths from the root to them), in file units.
+  joint keeps its bind-pose orientation relative to P up to rotations that commute with K (e.g.
+  about the axis of a (a, b, a) scale). Otherwise a vertex is off by at most (largest - smallest
+  principal stretch of K) x (its distance from its joints' origins + the bone lengths from the
+  root to them, both measured below P), for joints without scale of their own.
 - `Character.notes` says which up axis was taken (and why, for 'auto') and the floor shift.
 
 Animation baking (the `Clip` contract has one interpolation mode per clip):

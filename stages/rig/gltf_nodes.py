@@ -198,9 +198,13 @@ def detect_up(joint_pos: np.ndarray, parents: np.ndarray, size: float) -> tuple[
     over pairs of those leaves, the largest min(drop of a, drop of b) below their lowest common
     ancestor along u: the length of two limbs that reach the floor separately. A head, a tail or a
     hand is one limb; toes or fingers of one foot or hand meet close by, so neither scores.
-    Returns the up with the best score when it beats +Y's by 25 % and is at least 15 % of `size`,
-    else '+y' (the glTF convention: no two such limbs, e.g. a snake or a single chain), and every
-    candidate's score (file units).
+    Works for humanoids and quadrupeds alike (a quadruped's longest extent is horizontal, so the
+    longest axis would be wrong). Returns the up with the best score when it beats +Y's by 25 % and
+    is at least 15 % of `size`, else '+y' (the glTF convention: no two such limbs, e.g. a snake, a
+    prop, a single chain), and every candidate's score (file units).
+    Assumes the bind pose stands on its legs (not lying, sitting or kneeling as modelled), the
+    legs end in leaf joints, and the inverse binds are the joints' world bind transforms (as
+    exporters write them), so bind mesh and skeleton share the frame a viewer shows.
     joint_pos: (J, 3) bind-pose joint origins in the file's world. parents: (J,), parents[j] < j.
     size: the bind mesh's largest bounding-box extent (file units).
     """
