@@ -30,6 +30,8 @@ def cmd_validate(args) -> int:
           f"({character.vertices.shape[0]} vertices, {character.n_joints} joints, "
           f"{len(character.clips)} clips), {len(scene['garments'])} garments, "
           f"{len(scene['obstacles'])} obstacles, {scene['frames']['count']} frames -> {scene.output}")
+    for note in character.notes:
+        print(f"  {note}")
     return 0
 
 

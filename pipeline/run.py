@@ -313,6 +313,9 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             skinned = skin(character, motion)
             r.sizes.update(vertices=character.vertices.shape[0], triangles=character.triangles.shape[0],
                            joints=character.n_joints)
+        if character.notes:  # e.g. the up axis a glTF was found to have, its floor shift
+            summary.tables["character"] = "\n".join(f"- {n}" for n in character.notes)
+            logs.log_text(rec, "rig/notes", summary.tables["character"])
 
         say("colliders")
         with _Timer(summary, "colliders") as r:

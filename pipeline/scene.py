@@ -144,7 +144,8 @@ SCENE_SPEC = {
         "path": Field("path", None, ".glb/.gltf or .bvh file, relative to the scene file"),
         "clip": Field("any", 0, "clip name or index ('rest' = no motion)"),
         "scale": Field("float", 1.0, "length scale applied to the asset", lo=0.0, lo_open=True),
-        "up_axis": Field("str", "y", "up axis of the asset", choices=("y", "z")),
+        "up_axis": Field("str", "auto", "up axis of a glTF asset: auto (where two limbs hang down), y or z",
+                         choices=("auto", "y", "z")),
         "bind_pose": Field("str", None, "bvh: pose the skin is built and bound in (default neutral)",
                            choices=("neutral", "frame0", "rest")),
         "body": Field("section", {}, "built-in character / generated BVH skin sizes", fields={

@@ -257,10 +257,13 @@ def ref_world_vertices(t, scale=1.0, up_axis="y", variant=None):
             for k in range(j.shape[1]):
                 acc += w[v, k] * (world[SKIN_ORDER[j[v, k]]] @ ibm[j[v, k]] @ x)
             out.append(acc[:3])
+    # the loader turns the file Y up and lifts the lowest bind-mesh vertex (file positions) to y = 0
+    bind = np.concatenate([p.astype(np.float32).astype(np.float64) for p, _, _, _ in mesh_data()]) * scale
     out = np.array(out) * scale
     if up_axis == "z":
         out = np.stack([out[:, 0], out[:, 2], -out[:, 1]], axis=1)
-    return out
+        bind = np.stack([bind[:, 0], bind[:, 2], -bind[:, 1]], axis=1)
+    return out - [0.0, bind[:, 1].min(), 0.0]
 
 
 @pytest.fixture(scope="module")
@@ -455,6 +458,7 @@ def _reference_world(path, t):
     sk = g.skins[mesh_node.skin]
     ibm = _raw_accessor(g, blob, sk.inverseBindMatrices).astype(float).reshape(-1, 4, 4).transpose(0, 2, 1)
     out = []
+    lift = -min(_raw_accessor(g, blob, p.attributes.POSITION)[:, 1].min() for p in g.meshes[mesh_node.mesh].primitives)
     for prim in g.meshes[mesh_node.mesh].primitives:
         pos = _raw_accessor(g, blob, prim.attributes.POSITION).astype(float)
         jts = _raw_accessor(g, blob, prim.attributes.JOINTS_0).astype(int)
@@ -465,7 +469,28 @@ def _reference_world(path, t):
                 j = jts[v, k]
                 acc += wts[v, k] / wts[v].sum() * (world[sk.joints[j]] @ ibm[j] @ np.append(pos[v], 1.0))
             out.append(acc[:3])
-    return np.array(out)
+    return np.array(out) + [0.0, lift, 0.0]  # the loader puts the lowest bind-mesh vertex on y = 0
+
+
+def _raw_bind_mesh(path) -> np.ndarray:
+    """The skinned mesh's POSITION accessors as stored, every primitive in order."""
+    g = pygltflib.GLTF2().load(str(path))
+    mesh_node = next(n for n in g.nodes if n.skin is not None)
+    return np.concatenate([_raw_accessor(g, g.binary_blob(), p.attributes.POSITION).astype(float)
+                           for p in g.meshes[mesh_node.mesh].primitives])
+
+
+@pytest.mark.parametrize("name", ["CesiumMan.glb", "RiggedSimple.glb"])
+def test_y_up_assets_load_as_stored_plus_floor_lift(assets_dir, name):
+    """Files that are Y up already: `auto` keeps the axes, vertices are the file's to 1e-9 but
+    for the vertical lift that puts the lowest one on y = 0 (the only change from the loader
+    before `auto`: CesiumMan rises 7.7e-8 m, RiggedSimple 0.033 m)."""
+    raw = _raw_bind_mesh(assets_dir / name)
+    for up_axis in ("auto", "y"):
+        c = load_gltf(assets_dir / name, up_axis=up_axis)
+        np.testing.assert_allclose(c.vertices, raw + [0.0, -raw[:, 1].min(), 0.0], rtol=0, atol=1e-9)
+        assert c.vertices[:, 1].min() == 0.0
+        assert c.notes[0].startswith("up axis: file +Y")
 
 
 @pytest.fixture(scope="module")

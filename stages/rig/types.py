@@ -81,6 +81,7 @@ class Character:
     clips: the animation clips (may be empty: rest pose only).
     root_joint: index of the joint whose translation is the character's root translation.
     source: where it came from ('procedural', a file path), for the recording's metadata.
+    notes: human-readable notes from loading (e.g. which file axis was taken as up, the floor shift).
     """
 
     name: str
@@ -96,6 +97,7 @@ class Character:
     clips: tuple[Clip, ...] = ()
     root_joint: int = 0
     source: str = ""
+    notes: tuple[str, ...] = ()
 
     def __post_init__(self):
         o = f"Character[{self.name!r}]"
