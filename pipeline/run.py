@@ -144,16 +144,13 @@ def sample_scene_motion(scene: Scene, character, times: np.ndarray):
 
 
 def collider_poses(scene: Scene, character, motion) -> np.ndarray:
-    """(F, J, 4, 4) joint transforms the colliders are fitted over: the scene's frames plus every
-    key of its clip, or, for `clip: rest`, the built-in range-of-motion sample."""
+    """(F, J, 4, 4) joint transforms the colliders are fitted over: every frame the scene plays
+    (blend-in included), or, for `clip: rest`, the built-in range-of-motion sample. Poses the scene
+    never plays (the rest of a long clip) would only widen the swept hulls."""
     from stages.rig.motion_range import range_of_motion
-    from stages.rig.skinning import sample_motion
-    clip = scene["character"]["clip"]
-    if clip == "rest" or not character.clips:
+    if scene["character"]["clip"] == "rest" or not character.clips:
         return np.concatenate([motion.joint_world, range_of_motion(character)])
-    c = character.clip(clip)
-    keys = sample_motion(character, clip, c.times - c.times[0]).joint_world
-    return np.concatenate([motion.joint_world, keys])
+    return motion.joint_world
 
 
 def split_and_fit(scene: Scene, character, motion):

@@ -112,12 +112,10 @@ def walk_scene(frames: int = 90, colliders: str = "default"):
 
     ch = procedural_character()
     motion = sample_motion(ch, "walk", np.arange(frames) / 30.0)
-    clip = ch.clip("walk")
-    poses = np.concatenate([motion.joint_world, sample_motion(ch, "walk", clip.times - clip.times[0]).joint_world])
     if colliders == "paper":
         _, cs = fit_character(ch, None, split="weights", flexible="sphere", max_offset=None)
     else:
-        _, cs = fit_character(ch, poses)
+        _, cs = fit_character(ch, motion.joint_world)
     maps = build_maps(cs)
     bind = bind_pose(ch, motion, cs)
     v = ch.vertices
