@@ -126,25 +126,26 @@ def distance_to_mesh_tree(points, vertices, triangles, order, node_start, node_e
 
 
 @njit(cache=True, parallel=True)
-def inside_colliders(points, to_local, kind, bcenter, bradius, plane_start, planes, sph_center, sph_radius,
+def inside_colliders(points, to_local, kind, bcenter, wcenter, bradius, plane_start, planes, sph_center, sph_radius,
                      out):
     """out[i, c] = 1 if points[i] (relative frame) is inside collider c, else 0 (boundary = inside).
 
     to_local (C, 4, 4): relative frame -> the collider's bone-local frame at this pose.
     kind (C,): KIND_HULL (faces plane_start[c]..plane_start[c+1] of planes (F, 4), bone-local unit
     outward normal and offset, inside iff n.q <= d) or KIND_SPHERE (sph_center[c], sph_radius[c]).
-    bcenter (C, 3), bradius (C,): a bone-local ball holding the collider (early out).
+    bcenter (C, 3), bradius (C,): a bone-local ball holding the collider; wcenter (C, 3): its centre
+    posed (relative frame), so most pairs are rejected before the point is transformed.
     """
     nc = kind.size
     for i in prange(points.shape[0]):
         for c in range(nc):
-            qx, qy, qz = apply_affine(to_local[c], points[i, 0], points[i, 1], points[i, 2])
-            dx = qx - bcenter[c, 0]
-            dy = qy - bcenter[c, 1]
-            dz = qz - bcenter[c, 2]
+            dx = points[i, 0] - wcenter[c, 0]
+            dy = points[i, 1] - wcenter[c, 1]
+            dz = points[i, 2] - wcenter[c, 2]
             if dx * dx + dy * dy + dz * dz > bradius[c] * bradius[c]:
                 out[i, c] = 0
                 continue
+            qx, qy, qz = apply_affine(to_local[c], points[i, 0], points[i, 1], points[i, 2])
             if kind[c] == KIND_SPHERE:
                 ex = qx - sph_center[c, 0]
                 ey = qy - sph_center[c, 1]

@@ -165,11 +165,13 @@ def collider_arrays(colliders: ColliderSet) -> ColliderArrays:
 
 def inside_matrix(points: np.ndarray, arrays: ColliderArrays, pose: np.ndarray) -> np.ndarray:
     """(P, C) uint8: point p (relative frame) inside collider c posed by `pose` (J, 4, 4)."""
-    to_local = np.ascontiguousarray(np.linalg.inv(pose[arrays.joint]))
+    m = pose[arrays.joint]
+    to_local = np.ascontiguousarray(np.linalg.inv(m))
+    wcenter = np.ascontiguousarray(np.einsum("cij,cj->ci", m[:, :3, :3], arrays.bcenter) + m[:, :3, 3])
     out = np.zeros((points.shape[0], arrays.joint.size), np.uint8)
     if points.shape[0] and arrays.joint.size:
         K.inside_colliders(np.ascontiguousarray(points, np.float64), to_local, arrays.kind, arrays.bcenter,
-                           arrays.bradius, arrays.plane_start, arrays.planes, arrays.sph_center,
+                           wcenter, arrays.bradius, arrays.plane_start, arrays.planes, arrays.sph_center,
                            arrays.sph_radius, out)
     return out
 
@@ -292,9 +294,10 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
         box = _world_boxes(arrays, colliders, pose) if nc else np.array([v.min(0), v.max(0)])
         box = np.array([np.minimum(box[0], v.min(0)), np.maximum(box[1], v.max(0))])
         h = cell
+        balls = (np.einsum("cij,cj->ci", pose[arrays.joint][:, :3, :3], arrays.bcenter) + pose[arrays.joint][:, :3, 3],
+                 arrays.bradius)
         while True:
-            grid, block = _jittered_grid(box, h, rng)
-            in_body = _inside_by_blocks(body, grid, block, box, h)
+            grid, in_body = _body_grid(body, box, h, balls, rng)
             if in_body.sum() >= interior_samples:
                 break
             h *= 0.85 * (max(in_body.sum(), 1) / interior_samples) ** (1 / 3)
@@ -369,30 +372,35 @@ def _apply(m: np.ndarray, p: np.ndarray) -> np.ndarray:
 BLOCK = 4  # cells per block edge in the inside test
 
 
-def _jittered_grid(box: np.ndarray, h: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """One uniform random point per cell of a grid of edge h over `box` (2, 3), cells from box[0];
-    and each point's block of BLOCK^3 cells, as (P, 3) int64 block indices."""
-    n = np.maximum(np.ceil((box[1] - box[0]) / h).astype(np.int64), 1)
-    ii = np.indices(tuple(n)).reshape(3, -1).T
-    return box[0] + (ii + rng.random(ii.shape)) * h, ii // BLOCK
+def _body_grid(body: "SkinDistance", box: np.ndarray, h: float, balls, rng: np.random.Generator):
+    """Jittered grid points (one uniform random point per cell of edge h, cells from box[0]) and
+    their inside-body flags, over the blocks of BLOCK^3 cells that can matter.
 
-
-def _inside_by_blocks(body: "SkinDistance", grid: np.ndarray, block: np.ndarray, box: np.ndarray,
-                      h: float) -> np.ndarray:
-    """Inside-body flags of the grid points: a block the skin does not pass through (its centre
-    farther from the skin than its half diagonal) takes its centre's answer; the points of the
-    other blocks are tested one by one. Same answer as testing every point for a closed skin."""
-    nb = block.max(axis=0) + 1
-    key = np.ravel_multi_index(block.T, tuple(nb))
-    used, inv = np.unique(key, return_inverse=True)
-    centres = box[0] + (np.stack(np.unravel_index(used, tuple(nb)), axis=1) + 0.5) * BLOCK * h
-    far = body.distance(centres) > 0.5 * np.sqrt(3.0) * BLOCK * h
-    block_inside = np.zeros(used.size, bool)
-    block_inside[far] = body.inside(centres[far])
-    out = block_inside[inv]
-    near = ~far[inv]
-    out[near] = body.inside(grid[near])
-    return out
+    A block the skin does not pass through (its centre farther from the skin than its half
+    diagonal) is all inside or all outside: it takes its centre's answer, and when that is outside
+    and no collider's ball (`balls`: posed centres (C, 3), radii (C,)) reaches it, it holds neither
+    body nor collider and is left out. The points of the other blocks are tested one by one. Same
+    figures as testing every cell of the box, for a closed skin."""
+    bh = BLOCK * h
+    nb = np.maximum(np.ceil((box[1] - box[0]) / bh).astype(np.int64), 1)
+    bidx = np.indices(tuple(nb)).reshape(3, -1).T
+    centres = box[0] + (bidx + 0.5) * bh
+    half = 0.5 * np.sqrt(3.0) * bh
+    far = body.distance(centres) > half
+    inside = np.zeros(far.size, bool)
+    inside[far] = body.inside(centres[far])
+    wc, wr = balls
+    touch = np.zeros(far.size, bool)
+    for c in range(wr.size):            # a few dozen colliders: one vector pass each
+        touch |= np.linalg.norm(centres - wc[c], axis=1) <= wr[c] + half
+    keep = np.flatnonzero(~far | inside | touch)
+    sub = np.indices((BLOCK,) * 3).reshape(3, -1).T                      # cells of a block
+    cells = (bidx[keep][:, None, :] * BLOCK + sub[None]).reshape(-1, 3)
+    grid = box[0] + (cells + rng.random(cells.shape)) * h
+    in_body = np.repeat(inside[keep], sub.shape[0])
+    near = np.repeat(~far[keep], sub.shape[0])
+    in_body[near] = body.inside(grid[near])
+    return grid, in_body
 
 
 def _mesh_volume(v: np.ndarray, t: np.ndarray) -> float:
