@@ -144,9 +144,9 @@ def sample_scene_motion(scene: Scene, character, times: np.ndarray):
 
 
 def collider_poses(scene: Scene, character, motion) -> np.ndarray:
-    """(F, J, 4, 4) joint transforms the colliders are fitted over: every frame the scene plays
-    (blend-in included), or, for `clip: rest`, the built-in range-of-motion sample. Poses the scene
-    never plays (the rest of a long clip) would only widen the swept hulls."""
+    """(F, J, 4, 4) joint transforms the region split is measured over: every frame the scene plays
+    (blend-in included), plus, for `clip: rest`, the built-in range-of-motion sample. Poses the
+    scene never plays (the rest of a long clip) would only widen the swept hulls."""
     from stages.rig.motion_range import range_of_motion
     if scene["character"]["clip"] == "rest" or not character.clips:
         return np.concatenate([motion.joint_world, range_of_motion(character)])
@@ -154,13 +154,15 @@ def collider_poses(scene: Scene, character, motion) -> np.ndarray:
 
 
 def split_and_fit(scene: Scene, character, motion):
-    """The region split and the colliders of the scene's `colliders` settings: (split, colliders)."""
+    """The region split and the colliders of the scene's `colliders` settings: (split, colliders).
+    Swept hulls are fitted over the frames the scene plays (a static scene: its one pose)."""
     from stages.hulls.fit import fit_character
     c = scene["colliders"]
     poses = collider_poses(scene, character, motion) if (c["split"], c["flexible"]) != ("weights", "sphere") else None
     return fit_character(character, poses, split=c["split"], flexible=c["flexible"], delta=c["delta"],
                          motion_tolerance=c["motion_tolerance"], rigid_threshold=c["rigid_threshold"],
-                         min_triangles=c["min_triangles"], max_offset=c["max_offset"])
+                         min_triangles=c["min_triangles"], max_offset=c["max_offset"],
+                         sweep_poses=motion.joint_world)
 
 
 def pattern_options(kind: str) -> tuple[str, ...]:

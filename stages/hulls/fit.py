@@ -166,13 +166,15 @@ def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.
 def fit_character(character: Character, poses: np.ndarray | None, *, split: str = "motion",
                   flexible: str = "swept", delta: float = 0.01, motion_tolerance: float = 0.5,
                   rigid_threshold: float = 0.9, min_triangles: int = 40,
-                  max_offset: float | None = 0.005) -> tuple[RegionSplit, ColliderSet]:
+                  max_offset: float | None = 0.005, sweep_poses: np.ndarray | None = None
+                  ) -> tuple[RegionSplit, ColliderSet]:
     """Region split and colliders in one call: (split, colliders).
 
     split 'motion' (rigid within motion_tolerance * delta of its bind position in its bone's frame
     over `poses`) or 'weights' (dominant weight >= rigid_threshold, the paper); flexible 'swept' or
     'sphere' (the paper). poses: (F, J, 4, 4) joint transforms of the motion sample (needed unless
-    split='weights' and flexible='sphere')."""
+    split='weights' and flexible='sphere'). sweep_poses: the poses swept hulls are fitted over
+    (default: poses); a static scene splits on a range-of-motion sample but sweeps only its frames."""
     from stages.rig.motion_range import bone_deviation
     from stages.rig.regions import split_by_motion, split_regions
     deviation = None
@@ -187,7 +189,8 @@ def fit_character(character: Character, poses: np.ndarray | None, *, split: str 
     else:
         raise ContractError(f"fit_character: split must be 'motion' or 'weights', got {split!r}")
     colliders = fit_colliders(character, regions, delta=delta, min_triangles=min_triangles, max_offset=max_offset,
-                              flexible=flexible, poses=poses, deviation=deviation)
+                              flexible=flexible, poses=poses if sweep_poses is None else sweep_poses,
+                              deviation=deviation)
     return regions, colliders
 
 
