@@ -174,7 +174,8 @@ SCENE_SPEC = {
         "flexible": Field("str", "swept", "swept: hulls of the flexible vertices over the motion, in the frame of the "
                           "bone each moves least with | sphere: one sphere per joint (paper)", choices=("swept", "sphere")),
         "min_triangles": Field("int", 40, "simplification stops at this many hull faces", lo=4),
-        "max_offset": Field("float", 0.005, "simplified hull stays within this distance (m) of the inflated one; null = unbounded (paper)", lo=0.0, lo_open=True),
+        "max_offset": Field("float", 0.005, "simplified hull stays within this distance (m) of the inflated one; null = unbounded (paper)", lo=0.0, lo_open=True,
+                            nullable=True),
         "report_every": Field("int", 10, "measure coverage and excess every this many frames (and the last); 0 = off", lo=0),
         "map": Field("section", {}, "map volume per hull", fields={
             "type": Field("str", "auto", "auto | sphere | cylinder", choices=("auto", "sphere", "cylinder")),

@@ -43,6 +43,7 @@ class Field:
     variants: dict = field(default_factory=dict)      # union: tag value -> fields dict
     length: int | None = None                          # fixed-length number lists ('vec3' is 3)
     check: Callable[[Any], str | None] | None = None   # extra check: returns a problem or None
+    nullable: bool = False                             # null accepted (as None) though the default is not
 
 
 def expand_path_vars(text: str) -> str:
@@ -124,7 +125,7 @@ def _number(f: Field, v, path: str, ctx: _Ctx, kind: str):
 
 
 def _value(f: Field, v, path: str, ctx: _Ctx):
-    if v is None and f.default is None:
+    if v is None and (f.default is None or f.nullable):
         return None
     k = f.kind
     if k in ("float", "int"):

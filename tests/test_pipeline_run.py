@@ -166,3 +166,25 @@ def test_obstacle_scene_logs_obstacles_contacts_and_keeps_cloth_on_the_table(tmp
            (np.abs(cloth[:, 2] - o["center"][2]) < o["size"][2] / 2 - 0.02)
     assert over.sum() > 500
     assert cloth[over, 1].min() > top - 1e-3                  # nothing fell through the top
+
+
+def test_the_papers_colliders_still_run_and_are_reported_the_same_way(tmp_path):
+    text = """
+name: paper_colliders
+character: {source: procedural, clip: walk}
+frames: {count: 11}
+colliders: {split: weights, flexible: sphere, max_offset: null, report_every: 5}
+"""
+    scene = parse_scene_text(text, source="paper.yaml")
+    out = tmp_path / "paper.rrd"
+    summary = run_scene(scene, output=out, progress=False)
+    sizes = summary.stages[1].sizes
+    assert sizes["split"] == "weights" and sizes["swept_hulls"] == 0 and sizes["spheres"] > 0
+    paths = entity_paths(out)
+    assert any(p.startswith("/colliders/spheres/") for p in paths)
+    got = rows(out, "colliders/fit/excess_p95", "Scalars:scalars")
+    assert [f for f, _ in got] == [0, 5, 10]
+    report = str(rows(out, "colliders/report", "TextDocument:text")[-1][1])
+    assert "| sphere |" in report                             # spheres listed per collider
+    # the paper's spheres stand farther off the skin than the default colliders (README table)
+    assert max(v[0] for _, v in got) > 3.0
