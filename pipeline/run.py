@@ -327,20 +327,27 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
         summary.tables["collider fit"] = logs.log_colliders(rec, character, motion, colliders)
         if s["colliders"]["report_every"] > 0:
             say("collider coverage")
+            import warnings
+
             from stages.coverage import measure_coverage
+            from stages.errors import InputError
             with _Timer(summary, "coverage") as r:
-                coverage = measure_coverage(character, motion, colliders, every=s["colliders"]["report_every"],
-                                            seed=s["seed"])
+                try:
+                    coverage = measure_coverage(character, motion, colliders, every=s["colliders"]["report_every"],
+                                                seed=s["seed"])
+                except InputError as err:   # an audit that cannot measure must not stop the run
+                    warnings.warn(f"{err}; the run goes on without the coverage report", stacklevel=1)
+                    coverage = None
+            if coverage is not None:
                 t = coverage.totals()
                 r.sizes.update(frames=t["frames"], coverage=f"{t['coverage_min'] * 100:.2f} %",
                                excess_p95=f"{t['excess_p95'] * 100:.1f} cm", excess_max=f"{t['excess_max'] * 100:.1f} cm",
                                shell=f"{t['shell_share'] * 100:.0f} %")
-            summary.tables["collider coverage"] = logs.log_coverage(rec, motion, coverage,
-                                                                    summary.tables["collider fit"])
-            import warnings
-            for w in coverage.warnings():
-                warnings.warn(w, stacklevel=1)
-        else:
+                summary.tables["collider coverage"] = logs.log_coverage(rec, motion, coverage,
+                                                                        summary.tables["collider fit"])
+                for w in coverage.warnings():
+                    warnings.warn(w, stacklevel=1)
+        if "collider coverage" not in summary.tables:
             logs.log_text(rec, "colliders/report", summary.tables["collider fit"])
 
         say("maps")

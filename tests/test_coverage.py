@@ -123,3 +123,14 @@ def test_same_seed_same_figures(tube):
     a = measure_coverage(c, motion, cs, frames=[1], interior_samples=2000, seed=5)
     b = measure_coverage(c, motion, cs, frames=[1], interior_samples=2000, seed=5)
     assert a.coverage.tolist() == b.coverage.tolist() and a.excess_max.tolist() == b.excess_max.tolist()
+
+
+def test_a_skin_without_volume_is_one_clear_error_not_an_endless_refinement(tube):
+    from dataclasses import replace
+
+    from stages.errors import InputError
+    c, motion = tube
+    _, cs = fit_character(c, motion.joint_world)
+    inside_out = replace(c, triangles=np.ascontiguousarray(c.triangles[:, ::-1]))
+    with pytest.raises(InputError, match="encloses no volume"):
+        measure_coverage(inside_out, motion, cs, frames=[0], interior_samples=3000)

@@ -21,12 +21,15 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from stages.checks import ContractError, check_array
+from stages.errors import InputError
 from stages.coverage import kernels as K
 from stages.hulls.types import ColliderSet
 from stages.rig.skinning import skin
 from stages.rig.types import Character, Motion
 
 COVERAGE_WARN = 0.99       # warn below this coverage at any sampled frame
+MAX_REFINE = 4             # grid refinements to reach interior_samples (each ~x(n / needed)^(1/3))
+MIN_INSIDE = 50            # fewer grid points inside the body than this: it has no volume to measure
 EXCESS_P95_WARN = 0.03     # m: warn above this p95 excess
 
 
@@ -296,11 +299,15 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
         h = cell
         balls = (np.einsum("cij,cj->ci", pose[arrays.joint][:, :3, :3], arrays.bcenter) + pose[arrays.joint][:, :3, 3],
                  arrays.bradius)
-        while True:
+        for _ in range(MAX_REFINE):
             grid, in_body = _body_grid(body, box, h, balls, rng)
             if in_body.sum() >= interior_samples:
                 break
-            h *= 0.85 * (max(in_body.sum(), 1) / interior_samples) ** (1 / 3)
+            if in_body.sum() < MIN_INSIDE:   # no volume: finer cells would only cost memory
+                raise InputError(f"collider coverage at frame {int(f)}", f"the skinned mesh encloses no volume "
+                                 f"({int(in_body.sum())} of {grid.shape[0]} grid points inside; an open or "
+                                 "inside-out mesh?): coverage and excess cannot be measured")
+            h *= 0.85 * (in_body.sum() / interior_samples) ** (1 / 3)
         ins = inside_matrix(grid, arrays, pose)
         any_col = ins.any(axis=1) if nc else np.zeros(grid.shape[0], bool)
         n_in = int(in_body.sum())
