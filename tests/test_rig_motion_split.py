@@ -7,7 +7,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from stages.hulls.fit import fit_character
-from stages.rig.motion_range import bone_deviation, range_of_motion, skin_poses
+from stages.rig.motion_range import bone_deviation, range_of_motion
+from stages.rig.skinning import skin_poses
 from stages.rig.regions import split_by_motion
 from tests.toy_rig import bend_motion, bent_tube
 

@@ -208,32 +208,25 @@ def surface_samples(colliders: ColliderSet, spacing: float, rng: np.random.Gener
 
 
 class SkinDistance:
-    """Exact distance to the skinned mesh and inside tests, over one tree refitted per frame."""
+    """Inside tests (the simulation's body audit) and exact distances to the skinned mesh, over one
+    winding tree refitted per frame."""
 
     def __init__(self, character: Character):
-        from stages.sim import kernels as SK
-        self._sk = SK
-        self.tris = np.ascontiguousarray(character.triangles.astype(np.int64))
-        self.tree = SK.build_winding_tree(character.vertices, character.triangles)
-        self.data = np.zeros((self.tree[1].size, 8))
+        from stages.sim.simulate import BodyAudit
+        self.audit = BodyAudit(character)
 
     def refit(self, vertices: np.ndarray) -> None:
-        self.v = np.ascontiguousarray(vertices, np.float64)
-        order, start, end, kids = self.tree
-        self._sk.refit_winding_tree(self.v, self.tris, order, start, end, kids, self.data)
+        self.audit.refit(vertices)
 
     def inside(self, points: np.ndarray) -> np.ndarray:
-        order, start, end, kids = self.tree
-        out = np.zeros(points.shape[0])
-        self._sk.winding_numbers_tree(np.ascontiguousarray(points, np.float64), self.v, self.tris, order, start,
-                                      end, kids, self.data, 2.0, out)
-        return out >= 0.5
+        return self.audit.winding_refitted(points) >= 0.5
 
     def distance(self, points: np.ndarray) -> np.ndarray:
-        order, start, end, kids = self.tree
+        a = self.audit
+        order, start, end, kids = a.tree
         out = np.zeros(points.shape[0])
-        K.distance_to_mesh_tree(np.ascontiguousarray(points, np.float64), self.v, self.tris, order, start, end,
-                                kids, self.data, out)
+        K.distance_to_mesh_tree(np.ascontiguousarray(points, np.float64), a.vertices, a.tris, order, start, end,
+                                kids, a.data, out)
         return out
 
 

@@ -14,6 +14,7 @@ from stages.hulls import kernels
 from stages.hulls.hull import convex_hull, inflate_hull, mesh_volume
 from stages.hulls.simplify import simplify_hull
 from stages.hulls.types import ColliderSet, ConvexMesh, HullCollider, HullFitReport, SphereCollider
+from stages.rig.regions import is_hull_ready
 from stages.rig.transforms import transform_points
 from stages.rig.types import Character, RegionSplit
 
@@ -131,7 +132,8 @@ def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.
         hulls.append(hull(b, character.joint_names[b], idx, with_core(b, idx, pts)))
     sphere_joints, notes = list(split.sphere_joints), []
     if flexible == "swept" and sphere_joints:
-        from stages.rig.motion_range import bone_deviation, skin_poses
+        from stages.rig.motion_range import bone_deviation
+        from stages.rig.skinning import skin_poses
         skinned = skin_poses(character, poses)
         if deviation is None:
             deviation = bone_deviation(character, poses, skinned)
@@ -139,7 +141,7 @@ def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.
         sphere_joints = []
         for (j, b, idx), name in zip(parts, swept.part_names(character, parts)):
             ring, pts = swept.swept_points(character, poses, skinned, b, idx)
-            if not swept.can_sweep(pts):
+            if not is_hull_ready(pts):
                 sphere_joints.append(j)
                 notes.append(f"flexible region of joint {character.joint_names[j]!r}: too small or flat "
                              "for a swept hull; a joint sphere instead")

@@ -124,10 +124,6 @@ def swept_points(character: Character, poses: np.ndarray, skinned: np.ndarray, b
     return ring, np.ascontiguousarray(pts)
 
 
-def can_sweep(points: np.ndarray) -> bool:
-    return is_hull_ready(points)
-
-
 def bone_core(character: Character, bone: int, vertices: np.ndarray) -> np.ndarray:
     """(k, 3) bind-pose model-frame points on bone `bone` (its origin to each child's origin, every
     CORE_STEP) no farther from `vertices` than the patch reaches around the bone. A hull of a patch

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from stages.rig.skinning import skin_poses
 from stages.rig.transforms import forward_kinematics
 from stages.rig.types import Character
 
@@ -35,15 +36,6 @@ def range_of_motion(character: Character, angle_deg: float = ROM_ANGLE_DEG) -> n
     return forward_kinematics(character.parents, np.stack(poses))
 
 
-def skin_poses(character: Character, poses: np.ndarray) -> np.ndarray:
-    """(F, V, 3) linear-blend-skinned vertices for joint world transforms `poses` (F, J, 4, 4)."""
-    from stages.rig.kernels import lbs_kernel
-    m = np.ascontiguousarray(poses @ character.inverse_bind)
-    out = np.empty((m.shape[0], character.vertices.shape[0], 3))
-    lbs_kernel(m, character.vertices, character.skin_joints, character.skin_weights, out)
-    return out
-
-
 def bone_deviation(character: Character, poses: np.ndarray, skinned: np.ndarray | None = None) -> np.ndarray:
     """(V, K) float64, metres: max over poses of |inv(poses[f, b]) x_f(v) - inverse_bind[b] v|
     for b = skin_joints[v, k] (x_f: the skinned vertex at pose f)."""
@@ -63,7 +55,7 @@ def bone_deviation(character: Character, poses: np.ndarray, skinned: np.ndarray 
 def local_tracks(character: Character, poses: np.ndarray, vertices: np.ndarray, bone: int,
                  skinned: np.ndarray) -> np.ndarray:
     """(F * n, 3) positions of `vertices` (n,) in bone `bone`'s frame at every pose (skinned:
-    (F, V, 3) from `skin_poses`), plus their bind-pose positions in that frame."""
+    (F, V, 3) from `stages.rig.skinning.skin_poses`), plus their bind-pose positions in that frame."""
     inv = np.linalg.inv(poses[:, bone])                                  # (F, 4, 4)
     x = skinned[:, vertices]                                             # (F, n, 3)
     local = np.einsum("fij,fnj->fni", inv[:, :3, :3], x) + inv[:, None, :3, 3]

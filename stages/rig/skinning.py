@@ -120,11 +120,17 @@ def skin(character: Character, motion: Motion, frames=None) -> np.ndarray:
 
     frames: indices into the motion's frames (None = all). Add motion.root_translation[f] for world.
     """
-    m = skinning_matrices(character, motion, frames)
-    if m.shape[1] != character.n_joints:
-        raise ValueError(f"motion {motion.clip_name!r} has {m.shape[1]} joints, character has {character.n_joints}")
+    g = motion.joint_world if frames is None else motion.joint_world[np.atleast_1d(frames)]
+    if g.shape[1] != character.n_joints:
+        raise ValueError(f"motion {motion.clip_name!r} has {g.shape[1]} joints, character has {character.n_joints}")
+    return skin_poses(character, g)
+
+
+def skin_poses(character: Character, poses: np.ndarray) -> np.ndarray:
+    """(F, V, 3) linear-blend-skinned vertices for joint world transforms `poses` (F, J, 4, 4)."""
+    m = np.ascontiguousarray(poses @ character.inverse_bind)
     out = np.empty((m.shape[0], character.vertices.shape[0], 3))
-    lbs_kernel(np.ascontiguousarray(m), character.vertices, character.skin_joints, character.skin_weights, out)
+    lbs_kernel(m, character.vertices, character.skin_joints, character.skin_weights, out)
     return out
 
 

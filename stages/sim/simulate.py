@@ -358,14 +358,23 @@ class BodyAudit:
         self.data = np.zeros((self.tree[1].size, 8))
         self.tris = np.ascontiguousarray(character.triangles, dtype=np.int32)
 
-    def winding(self, vertices: np.ndarray, points: np.ndarray) -> np.ndarray:
+    def refit(self, vertices: np.ndarray) -> None:
+        """Refit the tree to the skinned `vertices` (V, 3) of a frame; queries then use them."""
         order, start, end, kids = self.tree
-        v = np.ascontiguousarray(vertices, dtype=np.float64)
-        K.refit_winding_tree(v, self.tris, order, start, end, kids, self.data)
+        self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+        K.refit_winding_tree(self.vertices, self.tris, order, start, end, kids, self.data)
+
+    def winding_refitted(self, points: np.ndarray) -> np.ndarray:
+        """Winding numbers of `points` w.r.t. the vertices of the last `refit`."""
+        order, start, end, kids = self.tree
         out = np.empty(points.shape[0])
-        K.winding_numbers_tree(np.ascontiguousarray(points, dtype=np.float64), v, self.tris, order, start, end,
-                               kids, self.data, self.beta, out)
+        K.winding_numbers_tree(np.ascontiguousarray(points, dtype=np.float64), self.vertices, self.tris, order,
+                               start, end, kids, self.data, self.beta, out)
         return out
+
+    def winding(self, vertices: np.ndarray, points: np.ndarray) -> np.ndarray:
+        self.refit(vertices)
+        return self.winding_refitted(points)
 
     def inside(self, vertices: np.ndarray, points: np.ndarray) -> np.ndarray:
         return self.winding(vertices, points) >= 0.5
