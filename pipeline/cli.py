@@ -55,6 +55,19 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def cmd_matrix(args) -> int:
+    import json
+
+    from pipeline.matrix import run_matrix, table
+    results = run_matrix(frames=args.frames, characters_=args.character or None, kinds=args.garment or None,
+                         echo=(lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr, flush=True)))
+    print(table(results))
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=1))
+    return 0 if all(r["status"] == "ok" or r["status"].startswith("skipped") for per in results.values()
+                    for r in per.values()) else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m pipeline",
                                 description="Garment simulation with character colliders, written to Rerun recordings.")
@@ -73,6 +86,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="any of: hulls maps sim obstacles all (default: all)")
     b.add_argument("--json", help="also write the figures to this JSON file")
     b.set_defaults(func=cmd_bench)
+    m = sub.add_parser("matrix", help="dress every garment kind on every character and tabulate the fit")
+    m.add_argument("--frames", type=int, default=30, help="frames simulated per pair (default 30)")
+    m.add_argument("--character", action="append", help="only this character (repeatable)")
+    m.add_argument("--garment", action="append", help="only this garment kind (repeatable)")
+    m.add_argument("--json", help="also write the figures to this JSON file")
+    m.add_argument("-q", "--quiet", action="store_true", help="only the table")
+    m.set_defaults(func=cmd_matrix)
     return p
 
 

@@ -288,6 +288,18 @@ def build_scene_obstacles(scene: Scene, duration: float):
     return build_obstacle_set(out)
 
 
+def sim_params(scene: Scene):
+    """The scene's `simulation` settings as SimParams."""
+    from stages.sim import SimParams
+    sp, s = scene["simulation"], scene.settings
+    return SimParams(dt=sp["dt"], substeps=sp["substeps"], iterations=sp["iterations"],
+                     gravity=tuple(sp["gravity"]), damping=sp["damping"], wind=tuple(sp["wind"]),
+                     drag=sp["drag"], lift=sp["lift"], friction=sp["friction"],
+                     inertia_scale=sp["inertia_scale"], stretch_stiffness=sp["stretch_stiffness"],
+                     bend_stiffness=sp["bend_stiffness"], hull_response=s["colliders"]["response"],
+                     body_audit=sp["body_audit"], tethers=sp["tethers"])
+
+
 def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = None,
               progress: bool = True, on_stage=None) -> RunSummary:
     """Run every stage the scene needs and write the recording atomically."""
@@ -378,14 +390,9 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             for name, (log, build) in builds.items():
                 logs.log_sewing(rec, name, log, build, next(g for g in garments if g.name == name))
             say("simulation")
-            from stages.sim import SimParams, simulate
+            from stages.sim import simulate
             sp = s["simulation"]
-            params = SimParams(dt=sp["dt"], substeps=sp["substeps"], iterations=sp["iterations"],
-                               gravity=tuple(sp["gravity"]), damping=sp["damping"], wind=tuple(sp["wind"]),
-                               drag=sp["drag"], lift=sp["lift"], friction=sp["friction"],
-                               inertia_scale=sp["inertia_scale"], stretch_stiffness=sp["stretch_stiffness"],
-                               bend_stiffness=sp["bend_stiffness"], hull_response=s["colliders"]["response"],
-                               body_audit=sp["body_audit"], tethers=sp["tethers"])
+            params = sim_params(scene)
             bar = Progress(len(times), "simulation", enabled=progress)
             with _Timer(summary, "simulation") as r:
                 try:

@@ -7,7 +7,7 @@ sizes from the skeleton): girths with ease, lengths as fractions of the body's h
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -15,6 +15,7 @@ from stages.errors import InputError
 from stages.garments.patterns import (Panel, Pattern, PatternAttachment, Placement, Seam, SeamSide, cubic, line,
                                       quad)
 
+_WAISTBAND = (SeamSide("front", "waist"), SeamSide("back", "waist"))
 KINDS = ("tshirt", "short_skirt", "long_skirt", "shorts", "trousers", "cape", "square")
 
 
@@ -27,7 +28,7 @@ def garment_measurements(character, colliders=None, motion=None, *, clearance: f
     adds the clearance the cloth actually needs around the colliders AND the body (see
     clearance_measurements); the patterns then size themselves to clear them.
     """
-    from stages.garments.placement import _chain
+    from stages.rig.humanoid import humanoid_joints, limb_chain
     from stages.rig.procedural import body_measurements
     from stages.rig.transforms import forward_kinematics
     m = dict(body_measurements(character))
@@ -35,7 +36,7 @@ def garment_measurements(character, colliders=None, motion=None, *, clearance: f
     h = m["height"]
     y0 = float(character.vertices[:, 1].min())
     root = w[character.root_joint]
-    arm = _chain(character, "arm", "l")
+    arm = limb_chain(character, "arm", "l")
     if arm is not None:
         m["shoulder_y"] = float(w[arm[0], 1])
         m["shoulder_half"] = float(abs(w[arm[0], 0] - root[0]))
@@ -48,7 +49,7 @@ def garment_measurements(character, colliders=None, motion=None, *, clearance: f
             r = np.linalg.norm(rel - np.outer(rel @ d, d), axis=1)
             m["arm_girth"] = float(2 * np.pi * np.percentile(r, 90))
     for side in ("l", "r"):
-        leg = _chain(character, "leg", side)
+        leg = limb_chain(character, "leg", side)
         if leg is not None:
             lw = forward_kinematics(character.parents, character.rest_local)[:, :3, 3] if motion is None \
                 else motion.joint_world[0][:, :3, 3]
@@ -60,9 +61,8 @@ def garment_measurements(character, colliders=None, motion=None, *, clearance: f
     m.setdefault("shoulder_y", y0 + 0.81 * h)
     m.setdefault("shoulder_half", 0.105 * h)
     m.setdefault("arm_girth", 0.21 * h)
-    names = character.joint_names
-    neck = next((names.index(n) for n in ("neck", "Neck", "neck_01") if n in names), None)
-    m["neck_y"] = float(w[neck, 1]) if neck is not None else y0 + 0.82 * h
+    neck = humanoid_joints(character).neck
+    m["neck_y"] = float(w[neck, 1]) if neck >= 0 else y0 + 0.82 * h
     m["floor_y"] = y0
     m.update(clearance_measurements(character, colliders, motion, clearance=clearance))
     return m
@@ -94,7 +94,8 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
     thigh_radius: the same for the thigh. crotch_y: lowest point where a leg (or its collider)
         reaches the body's mid-plane.
     """
-    from stages.garments.placement import (_chain, _cross_sections, _subtree, bind_geometry, body_axis,
+    from stages.rig.humanoid import humanoid_joints, limb_chain, subtree
+    from stages.garments.placement import (_cross_sections, bind_geometry, body_axis,
                                            collider_points, part_joints)
     from stages.rig.skinning import rest_motion
     if motion is None:
@@ -113,17 +114,14 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
     legs = np.zeros(len(pts), bool)
     arm_sets = []
     for side in ("l", "r"):
-        ch = _chain(character, "leg", side)
+        ch = limb_chain(character, "leg", side)
         if ch is not None:
-            legs |= np.isin(owner, list(_subtree(parents, ch[0])))
-        ch = _chain(character, "arm", side)
+            legs |= np.isin(owner, list(subtree(parents, ch[0])))
+        ch = limb_chain(character, "arm", side)
         if ch is not None:
             arm_sets.append(ch)
-    names = character.joint_names
-    headneck = set()
-    for n in ("neck", "Neck", "neck_01", "head", "Head"):
-        if n in names:
-            headneck |= _subtree(parents, names.index(n))
+    neck_j = humanoid_joints(character).neck
+    headneck = subtree(parents, neck_j) if neck_j >= 0 else set()
     neckpts = np.isin(owner, list(headneck))
     out = {}
     b = body_measurements_cached(character)
@@ -137,8 +135,7 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
     out["clear_chest"] = slab(torso & ~neckpts, b["chest_y"]) + c2
     out["clear_waist"] = slab(torso & ~neckpts, b["waist_y"]) + c2
     out["clear_hips"] = slab(hips | legs, b["hips_y"]) + c2
-    neck_j = next((names.index(n) for n in ("neck", "Neck", "neck_01") if n in names), None)
-    m = owner == neck_j if neck_j is not None else np.zeros(len(pts), bool)
+    m = owner == neck_j if neck_j >= 0 else np.zeros(len(pts), bool)
     out["neck_half"] = (float(np.abs(rel[m, 0]).max()) if m.any() else 0.035 * b["height"]) + clearance
     # the neck as a box in the sagittal plane: a neckline must stay below or in front of / behind it
     out["neck_low"] = (float(pts[m, 1].min()) if m.any() else b["chest_y"] + 0.1 * b["height"]) - clearance
@@ -154,7 +151,7 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
     m = torso & ~neckpts & (pts[:, 1] >= b["chest_y"]) & (pts[:, 1] <= out["shoulder_top"])
     out["torso_depth"] = (float(np.abs(rel[m, 2]).max()) if m.any() else 0.07 * b["height"]) + clearance
     for key, kind in (("arm", "arm"), ("thigh", "leg")):
-        ch = _chain(character, kind, "l")
+        ch = limb_chain(character, kind, "l")
         if ch is None:
             continue
         o, e = origins[ch[0]], origins[ch[1]]
@@ -180,7 +177,7 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
                           if colliders is not None else None).reshape(ys.size, zs.size).any(axis=1)
     free = np.flatnonzero(~blocked)
     out["crotch_y"] = (float(ys[free[0]]) if free.size else b["hips_y"] - 0.05 * b["height"]) - clearance
-    arms = np.isin(owner, list(set().union(*[_subtree(parents, a[0]) for a in arm_sets]))) if arm_sets else \
+    arms = np.isin(owner, list(set().union(*[subtree(parents, a[0]) for a in arm_sets]))) if arm_sets else \
         np.zeros(len(pts), bool)
     trunk = (torso | hips | legs) & ~neckpts & ~arms
     # skirt_top: the waist, or lower where the upper arms' colliders (CesiumMan's shoulder spheres)
@@ -203,7 +200,7 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
     out["clear_seat"] = float(girth[ys >= out["crotch_y"]].max(initial=girth[-1]))
     # leg tubes: the thigh below the crotch (its hull and the knee sphere) and the shin
     for key, k in (("thigh_low_radius", 0), ("shin_radius", 1)):
-        ch = _chain(character, "leg", "l")
+        ch = limb_chain(character, "leg", "l")
         if ch is None:
             continue
         o, e = origins[ch[k]], origins[ch[k + 1]]
@@ -352,7 +349,8 @@ def tshirt(meas: dict, *, ease: float = 0.08, length_below_waist: float | None =
         seams.append(Seam(SeamSide(pname, "cap_front"), SeamSide("front", front_hole), stage=1))
         seams.append(Seam(SeamSide(pname, "cap_back"), SeamSide("back", back_hole), stage=1))
     atts = (PatternAttachment("front", "shoulder_l"), PatternAttachment("front", "shoulder_r"))
-    return Pattern(name, tuple(panels), tuple(seams), edge_length, atts)
+    return Pattern(name, tuple(panels), tuple(seams), edge_length, atts,
+                   fit_edges=(SeamSide("front", "neck"), SeamSide("back", "neck")))
 
 
 def skirt(meas: dict, *, length: float, flare: float, ease: float = 0.2, hip_ease: float | None = None,
@@ -387,7 +385,7 @@ def skirt(meas: dict, *, length: float, flare: float, ease: float = 0.2, hip_eas
              Seam(SeamSide("back", ("side_l_lo", "side_l_hi")), SeamSide("front", ("side_r_hi", "side_r_lo"))))
     atts = (PatternAttachment("front", "waist", joint="root", sewing=True),
             PatternAttachment("back", "waist", joint="root", sewing=True))
-    return Pattern(name, tuple(panels), seams, edge_length, atts)
+    return Pattern(name, tuple(panels), seams, edge_length, atts, fit_edges=_WAISTBAND)
 
 
 def _pants(meas: dict, *, leg_length: float, hem_radius: float, ease: float, hip_ease: float | None,
@@ -449,7 +447,7 @@ def _pants(meas: dict, *, leg_length: float, hem_radius: float, ease: float, hip
              Seam(SeamSide("leg_r", "under_a"), SeamSide("leg_r", "under_b"))]
     atts = (PatternAttachment("front", "waist", joint="root", sewing=True),
             PatternAttachment("back", "waist", joint="root", sewing=True))
-    return Pattern(name, tuple(panels), tuple(seams), edge_length, atts)
+    return Pattern(name, tuple(panels), tuple(seams), edge_length, atts, fit_edges=_WAISTBAND)
 
 
 def _crotch_depth(meas: dict, side: str) -> float:
@@ -500,7 +498,7 @@ def cape(meas: dict, *, length: float | None = None, edge_length: float = 0.03, 
     p = Panel("cape", edges, Placement("torso", angle_deg=180.0, span_deg=120.0,
                                        shift=meas["shoulder_y"] + 0.03 * h - L, offset=0.03, wrap_until=L))
     atts = (PatternAttachment("cape", "top", at=(0.0, 1.0)),)
-    return Pattern(name, (p,), (), edge_length, atts)
+    return Pattern(name, (p,), (), edge_length, atts, fit_edges=(SeamSide("cape", "top"),))
 
 
 def square(meas: dict, *, size: float = 1.0, edge_length: float = 0.025, height_above: float = 0.05,
@@ -539,7 +537,9 @@ def library_pattern(kind: str, measurements: dict, **overrides) -> Pattern:
 @dataclass(frozen=True)
 class GarmentBuild:
     """Everything make_garment produced, for logging: the flat meshes (pattern coordinates, z = 0,
-    panels side by side), the placed unsewn mesh, the sewing log, and final placements."""
+    panels side by side), the placed unsewn mesh, the sewing log, and final placements.
+    fit_vertices: (K,) int64, the Garment's particles on the pattern's fit_edges (waistband,
+    collar), whose distance to the skin is the fit gap."""
 
     flat_positions: np.ndarray
     placed_positions: np.ndarray
@@ -547,6 +547,7 @@ class GarmentBuild:
     seam_pairs: np.ndarray
     log: object
     placements: dict
+    fit_vertices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_params=None, attach: bool = True):
@@ -602,5 +603,7 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
             atts.append(attach_indices(np.unique(remap[idx]), joint))
     g = build_garment(pattern.name, pos, mtri, density=pattern.density, triangle_rest=tri_rest, attachments=atts,
                       bind=bind)
-    build = GarmentBuild(flat3, placed, tri, flat.seam_pairs, log, used)
+    fit = [run_vertices(pattern, flat, side) for side in pattern.fit_edges]
+    fit = np.unique(remap[np.concatenate(fit)]).astype(np.int64) if fit else np.zeros(0, np.int64)
+    build = GarmentBuild(flat3, placed, tri, flat.seam_pairs, log, used, fit)
     return g, log, build

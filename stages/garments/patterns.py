@@ -263,7 +263,8 @@ class Pattern:
 
     name: garment name. panels: Panel tuple. seams: Seam tuple. edge_length: target mean edge
     length of the mesh, metres. attachments: PatternAttachment tuple (default pins).
-    density: cloth area density, kg/m^2.
+    density: cloth area density, kg/m^2. fit_edges: SeamSide tuple, the edges meant to sit on the
+    body (a waistband, a collar): their distance to the skin after sewing is the garment's fit gap.
     """
 
     name: str
@@ -272,12 +273,14 @@ class Pattern:
     edge_length: float = 0.025
     attachments: tuple = ()
     density: float = 0.2
+    fit_edges: tuple = ()
 
     def __post_init__(self):
         o = f"Pattern[{self.name!r}]"
         object.__setattr__(self, "panels", tuple(self.panels))
         object.__setattr__(self, "seams", tuple(self.seams))
         object.__setattr__(self, "attachments", tuple(self.attachments))
+        object.__setattr__(self, "fit_edges", tuple(self.fit_edges))
         if not self.panels:
             raise ContractError(f"{o}.panels: needs at least one panel")
         names = [p.name for p in self.panels]
@@ -299,6 +302,8 @@ class Pattern:
                     used.add(key)
         for a in self.attachments:
             self.edge_run(SeamSide(a.panel, a.edges))
+        for side in self.fit_edges:
+            self.edge_run(side)
 
     def panel(self, name: str) -> Panel:
         for p in self.panels:

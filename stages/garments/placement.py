@@ -21,6 +21,7 @@ import numpy as np
 from stages.errors import InputError
 from stages.garments.patterns import Pattern, Placement
 from stages.garments.triangulate import FlatPattern
+from stages.rig.humanoid import limb_chain, subtree
 
 SLAB = 0.03        # m, half height of the body slab measured for one cross-section level
 LEVEL_STEP = 0.01  # m, spacing of cross-section levels along the axis
@@ -36,81 +37,6 @@ class BodyAxis:
     p: np.ndarray
 
 
-def _mirror(name: str) -> str:
-    for a, b in (("_l", "_r"), ("Left", "Right"), ("_L", "_R"), ("left", "right"), ("L_", "R_")):
-        if a in name:
-            return name.replace(a, b)
-    return name
-
-
-def _chain(character, kind: str, side: str):
-    """Joint indices (upper, lower, end) of a limb chain found by name, else by the skeleton's
-    shape (see _structural_chain), or None."""
-    from stages.rig.procedural import _ARM_CHAINS, _LEG_CHAINS
-    names = character.joint_names
-    for chain in (_ARM_CHAINS if kind == "arm" else _LEG_CHAINS):
-        c = chain if side == "l" else tuple(_mirror(n) for n in chain)
-        if all(n in names for n in c):
-            return [names.index(n) for n in c]
-    return _structural_chain(character, kind, side)
-
-
-def _main_path(parents: np.ndarray, j: int) -> list:
-    """j, then repeatedly the child with the largest subtree (first on ties)."""
-    path = [j]
-    while True:
-        kids = np.flatnonzero(parents == path[-1])
-        if kids.size == 0:
-            return path
-        path.append(int(max(kids, key=lambda k: (len(_subtree(parents, int(k))), -k))))
-
-
-def _structural_chain(character, kind: str, side: str):
-    """A limb chain of a rig with unknown joint names (e.g. CesiumMan's 'leg_joint_L_1'), from the
-    rest pose: legs are the root's children below it, arms the branches off the rest of the
-    skeleton that reach furthest sideways (|x - root x| >= 15 % of the skeleton's height); side
-    'l' is +X (the wearer's left). A leg chain starts at the root's child (the thigh); an arm chain
-    at the joint of its path's longest bone (the upper arm, not a clavicle). Three joints needed."""
-    from stages.rig.transforms import forward_kinematics
-    parents = np.asarray(character.parents)
-    w = forward_kinematics(character.parents, character.rest_local)[:, :3, 3]
-    root = character.root_joint
-    sign = 1.0 if side == "l" else -1.0
-    down = [int(c) for c in np.flatnonzero(parents == root) if w[c, 1] < w[root, 1] - 1e-3]
-    if kind == "leg":
-        starts = [c for c in down if sign * (w[c, 0] - w[root, 0]) > 1e-3]
-        best = max(starts, key=lambda c: sign * (w[c, 0] - w[root, 0]), default=None)
-    else:
-        legs = set().union(*[_subtree(parents, c) for c in down]) if down else set()
-        nkids = np.bincount(parents[parents >= 0], minlength=len(parents))
-        height = float(np.ptp(w[:, 1])) or 1.0
-        best, reach = None, 0.15 * height
-        for j in range(len(parents)):
-            if j == root or j in legs or parents[j] < 0 or nkids[parents[j]] < 2:
-                continue
-            r = max(sign * (w[k, 0] - w[root, 0]) for k in _subtree(parents, j))
-            if r >= reach:
-                best, reach = j, r
-    if best is None:
-        return None
-    path = _main_path(parents, best)
-    if len(path) < 3:
-        return None
-    if kind == "leg":
-        return path[:3]
-    bone = np.linalg.norm(w[path[1:]] - w[path[:-1]], axis=1)
-    k = int(np.argmax(bone[:len(path) - 2]))
-    return path[k:k + 3]
-
-
-def _subtree(parents: np.ndarray, j: int) -> set:
-    out = {j}
-    for k in range(j + 1, len(parents)):
-        if parents[k] in out:
-            out.add(k)
-    return out
-
-
 def part_joints(character, part: str, joint_origins: np.ndarray) -> set:
     """Joints whose dominant vertices make up a body part."""
     parents = np.asarray(character.parents)
@@ -118,18 +44,18 @@ def part_joints(character, part: str, joint_origins: np.ndarray) -> set:
     legs = set()
     for c in np.flatnonzero(parents == root):
         if joint_origins[c, 1] < joint_origins[root, 1] - 1e-3:
-            legs |= _subtree(parents, int(c))
+            legs |= subtree(parents, int(c))
     arms = set()
     for side in ("l", "r"):
-        ch = _chain(character, "arm", side)
+        ch = limb_chain(character, "arm", side)
         if ch is not None:
-            arms |= _subtree(parents, ch[0])
+            arms |= subtree(parents, ch[0])
     if part == "hips":
         return (legs | {root}) - arms
     if part == "torso":
         return set(range(len(parents))) - legs - arms
     kind, side = part.split("_")
-    ch = _chain(character, kind, side)
+    ch = limb_chain(character, kind, side)
     if ch is None:
         raise InputError(f"placement {part!r}", f"no {kind} chain found in {character.name!r}: expected joints named "
                          "like upperarm_l/forearm_l/hand_l, LeftArm/LeftForeArm/LeftHand (or thigh/shin/foot)")
@@ -143,7 +69,7 @@ def body_axis(character, part: str, joint_origins: np.ndarray) -> BodyAxis:
         o[1] = 0.0
         return BodyAxis(o, y, z, np.cross(y, z))
     kind, side = part.split("_")
-    ch = _chain(character, kind, side)
+    ch = limb_chain(character, kind, side)
     if ch is None:
         part_joints(character, part, joint_origins)  # raises the explanation
     o = joint_origins[ch[0]]
@@ -240,9 +166,9 @@ def _collider_joints(character, part: str, joint_origins: np.ndarray, with_arms:
         arms = set()
         keep = set()
         for side in ("l", "r"):
-            ch = _chain(character, "arm", side)
+            ch = limb_chain(character, "arm", side)
             if ch is not None:
-                arms |= _subtree(np.asarray(character.parents), ch[0])
+                arms |= subtree(np.asarray(character.parents), ch[0])
                 if part == "torso" and with_arms:
                     keep.add(ch[0])
         return (set(range(character.n_joints)) - arms) | keep
@@ -267,7 +193,7 @@ def place_panel(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, characte
         mid = float(joint_origins[character.root_joint, 0])
         # a trouser leg below the knee wraps the shin: the part beyond the thigh's length is placed
         # around the shin's own axis (from the knee), so it follows a bent knee
-        ch = _chain(character, "leg", pl.body[-1])
+        ch = limb_chain(character, "leg", pl.body[-1])
         thigh = float(np.linalg.norm(joint_origins[ch[1]] - joint_origins[ch[0]]))
         low = uv[:, 1] + pl.shift < -thigh
         if low.any() and (~low).any():

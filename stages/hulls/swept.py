@@ -72,7 +72,8 @@ def swept_parts(character: Character, split: RegionSplit, deviation: np.ndarray,
     of one joint moving with one bone are cut into connected pieces of the mesh (one hull each, so
     a hull never bridges two separate patches); a piece of fewer than `min_vertices` joins an
     adjacent bigger piece (within RING_EDGE median edges in the bind pose; moving with the same bone
-    first, then of the same joint), or stays a piece of its own."""
+    first, then of the same joint; never a piece moving with a bone that is not the same, the parent
+    or a child: touching skin of two limbs), or stays a piece of its own."""
     sj, w = character.skin_joints, character.skin_weights
     dev = np.where(w > 0, deviation, np.inf)
     frame = sj[np.arange(sj.shape[0]), np.argmin(dev, axis=1)]
@@ -88,7 +89,7 @@ def swept_parts(character: Character, split: RegionSplit, deviation: np.ndarray,
     for j, b, p in small:
         # an adjacent bigger piece: moving with the same bone first, then of the same joint
         gap = [np.linalg.norm(x[q[2]][:, None] - x[p][None], axis=2).min() for q in big]
-        near = [k for k in range(len(big)) if gap[k] <= reach]
+        near = [k for k in range(len(big)) if gap[k] <= reach and _adjacent(character.parents, big[k][1], b)]
         if not near:
             big.append((j, b, p))
             continue
@@ -97,6 +98,10 @@ def swept_parts(character: Character, split: RegionSplit, deviation: np.ndarray,
     parts = [(j, b, np.sort(p).astype(np.int64)) for j, b, p in big]
     notes = []
     return parts, notes
+
+
+def _adjacent(parents: np.ndarray, a: int, b: int) -> bool:
+    return a == b or parents[a] == b or parents[b] == a
 
 
 def part_names(character: Character, parts: list) -> list[str]:
@@ -116,12 +121,22 @@ def swept_points(character: Character, poses: np.ndarray, skinned: np.ndarray, b
     """(region vertices with their one-ring, their bone-local positions over every pose and the bind pose)."""
     ring = one_ring(character.triangles, vertices, character.vertices.shape[0],
                     RING_EDGE * median_edge(character), character.vertices)
+    ring = np.union1d(vertices, ring[near_bone(character, ring, bone)])
     pts = local_tracks(character, poses, ring, bone, skinned)
     # poses repeat positions (a held pose, the bind pose): near-duplicates make Qhull slivers
     pts = np.unique(np.round(pts / SNAP), axis=0) * SNAP
     if is_hull_ready(pts):
         pts = pts[ConvexHull(pts).vertices]      # only the extreme points matter to the hull
     return ring, np.ascontiguousarray(pts)
+
+
+def near_bone(character: Character, vertices: np.ndarray, bone: int) -> np.ndarray:
+    """(n,) bool: the vertices skinned (weight > 0) to `bone`, its parent or a child of it. The one-ring
+    of a piece reaches its neighbours' skin; where two limbs' skin touches (a heavy body's inner
+    thighs) it would reach the other limb, whose sweep in this bone's frame is a metre wide."""
+    near = {bone, int(character.parents[bone])} | set(np.flatnonzero(character.parents == bone).tolist())
+    sj, w = character.skin_joints[vertices], character.skin_weights[vertices]
+    return (np.isin(sj, list(near)) & (w > 0)).any(axis=1)
 
 
 def bone_core(character: Character, bone: int, vertices: np.ndarray) -> np.ndarray:

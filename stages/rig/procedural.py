@@ -789,15 +789,11 @@ def body_measurements(character: Character) -> dict:
         y = y0 + frac * h
         out[f"{key}_y"] = y
         out[key] = _girth(v, character.triangles, y, root_xz)
-    names = character.joint_names
+    from stages.rig.humanoid import limb_chain
     pos = world[:, :3, 3]
-    for key, chains in (("arm_length", _ARM_CHAINS), ("leg_length", _LEG_CHAINS)):
-        out[key] = float("nan")
-        for chain in chains:
-            if all(n in names for n in chain):
-                p = pos[[names.index(n) for n in chain]]
-                out[key] = float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
-                break
+    for key, kind in (("arm_length", "arm"), ("leg_length", "leg")):
+        chain = limb_chain(character, kind, "l")
+        out[key] = float(np.linalg.norm(np.diff(pos[chain], axis=0), axis=1).sum()) if chain else float("nan")
     return out
 
 

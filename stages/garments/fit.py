@@ -1,0 +1,80 @@
+"""How a garment sits on the body: the fit gap of its waistband / collar after sewing, the hem's
+height above the floor and the share of particles inside the true body, per frame.
+
+These are the figures a user checks on a dressed character (issue: garments dress any humanoid);
+the pipeline reports them for every pattern garment and `python -m pipeline matrix` tabulates them
+over characters x garment kinds.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stages.checks import check_array
+
+FIT_GAP_MAX = 0.02        # m: median waistband / collar distance to the skin a fitted garment keeps
+BODY_SHARE_MAX = 0.005    # share of a garment's particles inside the true body at any frame
+
+
+@dataclass(frozen=True)
+class GarmentFit:
+    """name: garment name. fit_gap: (K,) float64, m, distance from each fit-edge particle (waistband,
+    collar) to the skin at the bind pose after sewing, negative inside the body (empty when the
+    garment has no fit edges). floor_clearance: (F,) float64, m, lowest particle minus the floor
+    (the lowest skin vertex over the frames) per frame. body_share: (F,) float64, share of the
+    garment's particles inside the true body per frame (nan when the audit was off).
+    """
+
+    name: str
+    fit_gap: np.ndarray
+    floor_clearance: np.ndarray
+    body_share: np.ndarray
+
+    def __post_init__(self):
+        o = f"GarmentFit[{self.name!r}]"
+        check_array(o, "fit_gap", self.fit_gap, (None,), np.float64)
+        f = check_array(o, "floor_clearance", self.floor_clearance, (None,), np.float64).shape[0]
+        check_array(o, "body_share", self.body_share, (f,), np.float64)
+
+    @property
+    def fit_gap_median(self) -> float:
+        return float(np.median(self.fit_gap)) if self.fit_gap.size else float("nan")
+
+    def warnings(self, after_frame: int = 1) -> list[str]:
+        out = []
+        if self.fit_gap.size and abs(self.fit_gap_median) > FIT_GAP_MAX:
+            out.append(f"garment {self.name!r}: waistband / collar {self.fit_gap_median * 100:.1f} cm from the skin "
+                       f"(median; expected within {FIT_GAP_MAX * 100:.0f} cm)")
+        if self.floor_clearance.size and self.floor_clearance.min() < 0:
+            k = int(np.argmin(self.floor_clearance))
+            out.append(f"garment {self.name!r}: {-self.floor_clearance[k] * 100:.1f} cm below the floor at frame {k}")
+        share = self.body_share[after_frame:]
+        if share.size and np.nanmax(share, initial=0.0) > BODY_SHARE_MAX:
+            k = after_frame + int(np.nanargmax(share))
+            out.append(f"garment {self.name!r}: {share.max() * 100:.2f} % of its particles inside the body at frame {k} "
+                       f"(expected <= {BODY_SHARE_MAX * 100:.1f} %)")
+        return out
+
+
+def garment_fit(character, bind_skin: np.ndarray, bind_positions: np.ndarray, fit_vertices: np.ndarray,
+                track, floor_y: float, skin_distance=None) -> GarmentFit:
+    """The fit of one simulated garment.
+
+    bind_skin: (V, 3) the skinned body at the bind pose (frame 0, relative frame); bind_positions:
+    (N, 3) the sewn garment there (the Garment's positions, same frame). fit_vertices: (K,) int64
+    particle ids. track: the garment's GarmentTrack (world). floor_y: m, world floor height.
+    skin_distance: a stages.coverage.SkinDistance of the character to reuse (built when None).
+    """
+    from stages.coverage import SkinDistance
+    n = track.positions.shape[1]
+    gap = np.zeros(0)
+    if fit_vertices.size:
+        body = skin_distance if skin_distance is not None else SkinDistance(character)
+        body.refit(np.ascontiguousarray(bind_skin, np.float64))
+        pts = np.ascontiguousarray(np.asarray(bind_positions, np.float64)[fit_vertices])
+        gap = np.where(body.inside(pts), -1.0, 1.0) * body.distance(pts)
+    clearance = track.positions[..., 1].min(axis=1).astype(np.float64) - float(floor_y)
+    pen = track.penetrations_body.astype(np.float64)
+    share = np.where(pen >= 0, pen / max(n, 1), np.nan)
+    return GarmentFit(track.name, np.asarray(gap, np.float64), clearance, share)
