@@ -89,8 +89,8 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
     shoulder_top: highest point of the shoulders (torso and upper arms, without neck and head)
         between the neck and the upper-arm joint.
     torso_depth: largest |z - root z| of the upper torso between chest_y and shoulder_top.
-    arm_radius: largest distance from the upper-arm axis of the upper arm (and its collider)
-        within the upper arm's first 70 %. arm_angle: the upper arm's angle below horizontal, rad.
+    arm_radius: 90th percentile of the upper arm's skin distance from its axis over the middle 70 %
+        of the bone, plus the colliders' delta. arm_angle: the upper arm's angle below horizontal, rad.
     thigh_radius: the same for the thigh. crotch_y: lowest point where a leg (or its collider)
         reaches the body's mid-plane.
     """
@@ -158,12 +158,23 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
         d = e - o
         L = float(np.linalg.norm(d))
         d /= L
-        mm = owner == ch[0]
-        r = pts[mm] - o
-        t = r @ d
-        keep = (t >= -0.05) & (t <= 0.7 * L)
-        rad = np.linalg.norm(r[keep] - np.outer(t[keep], d), axis=1)
-        out[f"{key}_radius"] = (float(rad.max()) if rad.size else 0.03 * b["height"]) + clearance
+        if kind == "arm":
+            # the skin of the upper arm's middle (its root blends into the shoulder and armpit, and a
+            # swept shoulder collider can reach far from the arm over a big range of motion), plus
+            # the collider inflation
+            r = skinned[dominant == ch[0]] - o
+            t = r @ d
+            keep = (t >= 0.15 * L) & (t <= 0.85 * L)
+            rad = np.linalg.norm(r[keep] - np.outer(t[keep], d), axis=1)
+            rad = np.percentile(rad, 90) + (colliders.delta if colliders is not None else 0.0) if rad.size else None
+        else:
+            mm = owner == ch[0]
+            r = pts[mm] - o
+            t = r @ d
+            keep = (t >= -0.05) & (t <= 0.7 * L)
+            rad = np.linalg.norm(r[keep] - np.outer(t[keep], d), axis=1)
+            rad = float(rad.max()) if rad.size else None
+        out[f"{key}_radius"] = (0.03 * b["height"] if rad is None else float(rad)) + clearance
         if kind == "arm":
             out["arm_angle"] = float(np.arcsin(np.clip(-d[1], -1.0, 1.0)))
     # crotch: going down the mid-plane from the hips, the first height where the line across the
@@ -497,7 +508,7 @@ def cape(meas: dict, *, length: float | None = None, edge_length: float = 0.03, 
     edges = (line("hem", (bottom, 0.0)), line("side_l", (top, L)), line("top", (-top, L)), line("side_r", (-bottom, 0.0)))
     p = Panel("cape", edges, Placement("torso", angle_deg=180.0, span_deg=120.0,
                                        shift=meas["shoulder_y"] + 0.03 * h - L, offset=0.03, wrap_until=L))
-    atts = (PatternAttachment("cape", "top", at=(0.0, 1.0)),)
+    atts = (PatternAttachment("cape", "top", sewing=True),)
     return Pattern(name, (p,), (), edge_length, atts, fit_edges=(SeamSide("cape", "top"),))
 
 
@@ -559,7 +570,7 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
     """
     from stages.garments.sewing import SewParams, merged_mesh, sew
     from stages.garments.triangulate import run_vertices, triangulate_pattern
-    from stages.garments.placement import place_pattern
+    from stages.garments.placement import bind_geometry, hug, place_pattern
     from stages.garments.types import attach_indices, bind_pose, build_garment
 
     sp = sew_params if sew_params is not None else SewParams()
@@ -583,11 +594,15 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
         return idx, joint
 
     pins = []
+    if any(a.sewing for a in pattern.attachments):
+        skinned0, origins, _ = bind_geometry(character, motion)
+        root_xz = origins[character.root_joint][[0, 2]]
     for a in pattern.attachments:
         if a.sewing:
             # the middle half of the run: the ends stay free so that the seams there can close even
             # where the placement had to stretch the band around a collider
             idx, joint = chosen(a)
+            placed[idx] = hug(placed[idx], root_xz, character, skinned0, bind)
             s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv[idx], axis=0), axis=1))])
             f = s / max(s[-1], 1e-12)
             idx = np.setdiff1d(idx[(f >= 0.25) & (f <= 0.75)], flat.seam_pairs.ravel())

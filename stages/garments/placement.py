@@ -371,6 +371,11 @@ def place_pattern(pattern: Pattern, flat: FlatPattern, character, motion, collid
             bad = inside_body(character, skinned, x)
             if not bad.any() or pl.body == "plane":
                 break
+            if bad.sum() <= FEW_INSIDE * x.shape[0]:
+                # a few vertices (an armhole corner in the arm's root): out along the skin's normal
+                x[bad] = push_out(x[bad], character, skinned, pl.offset)
+                if not inside_body(character, skinned, x).any():
+                    break
             if attempt == max_tries:
                 raise InputError(f"pattern {pattern.name!r} panel {panel.name!r}",
                                  f"{int(bad.sum())} vertices still inside the body after {max_tries} cm of clearance moves")
@@ -391,3 +396,53 @@ def place_pattern(pattern: Pattern, flat: FlatPattern, character, motion, collid
                 out[i] = place_panel(fp.uv, fp.uv[:fp.n_boundary], used[panel.name], character, origins, skinned,
                                      dominant, cp)
     return np.concatenate(out), used
+
+
+FEW_INSIDE = 0.02  # share of a panel's vertices inside the body that are pushed out instead of moving the panel
+
+
+def push_out(points: np.ndarray, character, skinned: np.ndarray, clearance: float) -> np.ndarray:
+    """(N, 3) points inside the body moved to their nearest skin vertex plus `clearance` along its
+    normal."""
+    from scipy.spatial import cKDTree
+
+    from stages.rig.skinning import vertex_normals
+    n = vertex_normals(skinned, character.triangles)
+    _, i = cKDTree(skinned).query(points)
+    return skinned[i] + clearance * n[i]
+
+
+HUG_GAP = 0.004    # m: a hugged band stays this far outside the colliders
+HUG_STEP = 0.002   # m: radial search step
+
+
+def hug(points: np.ndarray, centre_xz: np.ndarray, character, skinned: np.ndarray, bind, gap: float = HUG_GAP
+        ) -> np.ndarray:
+    """(N, 3) `points` (a waistband) moved horizontally towards the body's vertical axis through
+    centre_xz, each as far in as it stays `gap` outside every collider and outside the body: walking
+    in from where it was placed, it stops before the first blocked position. A band wrapped around
+    an ellipse that contains the body's cross-section stands off a boxy section by centimetres;
+    this brings it onto the colliders, where it is then pinned."""
+    from stages.garments.types import _collider_distances
+    from stages.sim import winding_number
+    p = np.asarray(points, np.float64)
+    rel = p[:, [0, 2]] - centre_xz
+    r = np.linalg.norm(rel, axis=1)
+    steps = np.arange(0.0, r.max(initial=0.0), HUG_STEP)           # inward moves tried
+    if p.shape[0] == 0 or steps.size == 0:
+        return p.copy()
+    unit = rel / np.maximum(r, 1e-9)[:, None]
+    rr = np.maximum(r[None, :] - steps[:, None], 0.0)              # (S, N) radii
+    cand = np.empty(rr.shape + (3,))
+    cand[..., 0] = centre_xz[0] + rr * unit[None, :, 0]
+    cand[..., 2] = centre_xz[1] + rr * unit[None, :, 1]
+    cand[..., 1] = p[None, :, 1]
+    flat = cand.reshape(-1, 3)
+    d, _, _ = _collider_distances(bind, flat)
+    blocked = (d.min(axis=0) < gap) if d.size else np.zeros(flat.shape[0], bool)
+    blocked |= winding_number(skinned, character.triangles, flat) >= 0.5
+    blocked = blocked.reshape(rr.shape)
+    blocked[-1] = True                                            # never past the axis
+    first = np.argmax(blocked, axis=0)                             # first blocked step per point
+    k = np.maximum(first - 1, 0)
+    return cand[k, np.arange(p.shape[0])]
