@@ -26,9 +26,17 @@ def cmd_validate(args) -> int:
     scene = load_scene(args.scene)
     character = load_character(scene)
     check_references(scene, character)
+    patterns = [i for i, g in enumerate(scene["garments"]) if g["type"] == "pattern"]
+    if patterns:   # size and place (not sew) every pattern garment on the bind pose: cheap, and
+        # where a garment cannot be dressed the error comes before a run
+        from pipeline.run import frame_times, place_scene_pattern, sample_scene_motion, split_and_fit
+        motion = sample_scene_motion(scene, character, frame_times(scene))
+        _, colliders = split_and_fit(scene, character, motion)
+        for i in patterns:
+            place_scene_pattern(scene, i, character, motion, colliders)
     print(f"{args.scene}: ok — scene {scene.name!r}, character {character.name!r} "
           f"({character.vertices.shape[0]} vertices, {character.n_joints} joints, "
-          f"{len(character.clips)} clips), {len(scene['garments'])} garments, "
+          f"{len(character.clips)} clips), {len(scene['garments'])} garments ({len(patterns)} patterns sized and placed), "
           f"{len(scene['obstacles'])} obstacles, {scene['frames']['count']} frames -> {scene.output}")
     for note in character.notes:
         print(f"  {note}")

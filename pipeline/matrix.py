@@ -31,7 +31,7 @@ def _assets() -> Path:
 def characters() -> dict:
     """name -> scene YAML of the character part (character + frames), without garments."""
     a = _assets()
-    walk = "frames: {count: %d}\n"
+    walk = "frames: {count: %d, blend_in: 0.5}\n"
     return {
         "built-in": "character: {source: procedural, clip: walk}\n" + walk,
         "built-in tall slim": ("character: {source: procedural, clip: walk, body: {height: 1.95, chest: 0.85, "
@@ -76,12 +76,19 @@ def run_pair(prepared: Prepared, scene) -> dict:
     from pipeline.run import build_scene_garments, sim_params
     from stages.garments.fit import BODY_SHARE_MAX, FIT_GAP_MAX, garment_fit
     from stages.sim import simulate
+    from pipeline.schema import SceneError
+    from stages.checks import ContractError
+    from stages.errors import InputError
+    from stages.sim import SimulationDiverged
     p = prepared
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        garments, builds = build_scene_garments(scene, p.character, p.motion, p.colliders, p.maps)
-        result = simulate(p.character, p.motion, p.colliders, p.maps, garments, sim_params(scene))
+        try:
+            garments, builds = build_scene_garments(scene, p.character, p.motion, p.colliders, p.maps)
+            result = simulate(p.character, p.motion, p.colliders, p.maps, garments, sim_params(scene))
+        except (SceneError, InputError, ContractError, SimulationDiverged) as err:   # what `run` exits 2 on
+            return {"status": f"error: {err}", "seconds": time.perf_counter() - t0}
     g = garments[0]
     log, build = builds[g.name]
     fit = garment_fit(p.character, p.skinned[0], g.positions, build.fit_vertices, result.garments[0], p.floor_y)
@@ -110,13 +117,8 @@ def run_pair(prepared: Prepared, scene) -> dict:
 
 def run_matrix(frames: int = 30, characters_: list[str] | None = None, kinds: list[str] | None = None,
                echo=print) -> dict:
-    """{character: {kind: figures}}; errors a user would see (exit 2) are a row's status."""
+    """{character: {kind: figures}}; an error a user would see (exit 2) is a row's status."""
     from pipeline.scene import parse_scene_text
-    from pipeline.schema import SceneError
-    from stages.checks import ContractError
-    from stages.errors import InputError
-    from stages.sim import SimulationDiverged
-    user_errors = (SceneError, InputError, ContractError, SimulationDiverged)
     out: dict = {}
     for name, text in characters().items():
         if characters_ and name not in characters_:
@@ -133,10 +135,7 @@ def run_matrix(frames: int = 30, characters_: list[str] | None = None, kinds: li
         for kind in kinds or KINDS:
             scene = parse_scene_text(base + f"garments: [{{type: pattern, name: {kind}, kind: {kind}}}]\n",
                                      source=f"matrix:{name}:{kind}")
-            try:
-                r = run_pair(prepared, scene)
-            except user_errors as err:
-                r = {"status": f"error: {err}"}
+            r = run_pair(prepared, scene)
             out[name][kind] = r
             echo(f"  {kind:<12} {_row_figures(r)}")
     return out

@@ -39,6 +39,8 @@ class RunSummary:
             lines.append(f"  {s.name:<10} {s.seconds * 1000:9.1f} ms   {sizes}")
         for k, v in self.penetrations.items():
             lines.append(f"  {k}: {v}")
+        if "garment fit" in self.tables:
+            lines += ["  garment fit:"] + [f"    {row}" for row in self.tables["garment fit"].splitlines()]
         if self.output:
             lines.append(f"recording: {self.output}  (view: rerun {self.output})")
         return "\n".join(lines)
@@ -192,18 +194,64 @@ def check_pattern(scene: Scene, index: int) -> None:
                              f"options: {', '.join(allowed) or 'none'}")
 
 
-def build_pattern_garment(scene: Scene, index: int, character, motion, colliders, maps):
-    """A sewn garment from a built-in pattern: (Garment, SewingLog, GarmentBuild)."""
-    from stages.garments.library import garment_measurements, library_pattern, make_garment
-    from stages.garments.sewing import SewParams
+def _garment_where(scene: Scene, index: int, character) -> str:
+    g = scene["garments"][index]
+    return f"{scene.path or '<scene>'}: garments[{index}] ({g['name']!r}, kind {g['kind']}) on {character.name!r}"
+
+
+def scene_pattern(scene: Scene, index: int, character, motion, colliders):
+    """The built-in pattern of a pattern garment, sized for the character; a body it cannot be
+    sized for is a SceneError naming the scene file and the garment."""
+    from stages.checks import ContractError
+    from stages.errors import InputError
+    from stages.garments.library import garment_measurements, library_pattern
     g = scene["garments"][index]
     check_pattern(scene, index)
-    pattern = library_pattern(g["kind"], garment_measurements(character, colliders, motion), edge_length=g["edge_length"],
-                              name=g["name"], **{k: float(v) for k, v in g["options"].items()})
+    try:
+        return library_pattern(g["kind"], garment_measurements(character, colliders, motion),
+                               edge_length=g["edge_length"], name=g["name"],
+                               **{k: float(v) for k, v in g["options"].items()})
+    except (ContractError, InputError) as err:
+        raise SceneError(f"{_garment_where(scene, index, character)}: the pattern cannot be sized for this body: "
+                         f"{err}") from None
+
+
+def place_scene_pattern(scene: Scene, index: int, character, motion, colliders):
+    """Size, triangulate and place a pattern garment without sewing it (what `validate` checks)."""
+    from stages.checks import ContractError
+    from stages.errors import InputError
+    from stages.garments.placement import place_pattern
+    from stages.garments.triangulate import triangulate_pattern
+    pattern = scene_pattern(scene, index, character, motion, colliders)
+    try:
+        return place_pattern(pattern, triangulate_pattern(pattern), character, motion, colliders)
+    except (ContractError, InputError) as err:
+        raise SceneError(f"{_garment_where(scene, index, character)}: cannot place the pattern: {err}") from None
+
+
+def build_pattern_garment(scene: Scene, index: int, character, motion, colliders, maps):
+    """A sewn garment from a built-in pattern: (Garment, SewingLog, GarmentBuild). Seams that do
+    not close within the tolerance are a SceneError naming the seam and the gap."""
+    from stages.checks import ContractError
+    from stages.errors import InputError
+    from stages.garments.library import make_garment
+    from stages.garments.sewing import SewParams
+    g = scene["garments"][index]
+    where = _garment_where(scene, index, character)
+    pattern = scene_pattern(scene, index, character, motion, colliders)
     sw = g["sewing"]
     sew = SewParams(tolerance=sw["tolerance"], max_iterations=sw["max_iterations"],
                     gravity_scale=sw["gravity_scale"], iterations=sw["iterations"])
-    return make_garment(pattern, character, motion, colliders, maps, sew_params=sew)
+    try:
+        garment, log, build = make_garment(pattern, character, motion, colliders, maps, sew_params=sew)
+    except (ContractError, InputError) as err:
+        raise SceneError(f"{where}: cannot place and sew the pattern: {err}") from None
+    if not log.converged:
+        seam, gap = build.worst_seam()
+        raise SceneError(f"{where}: sewing did not close seam {seam}: {gap * 1000:.1f} mm open after "
+                         f"{log.iterations} iterations (garments[{index}].sewing.tolerance {sw['tolerance'] * 1000:.1f} mm, "
+                         f"max_iterations {sw['max_iterations']})")
+    return garment, log, build
 
 
 def placement_matrix(item: dict) -> np.ndarray:
@@ -286,6 +334,28 @@ def build_scene_obstacles(scene: Scene, duration: float):
         out.append(make_obstacle(o["name"], mesh, thickness=max(o["thickness"], 1e-4), friction=o["friction"],
                                  restitution=o["restitution"], motion=motion))
     return build_obstacle_set(out)
+
+
+def garment_fit_report(character, motion, skinned, garments, builds, result) -> str:
+    """The fit figures of every garment (stages.garments.fit) as a table; warns about any figure out
+    of range and about garments that start inside the body or a collider."""
+    import warnings
+
+    from stages.coverage import SkinDistance
+    from stages.garments.fit import fit_table, garment_fit, start_warnings
+    floor_y = float((skinned[..., 1] + motion.root_translation[:, None, 1]).min())
+    body = SkinDistance(character)
+    fits, gaps = [], {}
+    for g, track in zip(garments, result.garments):
+        build = builds.get(g.name, (None, None))[1]
+        fit_vertices = build.fit_vertices if build is not None else np.zeros(0, np.int64)
+        if build is not None:
+            gaps[g.name] = build.worst_seam()[1]
+        f = garment_fit(character, skinned[0], g.positions, fit_vertices, track, floor_y, skin_distance=body)
+        fits.append(f)
+        for w in start_warnings(track) + f.warnings():
+            warnings.warn(w, stacklevel=1)
+    return fit_table(fits, gaps)
 
 
 def sim_params(scene: Scene):
@@ -402,6 +472,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                     bar.close()
                 r.sizes.update(steps=result.steps)
             summary.penetrations = logs.log_sim(rec, motion, garments, result)
+            summary.tables["garment fit"] = garment_fit_report(character, motion, skinned, garments, builds, result)
+            logs.log_text(rec, "sim/fit", summary.tables["garment fit"])
         logs.log_text(rec, "meta/summary", summary.markdown())
     summary.output = out
     return summary

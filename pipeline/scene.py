@@ -87,7 +87,7 @@ GARMENT.variants["pattern"] = {
         "tolerance": Field("float", 0.004, "largest seam gap accepted, m", lo=0.0, lo_open=True),
         "max_iterations": Field("int", 40, "sewing simulation rounds at most", lo=1, hi=10000),
         "gravity_scale": Field("float", 0.005, "share of gravity while sewing", lo=0.0, hi=1.0),
-        "iterations": Field("int", 8, "spring correction rounds while sewing", lo=1, hi=1000),
+        "iterations": Field("int", 16, "spring correction rounds while sewing", lo=1, hi=1000),
     }),
 }
 GARMENT.variants["mesh"] = {

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stages.checks import check_array
+from stages.checks import ContractError, check_array
 
 FIT_GAP_MAX = 0.02        # m: median waistband / collar distance to the skin a fitted garment keeps
 BODY_SHARE_MAX = 0.005    # share of a garment's particles inside the true body at any frame
@@ -35,7 +35,8 @@ class GarmentFit:
         o = f"GarmentFit[{self.name!r}]"
         check_array(o, "fit_gap", self.fit_gap, (None,), np.float64)
         f = check_array(o, "floor_clearance", self.floor_clearance, (None,), np.float64).shape[0]
-        check_array(o, "body_share", self.body_share, (f,), np.float64)
+        if not (isinstance(self.body_share, np.ndarray) and self.body_share.shape == (f,)):   # nan: audit off
+            raise ContractError(f"{o}.body_share: expected ({f},) float64")
 
     @property
     def fit_gap_median(self) -> float:
@@ -78,3 +79,28 @@ def garment_fit(character, bind_skin: np.ndarray, bind_positions: np.ndarray, fi
     pen = track.penetrations_body.astype(np.float64)
     share = np.where(pen >= 0, pen / max(n, 1), np.nan)
     return GarmentFit(track.name, np.asarray(gap, np.float64), clearance, share)
+
+
+def fit_table(fits: list, seam_gaps: dict) -> str:
+    """Markdown table of GarmentFit figures; seam_gaps: {garment name: largest seam gap m} (pattern
+    garments)."""
+    rows = ["| garment | seam gap (mm) | waistband / collar to skin, median (cm) | lowest point above the floor (cm) | "
+            "inside the body, worst frame after 0 (%) |", "| --- | ---: | ---: | ---: | ---: |"]
+    for f in fits:
+        gap = seam_gaps.get(f.name)
+        share = f.body_share[1:]
+        rows.append(f"| {f.name} | {'' if gap is None else f'{gap * 1000:.1f}'} | "
+                    f"{'' if not f.fit_gap.size else f'{f.fit_gap_median * 100:.1f}'} | "
+                    f"{f.floor_clearance.min() * 100:.1f} | "
+                    f"{'' if not share.size or np.isnan(share).all() else f'{np.nanmax(share) * 100:.2f}'} |")
+    return "\n".join(rows)
+
+
+def start_warnings(track) -> list[str]:
+    """A garment that starts (frame 0) with particles inside a collider or the body."""
+    c, b = int(track.penetrations_colliders[0]), int(track.penetrations_body[0])
+    if c <= 0 and b <= 0:
+        return []
+    parts = ([f"{c} inside a collider"] if c > 0 else []) + ([f"{b} inside the body"] if b > 0 else [])
+    return [f"garment {track.name!r} starts with {' and '.join(parts)} of its {track.positions.shape[1]} particles "
+            "(frame 0): move or resize it"]

@@ -146,7 +146,9 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
         sh = float(np.mean([abs(origins[a[0], 0] - root[0]) for a in arm_sets]))
     else:
         sh = 0.105 * b["height"]
-    m = upper & (np.abs(rel[:, 0]) >= out["neck_half"] - clearance) & (np.abs(rel[:, 0]) <= sh + 0.02)
+    # beside the neck (and its colliders) out to the shoulder joint, or 5 cm beyond the neck where
+    # the shoulder joint sits inside the neck's width (CesiumMan)
+    m = upper & (np.abs(rel[:, 0]) >= out["neck_half"] - clearance) & (np.abs(rel[:, 0]) <= max(sh + 0.02, out["neck_half"] + 0.05))
     out["shoulder_top"] = (float(pts[m, 1].max()) if m.any() else b["chest_y"] + 0.12 * b["height"]) + clearance
     m = torso & ~neckpts & (pts[:, 1] >= b["chest_y"]) & (pts[:, 1] <= out["shoulder_top"])
     out["torso_depth"] = (float(np.abs(rel[m, 2]).max()) if m.any() else 0.07 * b["height"]) + clearance
@@ -530,7 +532,7 @@ def library_pattern(kind: str, measurements: dict, **overrides) -> Pattern:
     if kind in ("short_skirt", "long_skirt"):
         _need(measurements, "height", "waist_y")
         short = kind == "short_skirt"
-        kw = dict(length=0.25 * measurements["height"] if short else 0.85 * (measurements["waist_y"] - measurements.get("floor_y", 0.0)),
+        kw = dict(length=0.25 * measurements["height"] if short else 0.8 * (measurements["waist_y"] - measurements.get("floor_y", 0.0)),
                   flare=1.35 if short else 1.9, name="skirt" if short else "long_skirt")
         kw.update(overrides)
         return skirt(measurements, **kw)
@@ -545,12 +547,17 @@ def library_pattern(kind: str, measurements: dict, **overrides) -> Pattern:
     raise InputError("garment library", f"unknown kind {kind!r}; kinds: {', '.join(KINDS)}")
 
 
+def seam_label(seam: Seam) -> str:
+    return " / ".join(f"{side.panel}.{'+'.join(side.edges)}" for side in (seam.a, seam.b))
+
+
 @dataclass(frozen=True)
 class GarmentBuild:
     """Everything make_garment produced, for logging: the flat meshes (pattern coordinates, z = 0,
     panels side by side), the placed unsewn mesh, the sewing log, and final placements.
     fit_vertices: (K,) int64, the Garment's particles on the pattern's fit_edges (waistband,
-    collar), whose distance to the skin is the fit gap."""
+    collar), whose distance to the skin is the fit gap. seam_gaps: {seam label: largest gap of its
+    vertex pairs after sewing, m}, label 'panel.edge / panel.edge'."""
 
     flat_positions: np.ndarray
     placed_positions: np.ndarray
@@ -559,6 +566,11 @@ class GarmentBuild:
     log: object
     placements: dict
     fit_vertices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    seam_gaps: dict = field(default_factory=dict)
+
+    def worst_seam(self) -> tuple[str, float]:
+        """(label, gap m) of the seam left most open ('', 0) without seams."""
+        return max(self.seam_gaps.items(), key=lambda kv: kv[1], default=("", 0.0))
 
 
 def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_params=None, attach: bool = True):
@@ -593,16 +605,21 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
         joint = character.joint_names[character.root_joint] if a.joint == "root" else a.joint
         return idx, joint
 
-    pins = []
-    if any(a.sewing for a in pattern.attachments):
+    if pattern.fit_edges:
+        # the edges meant to sit on the body (waistband, collar, a cape's top) are brought onto the
+        # colliders (see hug); a waistband is then pinned there
         skinned0, origins, _ = bind_geometry(character, motion)
         root_xz = origins[character.root_joint][[0, 2]]
+        for side in pattern.fit_edges:
+            idx = run_vertices(pattern, flat, side)
+            placed[idx] = hug(placed[idx], root_xz, character, skinned0, bind if bind is not None else
+                              bind_pose(character, motion, colliders))
+    pins = []
     for a in pattern.attachments:
         if a.sewing:
             # the middle half of the run: the ends stay free so that the seams there can close even
             # where the placement had to stretch the band around a collider
             idx, joint = chosen(a)
-            placed[idx] = hug(placed[idx], root_xz, character, skinned0, bind)
             s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv[idx], axis=0), axis=1))])
             f = s / max(s[-1], 1e-12)
             idx = np.setdiff1d(idx[(f >= 0.25) & (f <= 0.75)], flat.seam_pairs.ravel())
@@ -620,5 +637,12 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
                       bind=bind)
     fit = [run_vertices(pattern, flat, side) for side in pattern.fit_edges]
     fit = np.unique(remap[np.concatenate(fit)]).astype(np.int64) if fit else np.zeros(0, np.int64)
-    build = GarmentBuild(flat3, placed, tri, flat.seam_pairs, log, used, fit)
+    gaps = np.linalg.norm(sewn[flat.seam_pairs[:, 0]] - sewn[flat.seam_pairs[:, 1]], axis=1) if flat.seam_pairs.size \
+        else np.zeros(0)
+    by_seam = {}
+    for k, seam in enumerate(pattern.seams):
+        m = flat.seam_index == k
+        if m.any():
+            by_seam[seam_label(seam)] = float(gaps[m].max())
+    build = GarmentBuild(flat3, placed, tri, flat.seam_pairs, log, used, fit, by_seam)
     return g, log, build
