@@ -19,7 +19,7 @@ _WAISTBAND = (SeamSide("front", "waist"), SeamSide("back", "waist"))
 KINDS = ("tshirt", "short_skirt", "long_skirt", "shorts", "trousers", "cape", "square")
 
 
-def garment_measurements(character, colliders=None, motion=None, *, clearance: float = 0.015) -> dict:
+def garment_measurements(character, colliders=None, motion=None, *, clearance: float = 0.008) -> dict:
     """body_measurements plus, from the skeleton at rest (metres, world): shoulder_y (upper-arm
     joint height), shoulder_half (|x| of the upper-arm joint from the root), neck_y (neck-base
     joint height or 0.82 height), arm_girth (upper-arm circumference estimate), floor_y.
