@@ -511,7 +511,7 @@ def cape(meas: dict, *, length: float | None = None, edge_length: float = 0.03, 
     p = Panel("cape", edges, Placement("torso", angle_deg=180.0, span_deg=120.0,
                                        shift=meas["shoulder_y"] + 0.03 * h - L, offset=0.03, wrap_until=L))
     atts = (PatternAttachment("cape", "top", sewing=True),)
-    return Pattern(name, (p,), (), edge_length, atts, fit_edges=(SeamSide("cape", "top"),))
+    return Pattern(name, (p,), (), edge_length, atts, fit_edges=(SeamSide("cape", "top"),), fit_hug="neck")
 
 
 def square(meas: dict, *, size: float = 1.0, edge_length: float = 0.025, height_above: float = 0.05,
@@ -545,6 +545,20 @@ def library_pattern(kind: str, measurements: dict, **overrides) -> Pattern:
     if kind == "square":
         return square(measurements, **overrides)
     raise InputError("garment library", f"unknown kind {kind!r}; kinds: {', '.join(KINDS)}")
+
+
+def hug_targets(character, origins: np.ndarray, points: np.ndarray, mode: str) -> np.ndarray:
+    """(N, 3) where fit-edge points walk to (placement.hug): 'axis', horizontally to the body's
+    vertical axis through the root; 'neck', to the base of the neck (a cape's top onto the
+    shoulders)."""
+    from stages.rig.humanoid import humanoid_joints
+    if mode == "neck":
+        neck = humanoid_joints(character).neck
+        if neck >= 0:
+            return np.broadcast_to(origins[neck], points.shape).copy()
+    out = points.copy()
+    out[:, [0, 2]] = origins[character.root_joint][[0, 2]]
+    return out
 
 
 def seam_label(seam: Seam) -> str:
@@ -609,11 +623,10 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
         # the edges meant to sit on the body (waistband, collar, a cape's top) are brought onto the
         # colliders (see hug); a waistband is then pinned there
         skinned0, origins, _ = bind_geometry(character, motion)
-        root_xz = origins[character.root_joint][[0, 2]]
         for side in pattern.fit_edges:
             idx = run_vertices(pattern, flat, side)
-            placed[idx] = hug(placed[idx], root_xz, character, skinned0, bind if bind is not None else
-                              bind_pose(character, motion, colliders))
+            placed[idx] = hug(placed[idx], hug_targets(character, origins, placed[idx], pattern.fit_hug), character,
+                              skinned0, bind if bind is not None else bind_pose(character, motion, colliders))
     pins = []
     for a in pattern.attachments:
         if a.sewing:

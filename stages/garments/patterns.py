@@ -264,7 +264,9 @@ class Pattern:
     name: garment name. panels: Panel tuple. seams: Seam tuple. edge_length: target mean edge
     length of the mesh, metres. attachments: PatternAttachment tuple (default pins).
     density: cloth area density, kg/m^2. fit_edges: SeamSide tuple, the edges meant to sit on the
-    body (a waistband, a collar): their distance to the skin after sewing is the garment's fit gap.
+    body (a waistband, a collar): their distance to the skin after sewing is the garment's fit gap;
+    before sewing they are brought onto the colliders, walking horizontally to the body's axis
+    (fit_hug 'axis') or towards the base of the neck ('neck').
     """
 
     name: str
@@ -274,6 +276,7 @@ class Pattern:
     attachments: tuple = ()
     density: float = 0.2
     fit_edges: tuple = ()
+    fit_hug: str = "axis"
 
     def __post_init__(self):
         o = f"Pattern[{self.name!r}]"
@@ -281,6 +284,8 @@ class Pattern:
         object.__setattr__(self, "seams", tuple(self.seams))
         object.__setattr__(self, "attachments", tuple(self.attachments))
         object.__setattr__(self, "fit_edges", tuple(self.fit_edges))
+        if self.fit_hug not in ("axis", "neck"):
+            raise ContractError(f"{o}.fit_hug: expected 'axis' or 'neck', got {self.fit_hug!r}")
         if not self.panels:
             raise ContractError(f"{o}.panels: needs at least one panel")
         names = [p.name for p in self.panels]

@@ -416,33 +416,29 @@ HUG_GAP = 0.004    # m: a hugged band stays this far outside the colliders
 HUG_STEP = 0.002   # m: radial search step
 
 
-def hug(points: np.ndarray, centre_xz: np.ndarray, character, skinned: np.ndarray, bind, gap: float = HUG_GAP
+def hug(points: np.ndarray, targets: np.ndarray, character, skinned: np.ndarray, bind, gap: float = HUG_GAP
         ) -> np.ndarray:
-    """(N, 3) `points` (a waistband) moved horizontally towards the body's vertical axis through
-    centre_xz, each as far in as it stays `gap` outside every collider and outside the body: walking
-    in from where it was placed, it stops before the first blocked position. A band wrapped around
-    an ellipse that contains the body's cross-section stands off a boxy section by centimetres;
-    this brings it onto the colliders, where it is then pinned."""
+    """(N, 3) `points` (a waistband, a collar) each moved on the straight line towards its target
+    (N, 3) as far as it stays `gap` outside every collider and outside the body: walking in from where
+    it was placed, it stops before the first blocked position (and never passes its target). A band
+    wrapped around an ellipse that contains the body's cross-section stands off a boxy section by
+    centimetres; this brings it onto the colliders."""
     from stages.garments.types import _collider_distances
     from stages.sim import winding_number
     p = np.asarray(points, np.float64)
-    rel = p[:, [0, 2]] - centre_xz
-    r = np.linalg.norm(rel, axis=1)
-    steps = np.arange(0.0, r.max(initial=0.0), HUG_STEP)           # inward moves tried
-    if p.shape[0] == 0 or steps.size == 0:
+    d = np.asarray(targets, np.float64) - p
+    length = np.linalg.norm(d, axis=1)
+    if p.shape[0] == 0 or length.max(initial=0.0) < HUG_STEP:
         return p.copy()
-    unit = rel / np.maximum(r, 1e-9)[:, None]
-    rr = np.maximum(r[None, :] - steps[:, None], 0.0)              # (S, N) radii
-    cand = np.empty(rr.shape + (3,))
-    cand[..., 0] = centre_xz[0] + rr * unit[None, :, 0]
-    cand[..., 2] = centre_xz[1] + rr * unit[None, :, 1]
-    cand[..., 1] = p[None, :, 1]
+    steps = np.arange(0.0, length.max(), HUG_STEP)                  # moves tried, m
+    s = np.minimum(steps[:, None], length[None, :])                 # (S, N)
+    cand = p[None] + (s / np.maximum(length, 1e-12)[None, :])[..., None] * d[None]
     flat = cand.reshape(-1, 3)
-    d, _, _ = _collider_distances(bind, flat)
-    blocked = (d.min(axis=0) < gap) if d.size else np.zeros(flat.shape[0], bool)
+    dist, _, _ = _collider_distances(bind, flat)
+    blocked = (dist.min(axis=0) < gap) if dist.size else np.zeros(flat.shape[0], bool)
     blocked |= winding_number(skinned, character.triangles, flat) >= 0.5
-    blocked = blocked.reshape(rr.shape)
-    blocked[-1] = True                                            # never past the axis
-    first = np.argmax(blocked, axis=0)                             # first blocked step per point
+    blocked = blocked.reshape(s.shape)
+    blocked[-1] = True                                              # never past the target
+    first = np.argmax(blocked, axis=0)                              # first blocked step per point
     k = np.maximum(first - 1, 0)
     return cand[k, np.arange(p.shape[0])]
