@@ -42,7 +42,7 @@ class SimParams:
         whose bounding sphere holds it) until one full round sees no push, at most this many rounds;
         a push out of one collider into an overlapping one is so resolved. A particle still inside
         after the budget (pinched between overlapping colliders) is moved to a point outside their
-        union (the shortest of a few escape directions, see kernels.escape_union); one still inside
+        union (the shortest of a few escape directions, see stages.sim.body_collide.escape_union); one still inside
         after that (round-off) is counted in penetrations_colliders.
     max_speed: m/s; a particle faster than this (or NaN / inf) stops the run as diverged.
     body_audit: count particles inside the true skinned mesh per frame (generalised winding number).
