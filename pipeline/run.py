@@ -70,6 +70,10 @@ class _Timer:
         return False
 
 
+# simulation keys whose scene default (null) means "the preset's value" (stages.sim.types.PRESETS)
+PRESET_KEYS = ("substeps", "iterations", "damping", "tethers", "stretch_stiffness", "bend_stiffness")
+
+
 def body_params(settings: dict):
     from stages.rig.procedural import BodyParams
     b = settings["character"]["body"]
@@ -380,12 +384,11 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             say("simulation")
             from stages.sim import SimParams, simulate
             sp = s["simulation"]
-            params = SimParams(dt=sp["dt"], substeps=sp["substeps"], iterations=sp["iterations"],
-                               gravity=tuple(sp["gravity"]), damping=sp["damping"], wind=tuple(sp["wind"]),
-                               drag=sp["drag"], lift=sp["lift"], friction=sp["friction"],
-                               inertia_scale=sp["inertia_scale"], stretch_stiffness=sp["stretch_stiffness"],
-                               bend_stiffness=sp["bend_stiffness"], hull_response=s["colliders"]["response"],
-                               body_audit=sp["body_audit"], tethers=sp["tethers"])
+            given = {k: sp[k] for k in PRESET_KEYS if sp[k] is not None}
+            params = SimParams.preset(sp["preset"], dt=sp["dt"], gravity=tuple(sp["gravity"]), wind=tuple(sp["wind"]),
+                                      drag=sp["drag"], lift=sp["lift"], friction=sp["friction"],
+                                      inertia_scale=sp["inertia_scale"], hull_response=s["colliders"]["response"],
+                                      body_audit=sp["body_audit"], **given)
             bar = Progress(len(times), "simulation", enabled=progress)
             with _Timer(summary, "simulation") as r:
                 try:
@@ -394,7 +397,18 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 finally:
                     bar.close()
                 r.sizes.update(steps=result.steps)
-            summary.penetrations = logs.log_sim(rec, motion, garments, result)
+            audit = None
+            if sp["cloth_audit"]:
+                say("cloth audit")
+                import warnings
+
+                from stages.sim.audit import audit_cloth
+                with _Timer(summary, "cloth audit") as r:
+                    audit = audit_cloth(result, garments, vertex_strain=sp["strain_colors"])
+                    r.sizes.update(exact_pairs=audit.exact_pairs)
+                for w in audit.warnings:
+                    warnings.warn(w, stacklevel=1)
+            summary.penetrations = logs.log_sim(rec, motion, garments, result, audit)
         logs.log_text(rec, "meta/summary", summary.markdown())
     summary.output = out
     return summary

@@ -132,7 +132,8 @@ class _System:
         wsum = w[springs[:, 0]] + w[springs[:, 1]]
         live = wsum > 0
         springs, rest, kinds, wsum = springs[live], rest[live], kinds[live], wsum[live]
-        stiff = np.where(kinds == BEND, params.bend_stiffness, params.stretch_stiffness)
+        stiff = np.where(kinds == BEND, params.round_stiffness(params.bend_stiffness),
+                         params.round_stiffness(params.stretch_stiffness))
         order, part_start = partition_springs(self.x, springs, n_parts=2)
         springs, rest, stiff, wsum = springs[order], rest[order], stiff[order], wsum[order]
         self.si = np.ascontiguousarray(springs[:, 0], dtype=np.int32)
@@ -481,7 +482,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     step_cycles = np.zeros(nf, np.int64)
     n_obst = np.zeros(nf, np.int32)                                # obstacle contacts per frame
     obst_points = [np.zeros((0, 3), np.float32) for _ in range(nf)]
-    prm = (h, float(params.damping), s, k_drag, k_lift, float(params.friction), use_aero, int(params.iterations),
+    prm = (h, params.step_damping(), s, k_drag, k_lift, float(params.friction), use_aero, int(params.iterations),
            int(params.collision_passes), method)
     cloth, cols, flags = sysm.cloth(), col.cols(), sysm.flags()
     max2 = float(params.max_speed) ** 2
