@@ -11,7 +11,6 @@ from hypothesis import given, settings, strategies as st
 from stages.garments.simple import rectangle_cloth
 from stages.garments.types import build_garment
 from stages.sim.audit import audit_cloth, crossing_flags, crosses_exact, mesh_edges
-from stages.sim.scenes import toy_character, toy_motion
 from stages.sim.types import SimParams
 
 
@@ -128,3 +127,18 @@ def test_two_sheets_one_through_the_other_and_strain():
     assert sa.vertex_strain.shape == (2, ga.n_particles)
     assert sa.vertex_strain[1].max() == pytest.approx(0.05, rel=1e-4)
     assert any("strain" in w for w in audit.warnings) and any("cross another" in w for w in audit.warnings)
+    assert audit.exact_pairs == 0       # the flat sheets' coplanar pairs are decided in float64 expansions
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), scale=st.sampled_from([1e-3, 1.0, 30.0]))
+def test_orient3d_sign_is_exact_near_coplanar(seed, scale):
+    """Points rounded to float32 off the plane of abc by at most an ulp: the float64 filter cannot
+    decide them, the expansion must give the exact (rational) sign."""
+    from stages.sim.audit_kernels import orient3d_sign
+    rng = np.random.default_rng(seed)
+    a, b, c = (rng.normal(size=(3, 3)) * scale).astype(np.float32).astype(np.float64)
+    s, t = rng.random(2)
+    d = (a + s * (b - a) + t * (c - a)).astype(np.float32).astype(np.float64)
+    assert orient3d_sign(*a, *b, *c, *d) == _orient(a, b, c, d)
+    assert orient3d_sign(*a, *b, *c, *a) == 0

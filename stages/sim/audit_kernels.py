@@ -9,9 +9,12 @@ a crossing; for simulated float32 positions these have measure zero). Edges shar
 the triangle are skipped (they meet at the mesh by construction).
 
 Signs are exact: each orient3d is evaluated in float64 with Shewchuk's static error bound
-(o3derrboundA, which covers the rounding of the differences too); a sign the bound cannot certify
-is reported as unknown and the caller decides that pair in exact rational arithmetic
-(stages.sim.audit.crosses_exact). Unknown pairs are rare (near-degenerate configurations).
+(o3derrboundA, which covers the rounding of the differences too); where the bound cannot certify
+the sign (nearly or exactly coplanar points: a flat sheet at rest), the determinant is summed
+exactly as a floating-point expansion (Dekker's two-product, Shewchuk's grow-expansion) from the
+coordinate differences. Those are exact for float32 positions of similar magnitude; when one is
+not (checked), the pair is reported unknown and the caller decides it in rational arithmetic
+(stages.sim.audit.crosses_exact).
 
 Broad phase: a uniform grid over the triangles' bounding boxes (cell lists); an edge visits the
 cells its box overlaps and tests each pair once, in the first cell of the overlap of both boxes.
@@ -29,11 +32,84 @@ CROSS_YES = 1
 CROSS_UNKNOWN = 2
 
 
+SPLITTER = 134217729.0        # 2^27 + 1: Dekker's split of a float64 into two 26-bit halves
+
+
+@njit(cache=True, inline="always")
+def _two_sum(a, b):
+    """(s, e): s = fl(a + b) and a + b = s + e exactly."""
+    s = a + b
+    bv = s - a
+    av = s - bv
+    return s, (a - av) + (b - bv)
+
+
+@njit(cache=True, inline="always")
+def _two_product(a, b):
+    """(p, e): p = fl(a b) and a b = p + e exactly (Dekker, no FMA needed)."""
+    p = a * b
+    c = SPLITTER * a
+    ah = c - (c - a)
+    al = a - ah
+    c = SPLITTER * b
+    bh = c - (c - b)
+    bl = b - bh
+    return p, al * bl - (((p - ah * bh) - al * bh) - ah * bl)
+
+
+@njit(cache=True, inline="always")
+def _exact_diff(a, b):
+    """(a - b, exact?): the float64 difference and whether it has no rounding error."""
+    d = a - b
+    s, e = _two_sum(a, -b)
+    return d, e == 0.0
+
+
+@njit(cache=True)
+def orient3d_exact(a0, a1, a2, b0, b1, b2, c0, c1, c2, d0, d1, d2):
+    """Exact sign of det[a - d, b - d, c - d]: 1, -1, 0, or 2 when a coordinate difference is not
+    exact in float64 (never for float32 positions of similar magnitude). The six triple products of
+    the determinant, each an exact sum of four doubles, are summed into a nonoverlapping expansion
+    whose largest component has the sign of the whole."""
+    adx, ok0 = _exact_diff(a0, d0)
+    ady, ok1 = _exact_diff(a1, d1)
+    adz, ok2 = _exact_diff(a2, d2)
+    bdx, ok3 = _exact_diff(b0, d0)
+    bdy, ok4 = _exact_diff(b1, d1)
+    bdz, ok5 = _exact_diff(b2, d2)
+    cdx, ok6 = _exact_diff(c0, d0)
+    cdy, ok7 = _exact_diff(c1, d1)
+    cdz, ok8 = _exact_diff(c2, d2)
+    if not (ok0 and ok1 and ok2 and ok3 and ok4 and ok5 and ok6 and ok7 and ok8):
+        return 2
+    # det = adx bdy cdz - adx bdz cdy + bdx cdy adz - bdx cdz ady + cdx ady bdz - cdx adz bdy
+    us = (adx, -adx, bdx, -bdx, cdx, -cdx)
+    vs = (bdy, bdz, cdy, cdz, ady, adz)
+    ws = (cdz, cdy, adz, ady, bdz, bdy)
+    h = np.zeros(24)
+    n = 0
+    for k in range(6):
+        p, e = _two_product(us[k], vs[k])
+        p1, e1 = _two_product(p, ws[k])
+        p2, e2 = _two_product(e, ws[k])
+        for term in (e2, p2, e1, p1):
+            q = term                 # grow-expansion: add term to h[0..n)
+            for i in range(n):
+                q, h[i] = _two_sum(q, h[i])
+            h[n] = q
+            n += 1
+    for i in range(n - 1, -1, -1):
+        if h[i] > 0.0:
+            return 1
+        if h[i] < 0.0:
+            return -1
+    return 0
+
+
 @njit(cache=True, inline="always")
 def orient3d_sign(a0, a1, a2, b0, b1, b2, c0, c1, c2, d0, d1, d2):
-    """Sign of det[a - d, b - d, c - d] (positive: d below the plane of abc seen with abc
-    counter-clockwise, as Shewchuk's orient3d): 1, -1, or 0 when the float64 value cannot certify
-    it (zero or within the static error bound)."""
+    """Sign of det[a - d, b - d, c - d] (Shewchuk's orient3d): 1, -1, 0 (exactly zero), or 2 when it
+    cannot be decided in float64 (see orient3d_exact)."""
     adx = a0 - d0
     bdx = b0 - d0
     cdx = c0 - d0
@@ -57,7 +133,7 @@ def orient3d_sign(a0, a1, a2, b0, b1, b2, c0, c1, c2, d0, d1, d2):
         return 1
     if det < -bound:
         return -1
-    return 0
+    return orient3d_exact(a0, a1, a2, b0, b1, b2, c0, c1, c2, d0, d1, d2)
 
 
 @njit(cache=True)
@@ -66,22 +142,25 @@ def segment_crosses_triangle(x, p, q, a, b, c):
     the module docstring). A certified NO wins over an unknown sign elsewhere."""
     sp = orient3d_sign(x[a, 0], x[a, 1], x[a, 2], x[b, 0], x[b, 1], x[b, 2], x[c, 0], x[c, 1], x[c, 2],
                        x[p, 0], x[p, 1], x[p, 2])
+    if sp == 0:
+        return CROSS_NO
     sq = orient3d_sign(x[a, 0], x[a, 1], x[a, 2], x[b, 0], x[b, 1], x[b, 2], x[c, 0], x[c, 1], x[c, 2],
                        x[q, 0], x[q, 1], x[q, 2])
-    if sp != 0 and sp == sq:
+    if sq == 0 or (sq == sp and sp != 2):
         return CROSS_NO
-    unknown = sp == 0 or sq == 0
     s1 = orient3d_sign(x[p, 0], x[p, 1], x[p, 2], x[q, 0], x[q, 1], x[q, 2], x[a, 0], x[a, 1], x[a, 2],
                        x[b, 0], x[b, 1], x[b, 2])
+    if s1 == 0:
+        return CROSS_NO
     s2 = orient3d_sign(x[p, 0], x[p, 1], x[p, 2], x[q, 0], x[q, 1], x[q, 2], x[b, 0], x[b, 1], x[b, 2],
                        x[c, 0], x[c, 1], x[c, 2])
-    if s1 != 0 and s2 != 0 and s1 != s2:
+    if s2 == 0 or (s1 != 2 and s2 != 2 and s1 != s2):
         return CROSS_NO
     s3 = orient3d_sign(x[p, 0], x[p, 1], x[p, 2], x[q, 0], x[q, 1], x[q, 2], x[c, 0], x[c, 1], x[c, 2],
                        x[a, 0], x[a, 1], x[a, 2])
-    if s3 != 0 and ((s1 != 0 and s1 != s3) or (s2 != 0 and s2 != s3)):
+    if s3 == 0 or (s3 != 2 and ((s1 != 2 and s1 != s3) or (s2 != 2 and s2 != s3))):
         return CROSS_NO
-    if unknown or s1 == 0 or s2 == 0 or s3 == 0:
+    if sp == 2 or sq == 2 or s1 == 2 or s2 == 2 or s3 == 2:
         return CROSS_UNKNOWN
     return CROSS_YES
 
