@@ -74,6 +74,17 @@ class _Timer:
 PRESET_KEYS = ("substeps", "iterations", "damping", "tethers", "stretch_stiffness", "bend_stiffness")
 
 
+def sim_params(scene: Scene):
+    """The scene's SimParams: its `simulation.preset` with the keys the scene sets on top."""
+    from stages.sim import SimParams
+    sp = scene["simulation"]
+    given = {k: sp[k] for k in PRESET_KEYS if sp[k] is not None}
+    return SimParams.preset(sp["preset"], dt=sp["dt"], gravity=tuple(sp["gravity"]), wind=tuple(sp["wind"]),
+                            drag=sp["drag"], lift=sp["lift"], friction=sp["friction"],
+                            inertia_scale=sp["inertia_scale"], hull_response=scene["colliders"]["response"],
+                            body_audit=sp["body_audit"], **given)
+
+
 def body_params(settings: dict):
     from stages.rig.procedural import BodyParams
     b = settings["character"]["body"]
@@ -382,13 +393,9 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             for name, (log, build) in builds.items():
                 logs.log_sewing(rec, name, log, build, next(g for g in garments if g.name == name))
             say("simulation")
-            from stages.sim import SimParams, simulate
+            from stages.sim import simulate
             sp = s["simulation"]
-            given = {k: sp[k] for k in PRESET_KEYS if sp[k] is not None}
-            params = SimParams.preset(sp["preset"], dt=sp["dt"], gravity=tuple(sp["gravity"]), wind=tuple(sp["wind"]),
-                                      drag=sp["drag"], lift=sp["lift"], friction=sp["friction"],
-                                      inertia_scale=sp["inertia_scale"], hull_response=s["colliders"]["response"],
-                                      body_audit=sp["body_audit"], **given)
+            params = sim_params(scene)
             bar = Progress(len(times), "simulation", enabled=progress)
             with _Timer(summary, "simulation") as r:
                 try:
