@@ -237,7 +237,7 @@ def build_scene_garments(scene: Scene, character, motion, colliders, maps):
     """
     from stages.garments.importer import import_garment_mesh
     from stages.garments.simple import rectangle_cloth, tube_skirt
-    from stages.garments.types import (attach_indices, attach_near, attach_top_loop, bind_pose,
+    from stages.garments.types import (COMMON_BONE, attach_indices, attach_near, attach_top_loop, bind_pose,
                                        build_garment)
     bind = bind_pose(character, motion, colliders)
     out, builds = [], {}
@@ -266,7 +266,8 @@ def build_scene_garments(scene: Scene, character, motion, colliders, maps):
             elif pin["collider"] is not None and pin["boundary"] is None:
                 atts.append(attach_near(pin["collider"], pin["within"]))
             if pin["boundary"] == "top":
-                atts.append(attach_top_loop(pin["collider"]))
+                # one bone for the whole loop: a waistband pinned to pelvis and thighs is torn between them
+                atts.append(attach_top_loop(pin["collider"] if pin["collider"] is not None else COMMON_BONE))
         out.append(build_garment(g["name"], x, tri, density=g["density"], attachments=atts, bind=bind))
     return out, builds
 

@@ -22,7 +22,7 @@ def _pin_fields():
         "indices": Field("list", None, "particle indices to pin", item=Field("int", lo=0)),
         "collider": Field("str", None, "joint name: pin particles near this joint's collider (bind pose)"),
         "within": Field("float", 0.03, "distance (m) to the collider surface / joint for `collider`", lo=0.0),
-        "boundary": Field("str", None, "pin the whole top boundary loop", choices=("top",)),
+        "boundary": Field("str", None, "pin the whole top boundary loop, to one bone: the collider's, else the common ancestor of the nearest colliders' bones", choices=("top",)),
     }
 
 
@@ -189,7 +189,7 @@ SCENE_SPEC = {
     "garments": Field("list", [], "garments to simulate", item=GARMENT),
     "obstacles": Field("list", [], "environment obstacles (paper B)", item=OBSTACLE),
     "simulation": Field("section", {}, "cloth simulation", fields={
-        "preset": Field("str", "default", "default (small steps: 20 sub-steps x 1 round, tethers) | paper (paper A: "
+        "preset": Field("str", "default", "default (small steps: 20 sub-steps x 2 rounds, tethers) | paper (paper A: "
                         "1 step x 3 rounds per frame, no tethers); the keys marked 'preset' below override it",
                         choices=("default", "paper")),
         "dt": Field("float", 1.0 / 30.0, "frame time, s", lo=0.0, lo_open=True, hi=1.0),

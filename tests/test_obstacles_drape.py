@@ -12,7 +12,8 @@ from stages.sim import SimParams, simulate
 
 N = 30
 SIZE = 1.6
-PARAMS = SimParams(body_audit=False, damping=0.05)
+# the former harness's step (1 step x 20 rounds per frame): the tests check the obstacle contacts
+PARAMS = SimParams(substeps=1, iterations=20, tethers=False, damping=0.05, body_audit=False)
 
 
 def _drop(oset, height: float, frames: int):

@@ -29,7 +29,7 @@ def test_simulation_preset_and_overrides():
     from stages.sim.types import SimParams
     default = sim_params(parse_scene_text("", source="s.yaml"))
     assert default == SimParams()
-    assert (default.substeps, default.iterations, default.tethers) == (20, 1, True)
+    assert (default.substeps, default.iterations, default.tethers) == (20, 2, True)
     paper = sim_params(parse_scene_text("simulation: {preset: paper}", source="s.yaml"))
     assert (paper.substeps, paper.iterations, paper.tethers) == (1, 3, False)
     assert paper == SimParams.preset("paper")

@@ -21,7 +21,7 @@ REFERENCE_STEP = 1.0 / 30.0   # s: damping is the share of the velocity lost ove
 class SimParams:
     """Simulation parameters.
 
-    Defaults are "small steps" (Macklin et al. 2019): 20 steps of one correction round per
+    Defaults are "small steps" (Macklin et al. 2019): 20 steps of two correction rounds per
     frame, with tethers; `SimParams.preset("paper")` is the paper's 1 step x 3 rounds, no tethers.
     Stiffness and damping are stated per unit of time, so that they mean the same at any sub-step
     and round count (frequency-scaled as in NvCloth): see `round_stiffness` and `step_damping`.
@@ -60,7 +60,7 @@ class SimParams:
 
     dt: float = 1.0 / 30.0
     substeps: int = 20
-    iterations: int = 1
+    iterations: int = 2
     gravity: tuple = (0.0, -9.81, 0.0)
     damping: float = 0.01
     wind: tuple = (0.0, 0.0, 0.0)
