@@ -311,7 +311,7 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=Non
     if audit is not None:
         for ga in audit.garments:
             values = np.stack([ga.strain_mean, ga.strain_p99, ga.strain_max], axis=1) * 100.0
-            rec.log(f"sim/{ga.name}/strain", rr.SeriesLines(names=["mean (%)", "p99 (%)", "max (%)"],
+            rec.log(f"sim/{ga.name}/strain", rr.SeriesLines(names=[f"{ga.name} {k} (%)" for k in ("mean", "p99", "max")],
                                                              colors=[(60, 120, 220), (230, 150, 40), (220, 60, 60)]),
                     static=True)
             rec.send_columns(f"sim/{ga.name}/strain", indexes=time_columns(result.times),
