@@ -60,6 +60,8 @@ def run_benchmarks(which, output: str | None = None) -> dict:
         results[n] = _jsonable(importlib.import_module(BENCHES[n]).run_benchmark())
         results[n]["bench_wall_s"] = round(time.perf_counter() - t0, 2)
         print(json.dumps({n: results[n]}, indent=2), flush=True)
+        if "table" in results[n]:       # a bench's own summary table (markdown)
+            print(results[n]["table"], flush=True)
     if output:
         with open(output, "w") as f:
             json.dump(results, f, indent=2)

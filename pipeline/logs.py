@@ -35,10 +35,11 @@ def time_columns(times: np.ndarray, first_frame: int = 0) -> list:
 
 def log_mesh_series(rec: rr.RecordingStream, entity: str, triangles: np.ndarray, positions: np.ndarray,
                     times: np.ndarray, *, colors: np.ndarray | None = None,
-                    albedo: tuple | None = None) -> None:
+                    albedo: tuple | None = None, frame_colors: np.ndarray | None = None) -> None:
     """Static triangles (+ colours), then per-frame positions and normals in one columnar send.
 
-    positions: (F, V, 3) world metres; times: (F,) s.
+    positions: (F, V, 3) world metres; times: (F,) s; frame_colors: optional (F, V, 4) uint8 RGBA
+    per frame (instead of the static colours).
     """
     static = {"triangle_indices": triangles.astype(np.uint32)}
     if colors is not None:
@@ -48,9 +49,10 @@ def log_mesh_series(rec: rr.RecordingStream, entity: str, triangles: np.ndarray,
     rec.log(entity, rr.Mesh3D.from_fields(**static), static=True)
     f, v = positions.shape[:2]
     normals = vertex_normals(positions.astype(np.float64), triangles)
+    per_frame = {} if frame_colors is None else {"vertex_colors": frame_colors.reshape(-1, 4).astype(np.uint8)}
     rec.send_columns(entity, indexes=time_columns(times), columns=rr.Mesh3D.columns(
         vertex_positions=positions.reshape(-1, 3).astype(np.float32),
-        vertex_normals=normals.reshape(-1, 3).astype(np.float32),
+        vertex_normals=normals.reshape(-1, 3).astype(np.float32), **per_frame,
     ).partition(np.full(f, v)))
 
 
@@ -199,10 +201,13 @@ def log_coverage(rec: rr.RecordingStream, motion: Motion, coverage, fit_table: s
     return table
 
 
-def ramp(values: np.ndarray) -> np.ndarray:
-    """(N, 4) uint8 colours from blue (smallest) through green to red (largest)."""
+def ramp(values: np.ndarray, lo: float | None = None, hi: float | None = None) -> np.ndarray:
+    """(N, 4) uint8 colours from blue (lo, default the smallest value) through green to red (hi,
+    default the largest; values beyond are clipped)."""
     v = np.asarray(values, dtype=np.float64)
-    t = (v - v.min()) / max(v.max() - v.min(), 1e-12) if v.size else v
+    lo = (v.min() if v.size else 0.0) if lo is None else lo
+    hi = (v.max() if v.size else 1.0) if hi is None else hi
+    t = np.clip((v - lo) / max(hi - lo, 1e-12), 0.0, 1.0)
     r = np.clip(2 * t - 0.5, 0, 1)
     g = np.clip(1.5 - np.abs(2 * t - 1) * 1.5, 0, 1)
     b = np.clip(1.2 - 2 * t, 0, 1)
@@ -261,13 +266,22 @@ def log_maps(rec: rr.RecordingStream, character: Character, motion: Motion, maps
     return table
 
 
-def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result) -> dict:
-    """Cloth meshes, penetration counts, step time and the parameters. Returns the summary figures."""
+STRAIN_RAMP_MAX = 0.10      # per-vertex strain colouring: this strain and above is the top of the ramp
+
+
+def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=None) -> dict:
+    """Cloth meshes, penetration counts, step time and the parameters; with `audit` (a
+    stages.sim.audit.ClothAudit) the strain and crossing series and, when it has per-vertex strain,
+    the meshes coloured by it. Returns the summary figures."""
     colors = [(70, 130, 230), (230, 120, 60), (90, 190, 110), (200, 80, 160)]
     for i, (track, g) in enumerate(zip(result.garments, garments)):
         c = colors[i % len(colors)]
+        vs = audit.garments[i].vertex_strain if audit is not None else None
+        frame_colors = None
+        if vs is not None:
+            frame_colors = ramp(vs.ravel(), 0.0, STRAIN_RAMP_MAX).reshape(*vs.shape, 4)
         log_mesh_series(rec, f"sim/{track.name}/mesh", track.triangles, track.positions, result.times,
-                        albedo=(*c, 255))
+                        albedo=None if vs is not None else (*c, 255), frame_colors=frame_colors)
         a = g.attached
         if a.size:   # attached particles: rigid ones dark, yielding ones (see Garment.attach_joint) amber
             path = f"sim/{track.name}/attached"
@@ -294,6 +308,19 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result) -> dict:
         rec.send_columns("sim/contacts/obstacles/points", indexes=time_columns(result.times),
                          columns=rr.Points3D.columns(positions=np.concatenate(pts).reshape(-1, 3)).partition(
                              np.array([len(p) for p in pts])))
+    if audit is not None:
+        for ga in audit.garments:
+            values = np.stack([ga.strain_mean, ga.strain_p99, ga.strain_max], axis=1) * 100.0
+            rec.log(f"sim/{ga.name}/strain", rr.SeriesLines(names=[f"{ga.name} {k} (%)" for k in ("mean", "p99", "max")],
+                                                             colors=[(60, 120, 220), (230, 150, 40), (220, 60, 60)]),
+                    static=True)
+            rec.send_columns(f"sim/{ga.name}/strain", indexes=time_columns(result.times),
+                             columns=rr.Scalars.columns(scalars=values.ravel()).partition(np.full(len(values), 3)))
+            log_scalar_series(rec, f"sim/intersections/{ga.name}", ga.crossings_self, result.times,
+                              name=f"{ga.name}: edges through its own triangles", color=(200, 60, 60))
+        if len(audit.garments) > 1:
+            log_scalar_series(rec, "sim/intersections/between", audit.crossings_between, result.times,
+                              name="edges through another garment", color=(160, 40, 160))
     p = result.params
     log_text(rec, "sim/params", "| parameter | value |\n| --- | --- |\n" + "\n".join(
         f"| {k} | {v} |" for k, v in p.__dict__.items()))
@@ -310,6 +337,8 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result) -> dict:
                                               if audited else "not audited (simulation.body_audit: false)",
         "steps/s (simulation only)": f"{steps_s:.0f}",
     }
+    if audit is not None:
+        out.update(audit.summary())
     # wall-clock figures stay out of sim/report so identical runs log identical data there
     log_text(rec, "sim/report", "\n".join(f"- {k}: {v}" for k, v in out.items() if not k.startswith("steps/s")))
     return out

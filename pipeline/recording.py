@@ -39,6 +39,11 @@ def blueprint() -> rrb.Blueprint:
                     rrb.TimeSeriesView(name="penetrations", origin="/sim/penetrations"),
                     rrb.TimeSeriesView(name="step time (ms)", origin="/sim/step_ms"),
                     rrb.TimeSeriesView(name="contacts", origin="/sim/contacts"),
+                    # sim/<garment>/strain series: every scalar under /sim but the other plots'
+                    rrb.TimeSeriesView(name="edge strain (%)", origin="/sim", contents=[
+                        "+ $origin/**", "- /sim/penetrations/**", "- /sim/step_ms/**", "- /sim/contacts/**",
+                        "- /sim/intersections/**"]),
+                    rrb.TimeSeriesView(name="cloth crossings", origin="/sim/intersections"),
                 ),
                 column_shares=[3, 2],
                 name="overview",

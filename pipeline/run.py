@@ -72,6 +72,21 @@ class _Timer:
         return False
 
 
+# simulation keys whose scene default (null) means "the preset's value" (stages.sim.types.PRESETS)
+PRESET_KEYS = ("substeps", "iterations", "damping", "tethers", "stretch_stiffness", "bend_stiffness")
+
+
+def sim_params(scene: Scene):
+    """The scene's SimParams: its `simulation.preset` with the keys the scene sets on top."""
+    from stages.sim import SimParams
+    sp = scene["simulation"]
+    given = {k: sp[k] for k in PRESET_KEYS if sp[k] is not None}
+    return SimParams.preset(sp["preset"], dt=sp["dt"], gravity=tuple(sp["gravity"]), wind=tuple(sp["wind"]),
+                            drag=sp["drag"], lift=sp["lift"], friction=sp["friction"],
+                            inertia_scale=sp["inertia_scale"], hull_response=scene["colliders"]["response"],
+                            body_audit=sp["body_audit"], **given)
+
+
 def body_params(settings: dict):
     from stages.rig.procedural import BodyParams
     b = settings["character"]["body"]
@@ -270,7 +285,7 @@ def build_scene_garments(scene: Scene, character, motion, colliders, maps):
     """
     from stages.garments.importer import import_garment_mesh
     from stages.garments.simple import rectangle_cloth, tube_skirt
-    from stages.garments.types import (attach_indices, attach_near, attach_top_loop, bind_pose,
+    from stages.garments.types import (COMMON_BONE, attach_indices, attach_near, attach_top_loop, bind_pose,
                                        build_garment)
     bind = bind_pose(character, motion, colliders)
     out, builds = [], {}
@@ -299,7 +314,8 @@ def build_scene_garments(scene: Scene, character, motion, colliders, maps):
             elif pin["collider"] is not None and pin["boundary"] is None:
                 atts.append(attach_near(pin["collider"], pin["within"]))
             if pin["boundary"] == "top":
-                atts.append(attach_top_loop(pin["collider"]))
+                # one bone for the whole loop: a waistband pinned to pelvis and thighs is torn between them
+                atts.append(attach_top_loop(pin["collider"] if pin["collider"] is not None else COMMON_BONE))
         out.append(build_garment(g["name"], x, tri, density=g["density"], attachments=atts, bind=bind))
     return out, builds
 
@@ -356,18 +372,6 @@ def garment_fit_report(character, motion, skinned, garments, builds, result) -> 
         for w in start_warnings(track) + f.warnings():
             warnings.warn(w, stacklevel=1)
     return fit_table(fits, gaps)
-
-
-def sim_params(scene: Scene):
-    """The scene's `simulation` settings as SimParams."""
-    from stages.sim import SimParams
-    sp, s = scene["simulation"], scene.settings
-    return SimParams(dt=sp["dt"], substeps=sp["substeps"], iterations=sp["iterations"],
-                     gravity=tuple(sp["gravity"]), damping=sp["damping"], wind=tuple(sp["wind"]),
-                     drag=sp["drag"], lift=sp["lift"], friction=sp["friction"],
-                     inertia_scale=sp["inertia_scale"], stretch_stiffness=sp["stretch_stiffness"],
-                     bend_stiffness=sp["bend_stiffness"], hull_response=s["colliders"]["response"],
-                     body_audit=sp["body_audit"], tethers=sp["tethers"])
 
 
 def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = None,
@@ -471,7 +475,18 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 finally:
                     bar.close()
                 r.sizes.update(steps=result.steps)
-            summary.penetrations = logs.log_sim(rec, motion, garments, result)
+            audit = None
+            if sp["cloth_audit"]:
+                say("cloth audit")
+                import warnings
+
+                from stages.sim.audit import audit_cloth
+                with _Timer(summary, "cloth audit") as r:
+                    audit = audit_cloth(result, garments, vertex_strain=sp["strain_colors"])
+                    r.sizes.update(exact_pairs=audit.exact_pairs)
+                for w in audit.warnings:
+                    warnings.warn(w, stacklevel=1)
+            summary.penetrations = logs.log_sim(rec, motion, garments, result, audit)
             summary.tables["garment fit"] = garment_fit_report(character, motion, skinned, garments, builds, result)
             logs.log_text(rec, "sim/fit", summary.tables["garment fit"])
         logs.log_text(rec, "meta/summary", summary.markdown())

@@ -22,7 +22,7 @@ def _pin_fields():
         "indices": Field("list", None, "particle indices to pin", item=Field("int", lo=0)),
         "collider": Field("str", None, "joint name: pin particles near this joint's collider (bind pose)"),
         "within": Field("float", 0.03, "distance (m) to the collider surface / joint for `collider`", lo=0.0),
-        "boundary": Field("str", None, "pin the whole top boundary loop", choices=("top",)),
+        "boundary": Field("str", None, "pin the whole top boundary loop, to one bone: the collider's, else the common ancestor of the nearest colliders' bones", choices=("top",)),
     }
 
 
@@ -189,20 +189,27 @@ SCENE_SPEC = {
     "garments": Field("list", [], "garments to simulate", item=GARMENT),
     "obstacles": Field("list", [], "environment obstacles (paper B)", item=OBSTACLE),
     "simulation": Field("section", {}, "cloth simulation", fields={
+        "preset": Field("str", "default", "default (small steps: 20 sub-steps x 2 rounds, tethers) | paper (paper A: "
+                        "1 step x 3 rounds per frame, no tethers); the keys marked 'preset' below override it",
+                        choices=("default", "paper")),
         "dt": Field("float", 1.0 / 30.0, "frame time, s", lo=0.0, lo_open=True, hi=1.0),
-        "substeps": Field("int", 1, "steps per frame", lo=1, hi=1000),
-        "iterations": Field("int", 3, "rounds of spring position correction", lo=1, hi=1000),
+        "substeps": Field("int", None, "steps per frame (preset)", lo=1, hi=1000),
+        "iterations": Field("int", None, "rounds of spring position correction per step (preset)", lo=1, hi=1000),
         "gravity": Field("vec3", [0.0, -9.81, 0.0], "m/s^2"),
-        "damping": Field("float", 0.01, "fraction of velocity lost per step", lo=0.0, hi=1.0),
+        "damping": Field("float", None, "fraction of the velocity lost per 1/30 s (preset)", lo=0.0, hi=1.0),
         "wind": Field("vec3", [0.0, 0.0, 0.0], "air velocity, m/s"),
         "drag": Field("float", 0.5, "aerodynamic drag coefficient", lo=0.0),
         "lift": Field("float", 0.1, "aerodynamic lift coefficient", lo=0.0),
         "friction": Field("float", 0.5, "Coulomb friction with colliders: sliding reduced by up to friction x push depth", lo=0.0, hi=10.0),
-        "tethers": Field("bool", True, "long-range attachments: free particles stay within their rest distance along the mesh of the nearest pinned one (Kim et al. 2012; not in the paper)"),
+        "tethers": Field("bool", None, "(preset) long-range attachments: free particles stay within their rest distance along the mesh of the nearest pinned one (Kim et al. 2012; not in the paper)"),
         "inertia_scale": Field("float", 0.0, "0 = relative simulation (paper), 1 = world space", lo=0.0, hi=1.0),
-        "stretch_stiffness": Field("float", 1.0, "share of a stretch correction applied", lo=0.0, lo_open=True, hi=1.0),
-        "bend_stiffness": Field("float", 1.0, "share of a bend correction applied", lo=0.0, hi=1.0),
+        "stretch_stiffness": Field("float", None, "share of a stretch correction applied per round at 300 rounds/s "
+                                   "(frequency-scaled: the same cloth at any sub-step count; preset)", lo=0.0, lo_open=True, hi=1.0),
+        "bend_stiffness": Field("float", None, "share of a bend correction applied per round at 300 rounds/s (preset)",
+                                lo=0.0, hi=1.0),
         "body_audit": Field("bool", True, "count particles inside the true skinned mesh per frame"),
+        "cloth_audit": Field("bool", True, "per frame edge strain and cloth edges crossing cloth triangles (sim/<garment>/strain, sim/intersections/...)"),
+        "strain_colors": Field("bool", False, "colour the cloth meshes by per-vertex edge strain (blue 0 -> red 10 %)"),
         "threads": Field("int", 1, "worker threads for the simulation kernels; results are identical for any "
                          "count; 2 pays on an idle 2-core machine, 1 is safer on a loaded one", lo=1, hi=256),
     }),

@@ -1,7 +1,7 @@
 """numba disk caching that follows the modules a kernel inlines.
 
 numba keeps a cached kernel while the source file that defines it is unchanged; it does not look at
-the files of the kernels it inlines or calls (stages/sim/kernels.py inlines the maps' hull query), so
+the files of the kernels it inlines or calls (stages/sim/body_collide.py inlines the maps' hull query), so
 an edit there would leave the simulation running the old code from its cache. A module that defines
 `NUMBA_CACHE_DEPENDS` (module names) before its first `@njit(cache=True)` gets a cache stamp covering
 those modules' sources too. Import this module (for its side effect) before defining such kernels.

@@ -11,7 +11,7 @@ from stages.coverage import kernels as K
 from stages.coverage.measure import SkinDistance, collider_arrays, inside_matrix, measure_coverage
 from stages.hulls.fit import fit_character
 from stages.rig.skinning import skin
-from stages.sim import kernels as SK
+from stages.sim.winding import winding_numbers_brute
 from tests.toy_rig import bend_motion, bent_tube
 
 
@@ -83,7 +83,7 @@ def test_reported_figures_equal_a_brute_force_recount(tube, mode):
         s = rep.samples[k]
         v = v_all[k]
         w = np.empty(s["grid"].shape[0])
-        SK.winding_numbers_brute(s["grid"], v, c.triangles, w)
+        winding_numbers_brute(s["grid"], v, c.triangles, w)
         in_body = w >= 0.5
         assert (in_body == s["in_body"]).all()
         assert in_body.sum() >= 3000
@@ -94,7 +94,7 @@ def test_reported_figures_equal_a_brute_force_recount(tube, mode):
         ins = _reference_inside(s["surface"], cs, motion.joint_world[f])
         ins[np.arange(ins.shape[0]), s["owner"]] = False
         ws = np.empty(s["surface"].shape[0])
-        SK.winding_numbers_brute(s["surface"], v, c.triangles, ws)
+        winding_numbers_brute(s["surface"], v, c.triangles, ws)
         outside = ~ins.any(axis=1) & (ws < 0.5)
         assert (outside == s["outside"]).all()
         _, d, _ = trimesh.proximity.closest_point(trimesh.Trimesh(v, c.triangles, process=False), s["surface"][outside])

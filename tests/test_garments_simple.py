@@ -98,3 +98,22 @@ def test_attachments_bind_exactly_and_select():
     assert {0, 1, 5} <= set(g2.attached)
     with pytest.raises(InputError):
         build_garment("s", x, tri, attachments=[attach_top_loop()])  # no bind pose
+
+
+def test_common_bone_pins_a_run_to_the_lowest_common_ancestor():
+    """joint 'common': a run whose particles lie at the neck, a clavicle and an upper arm follows
+    one bone, the chest (their common ancestor), instead of being torn between the three."""
+    from stages.garments.types import COMMON_BONE
+    from stages.rig.procedural import procedural_character
+    from stages.rig.skinning import sample_motion
+    ch = procedural_character()
+    mo = sample_motion(ch, "walk", np.arange(3) / 30.0)
+    bind = bind_pose(ch, mo)
+    j = [ch.joint_names.index(n) for n in ("neck", "clavicle_l", "upperarm_l")]
+    x = np.vstack([bind.joint_origins[j] + [0.0, 0.0, 0.001], bind.joint_origins[j[0]] + [0.0, -0.1, 0.05]])
+    tri = np.array([[0, 1, 3], [1, 2, 3]])
+    per_particle = build_garment("run", x, tri, attachments=[attach_indices([0, 1, 2])], bind=bind)
+    assert len(set(per_particle.attach_joint[:3])) > 1          # the nearest bones differ
+    g = build_garment("run", x, tri, attachments=[attach_indices([0, 1, 2], COMMON_BONE)], bind=bind)
+    assert g.attach_joint[:3].tolist() == [ch.joint_names.index("chest")] * 3
+    assert g.attach_joint[3] == -1

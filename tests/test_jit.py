@@ -9,7 +9,7 @@ def test_the_cache_hook_is_registered_on_this_numba():
 
 
 def test_disk_cache_of_a_kernel_follows_the_modules_it_inlines(tmp_path):
-    """A module listing NUMBA_CACHE_DEPENDS (as stages/sim/kernels.py lists the maps kernels) recompiles
+    """A module listing NUMBA_CACHE_DEPENDS (as stages/sim/body_collide.py lists the maps kernels) recompiles
     when a listed module changes, and loads from the cache otherwise."""
     import os
     import subprocess

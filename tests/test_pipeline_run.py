@@ -25,12 +25,14 @@ def default_run(tmp_path_factory):
 def test_every_stage_is_logged(default_run):
     scene, out, summary = default_run
     assert summary.output == out and out.is_file()
-    assert [s.name for s in summary.stages] == ["rig", "colliders", "coverage", "maps", "garments", "simulation"]
+    assert [s.name for s in summary.stages] == ["rig", "colliders", "coverage", "maps", "garments", "simulation",
+                                                "cloth audit"]
     assert "converged" in summary.stages[4].sizes["skirt sewing"]
     paths = entity_paths(out)
     for p in ["/rig/mesh", "/rig/skeleton", "/rig/joints", "/rig/regions", "/colliders/report", "/maps/report",
               "/sim/skirt/mesh", "/sim/penetrations/colliders", "/sim/penetrations/body", "/sim/step_ms",
-              "/meta/scene", "/meta/provenance", "/meta/summary", "/sim/params"]:
+              "/meta/scene", "/meta/provenance", "/meta/summary", "/sim/params", "/sim/skirt/strain",
+              "/sim/intersections/skirt"]:
         assert p in paths, p
     hulls = {p.split("/")[3] for p in paths if p.startswith("/colliders/hulls/")}
     sizes = summary.stages[1].sizes
@@ -64,6 +66,21 @@ def test_per_frame_series_have_one_value_per_frame(default_run):
     assert all(len(i) == len(pinned[0][1]) > 0 for i in idx) and all(np.array_equal(i, idx[0]) for i in idx)
     colors = rows(out, "sim/skirt/attached", "Points3D:colors", static=True)
     assert len(colors) == 1 and len(colors[0][1]) == len(pinned[0][1])
+
+
+def test_cloth_audit_series_are_logged_and_summarised(default_run):
+    """sim/<garment>/strain: mean <= p99 <= max (%) per frame; sim/intersections/<garment>: a count
+    per frame; the summary names both."""
+    _, out, summary = default_run
+    strain = rows(out, "sim/skirt/strain", "Scalars:scalars")
+    assert [f for f, _ in strain] == list(range(FRAMES))
+    s = np.array([v for _, v in strain])
+    assert s.shape == (FRAMES, 3) and (s[:, 0] <= s[:, 1]).all() and (s[:, 1] <= s[:, 2]).all()
+    assert s[-1, 0] < 2.0 and s[-1, 1] < 10.0                   # cloth, not rubber (percent)
+    crossings = rows(out, "sim/intersections/skirt", "Scalars:scalars")
+    assert [f for f, _ in crossings] == list(range(FRAMES))
+    assert all(float(v[0]).is_integer() and v[0] >= 0 for _, v in crossings)
+    assert any("strain" in k for k in summary.penetrations) and any("crossing" in k for k in summary.penetrations)
 
 
 def test_skinned_mesh_in_the_recording_is_the_world_frame_skin(default_run):
@@ -151,9 +168,16 @@ def test_coverage_report_is_logged_per_sampled_frame(default_run):
 
 
 def test_obstacle_scene_logs_obstacles_contacts_and_keeps_cloth_on_the_table(tmp_path):
-    scene = load_scene(REPO / "scenes" / "table_drape.yaml")
+    from pipeline.scene import parse_scene_text
+    text = (REPO / "scenes" / "table_drape.yaml").read_text()
+    assert "  body_audit: false\n" in text
+    scene = parse_scene_text(text.replace("  body_audit: false\n", "  body_audit: false\n  strain_colors: true\n"),
+                             base_dir=REPO / "scenes", default_name="table_drape")
     out = tmp_path / "table.rrd"
     run_scene(scene, output=out, frames=24, progress=False)
+    # strain_colors: the cloth mesh carries per-vertex colours at every frame
+    colors = rows(out, "sim/cloth/mesh", "Mesh3D:vertex_colors")
+    assert [f for f, _ in colors] == list(range(24)) and len(colors[-1][1]) == 2500
     paths = entity_paths(out)
     assert {"/obstacles/table/mesh", "/obstacles/table/kdop", "/sim/contacts/obstacles",
             "/sim/contacts/obstacles/points", "/sim/cloth/mesh"} <= paths

@@ -17,10 +17,25 @@ def test_defaults_fill_every_section():
     s = parse_scene_text("", source="s.yaml", default_name="empty")
     assert s.name == "empty"
     assert s["character"]["source"] == "procedural"
-    assert s["simulation"]["iterations"] == 3
+    assert s["simulation"]["preset"] == "default" and s["simulation"]["iterations"] is None   # from the preset
     assert s["colliders"]["map"]["n_theta"] == 12
     assert s.output.as_posix() == "recordings/empty.rrd"
     assert set(s.settings) == set(SCENE_SPEC)
+
+
+def test_simulation_preset_and_overrides():
+    """simulation.preset picks the SimParams preset; keys the scene sets win over it."""
+    from pipeline.run import sim_params
+    from stages.sim.types import SimParams
+    default = sim_params(parse_scene_text("", source="s.yaml"))
+    assert default == SimParams()
+    assert (default.substeps, default.iterations, default.tethers) == (20, 2, True)
+    paper = sim_params(parse_scene_text("simulation: {preset: paper}", source="s.yaml"))
+    assert (paper.substeps, paper.iterations, paper.tethers) == (1, 3, False)
+    assert paper == SimParams.preset("paper")
+    mixed = sim_params(parse_scene_text("simulation: {preset: paper, tethers: true, substeps: 2}", source="s.yaml"))
+    assert (mixed.substeps, mixed.iterations, mixed.tethers) == (2, 3, True)
+    assert "not one of default, paper" in error_of("simulation: {preset: fast}")
 
 
 def test_yaml_syntax_error_has_line_and_column():

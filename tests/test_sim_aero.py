@@ -1,4 +1,4 @@
-"""The aerodynamic force on 4 triangles at a time (stages.sim.kernels.aero_forces) against a
+"""The aerodynamic force on 4 triangles at a time (stages.sim.forces.aero_forces) against a
 plain-Python evaluation of its formula, per triangle, on random triangles of every kind: partial
 last groups, degenerate triangles, still air, capped forces, massless (pinned) triangles."""
 import numba
@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings, strategies as st
 
 from stages.fastmath import INV_SQRT_REL_ERROR
-from stages.sim import kernels as K
+from stages.sim.forces import aero_forces
 
 
 def _reference(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift):
@@ -45,7 +45,7 @@ def test_aero_forces_match_the_formula(seed, n, t):
     h, s, d_prev = 1 / 90, rng.uniform(0, 1), rng.normal(0, 0.01, 3)
     k_drag, k_lift = rng.uniform(0, 2), rng.uniform(0, 1)
     out = np.full((t, 4), np.nan)
-    K.aero_forces(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, out)
+    aero_forces(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, out)
     assert np.all(out[:, 3] == 0.0)
     ref = _reference(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift)
     err = np.linalg.norm(out[:, :3] - ref, axis=1)
@@ -60,17 +60,17 @@ def test_each_triangle_is_computed_alone():
     x, xp, tri_mass, tris, _, rng = _scene(7, 40, 61)
     args = (1 / 90, 0.7, rng.normal(0, 0.01, 3), np.array([2.0, -1.0, 0.5]), 1.2, 0.4)
     full = np.zeros((61, 4))
-    K.aero_forces(x, xp, tri_mass, tris, *args, full)
+    aero_forces(x, xp, tri_mass, tris, *args, full)
     assert np.any(full != 0)
     for t in range(61):
         one = np.zeros((1, 4))
-        K.aero_forces(x, xp, tri_mass[t:t + 1], tris[t:t + 1], *args, one)
+        aero_forces(x, xp, tri_mass[t:t + 1], tris[t:t + 1], *args, one)
         assert np.array_equal(one[0], full[t])
     old = numba.get_num_threads()
     try:
         numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
         two = np.zeros((61, 4))
-        K.aero_forces(x, xp, tri_mass, tris, *args, two)
+        aero_forces(x, xp, tri_mass, tris, *args, two)
     finally:
         numba.set_num_threads(old)
     assert np.array_equal(two, full)

@@ -1,4 +1,4 @@
-"""Collision broad phase (kernels.build_grid): the cell lists are conservative, and collide gives the
+"""Collision broad phase (stages.sim.collider_grid.build_grid): the cell lists are conservative, and collide gives the
 same answer with them as with every collider as candidate."""
 import numpy as np
 import pytest
@@ -7,7 +7,8 @@ from scipy.spatial.transform import Rotation
 from stages.hulls.types import ColliderSet, SphereCollider
 from stages.maps.build import build_maps
 from stages.maps.kernels import METHOD_NEAREST_PLANE, METHOD_PAPER, collide_points
-from stages.sim import kernels as K
+from stages.sim.body_collide import collide
+from stages.sim.collider_grid import build_grid, GRID_CELLS
 from stages.sim.scenes import convex_mesh, fibonacci_points, hull_set
 from tests.test_sim_kernels import _collider_arrays
 
@@ -41,7 +42,7 @@ def _scene(seed, disjoint=False):
 
 
 def _build(col, method):
-    K.build_grid(col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.fq, col.cw, col.grid_start,
+    build_grid(col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.fq, col.cw, col.grid_start,
                  col.grid_items, col.grid_runs, col.grid_box, col.grid_dims)
 
 
@@ -93,7 +94,7 @@ def test_grid_lists_every_collider_that_holds_a_point(seed, method):
     _build(col, method)
     nc = col.joint.size
     n_cells = int(np.prod(col.grid_dims))
-    assert 1 <= n_cells <= K.GRID_CELLS
+    assert 1 <= n_cells <= GRID_CELLS
     start, items = col.grid_start, col.grid_items
     for b in range(n_cells):       # ascending lists, each collider at most once
         assert (np.diff(items[start[b]:start[b + 1]]) > 0).all()
@@ -115,7 +116,7 @@ def _collide_with(col, grid, x, xp, contact, method, passes, friction=0.5):
     out, xp = x.copy(), xp.copy()
     n = x.shape[0]
     corr, ins, sp = np.zeros(n, np.uint8), np.zeros(n, np.uint8), np.zeros(n)
-    K.collide(out, xp, np.ones(n), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.tq0, col.fq,
+    collide(out, xp, np.ones(n), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.tq0, col.fq,
               col.cw, *grid, col.face_edges, col.src_range, friction, passes, corr, ins, sp, contact, 1 / 30)
     return out, xp, corr, ins
 

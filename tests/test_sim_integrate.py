@@ -1,4 +1,4 @@
-"""The Verlet step with the aerodynamic force gather (stages.sim.kernels.integrate, vertex_triangles)
+"""The Verlet step with the aerodynamic force gather (stages.sim.integrate.integrate, vertex_triangles)
 against a plain-Python loop doing the same float operations in the same order (ascending triangle
 index per vertex): bit-identical, on random meshes (vertex degrees 0 to > 8, N not a multiple of 4),
 with free, pinned and attached particles, for 1 and 2 threads."""
@@ -6,7 +6,8 @@ import numba
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from stages.sim import kernels as K
+from stages.sim.forces import vertex_triangles
+from stages.sim.integrate import integrate
 
 
 def _reference(x0, xp0, w, aj, al, fwd, h, g, damping, s, dp, dn, use_aero, tf, tris):
@@ -36,13 +37,13 @@ def _reference(x0, xp0, w, aj, al, fwd, h, g, damping, s, dp, dn, use_aero, tf, 
 
 def test_vertex_triangles_lists_each_vertex_triangles_in_order():
     tris = np.array([[0, 1, 2], [2, 1, 3], [0, 2, 4], [4, 2, 3], [2, 5, 0]], np.int32)
-    table = K.vertex_triangles(tris, 7)
+    table = vertex_triangles(tris, 7)
     t = len(tris)
     assert table.dtype == np.int32 and table.shape == (7, 5)
     assert table[2].tolist() == [0, 1, 2, 3, 4]
     assert table[0].tolist() == [0, 2, 4, t, t]
     assert table[6].tolist() == [t] * 5                   # a vertex of no triangle: padding only
-    assert K.vertex_triangles(np.zeros((0, 3), np.int32), 3).shape == (3, 1)
+    assert vertex_triangles(np.zeros((0, 3), np.int32), 3).shape == (3, 1)
 
 
 @settings(max_examples=40, deadline=None)
@@ -65,13 +66,13 @@ def test_integrate_is_the_reference_bit_for_bit(seed, n, t, use_aero):
     args = (w, aj, al, fwd, 1 / 90, np.array([0.0, -9.81, 0.0]), 0.02, rng.uniform(0, 1),
             rng.normal(0, 0.01, 3), rng.normal(0, 0.01, 3))
     ref = _reference(x0, xp0, *args, use_aero, tf, tris)
-    table = K.vertex_triangles(tris, n)
+    table = vertex_triangles(tris, n)
     old = numba.get_num_threads()
     try:
         for threads in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
             numba.set_num_threads(threads)
             x, xp = x0.copy(), xp0.copy()
-            K.integrate(x, xp, *args, use_aero, rows, table)
+            integrate(x, xp, *args, use_aero, rows, table)
             np.testing.assert_array_equal(x, ref[0])
             np.testing.assert_array_equal(xp, ref[1])
     finally:

@@ -9,7 +9,12 @@ from numba import njit
 
 from stages.garments.simple import rectangle_cloth
 from stages.garments.types import build_garment
-from stages.sim import kernels as K
+from stages.sim.body_collide import _cached_face, collide, TOUCH_EPS
+from stages.sim.collider_grid import build_grid, collider_frames
+from stages.sim.forces import aero_forces, vertex_triangles
+from stages.sim.integrate import integrate
+from stages.sim.simd import padded_rows
+from stages.sim.springs import correct_springs, pack_springs, partition_springs, spring_colours
 from stages.sim import winding_number
 from scipy.spatial.transform import Rotation
 
@@ -31,7 +36,7 @@ def _small_cloth(seed=0):
 
 def test_springs_match_python_gauss_seidel():
     g, x0 = _small_cloth()
-    order, part = K.partition_springs(x0, g.springs, n_parts=1)
+    order, part = partition_springs(x0, g.springs, n_parts=1)
     s = g.springs[order]
     rest = g.rest_lengths[order]
     w = g.inverse_mass
@@ -41,7 +46,7 @@ def test_springs_match_python_gauss_seidel():
     x = x0.copy()
     # tethers: particle 7 may be at most 0.05 from particle 0, particle 9 at most 1.0 from 3
     ti, ta, tl = np.array([7, 9], np.int32), np.array([0, 3], np.int32), np.array([0.05, 1.0])
-    K.correct_springs(x, K.padded_rows(len(x)), *K.pack_springs(s[:, 0], s[:, 1], rest, wi, wj, part, len(x)),
+    correct_springs(x, padded_rows(len(x)), *pack_springs(s[:, 0], s[:, 1], rest, wi, wj, part, len(x)),
                       ti, ta, tl, 3)
     ref = x0.copy()
     for _ in range(3):
@@ -64,13 +69,13 @@ def test_springs_match_python_gauss_seidel():
 def test_partition_blocks_touch_disjoint_particles():
     x, tri = rectangle_cloth(1, 1, 20, 20)
     g = build_garment("c", x, tri)
-    order, part = K.partition_springs(g.positions, g.springs, n_parts=2)
+    order, part = partition_springs(g.positions, g.springs, n_parts=2)
     assert np.array_equal(np.sort(order), np.arange(len(g.springs)))
     s = g.springs[order]
     a = set(s[part[0]:part[1]].ravel())
     b = set(s[part[1]:part[2]].ravel())
     assert not (a & b) and part[-1] == len(s) and part[2] - part[0] > 0.8 * len(s)
-    colours = K.spring_colours(g.springs.astype(np.int64), g.n_particles)[order]
+    colours = spring_colours(g.springs.astype(np.int64), g.n_particles)[order]
     for k in range(3):
         assert np.all(np.diff(colours[part[k]:part[k + 1]]) >= 0)  # ordered by colour inside a block
     for c in np.unique(colours):  # a colour never holds two springs on one particle
@@ -85,7 +90,7 @@ def test_parallel_springs_match_sequential_block_order():
     x, tri = rectangle_cloth(1, 1, 24, 24)
     g = build_garment("c", x, tri)
     x0 = g.positions + np.random.default_rng(8).normal(0, 0.01, g.positions.shape)
-    order, part = K.partition_springs(x0, g.springs, n_parts=2)
+    order, part = partition_springs(x0, g.springs, n_parts=2)
     s = g.springs[order].astype(np.int32)
     w = g.inverse_mass
     wi = w[s[:, 0]] / (w[s[:, 0]] + w[s[:, 1]])
@@ -94,17 +99,17 @@ def test_parallel_springs_match_sequential_block_order():
     no = np.zeros(0, np.int32)
     seq = x0.copy()
     one = np.array([0, len(s), len(s)], np.int64)  # everything as one sequential block
-    scratch = K.padded_rows(len(x0))
-    K.correct_springs(seq, scratch, *K.pack_springs(s[:, 0], s[:, 1], rest, wi, wj, one, len(x0)), no, no,
+    scratch = padded_rows(len(x0))
+    correct_springs(seq, scratch, *pack_springs(s[:, 0], s[:, 1], rest, wi, wj, one, len(x0)), no, no,
                       np.zeros(0), 3)
-    packed = K.pack_springs(s[:, 0], s[:, 1], rest, wi, wj, part, len(x0))
+    packed = pack_springs(s[:, 0], s[:, 1], rest, wi, wj, part, len(x0))
     out = []
     for t in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
         old = numba.get_num_threads()
         numba.set_num_threads(t)
         try:
             y = x0.copy()
-            K.correct_springs(y, scratch, *packed, no, no, np.zeros(0), 3)
+            correct_springs(y, scratch, *packed, no, no, np.zeros(0), 3)
         finally:
             numba.set_num_threads(old)
         out.append(y)
@@ -134,7 +139,7 @@ def test_integrate_matches_reference(use_aero):
     rows = np.zeros((tri.shape[0] + 1, 4))
     rows[:-1, :3] = tf
     x, xp = x0.copy(), xp0.copy()
-    K.integrate(x, xp, w, aj, al, fwd, h, gvec, damp, s, dp, dn, use_aero, rows, K.vertex_triangles(tri, n))
+    integrate(x, xp, w, aj, al, fwd, h, gvec, damp, s, dp, dn, use_aero, rows, vertex_triangles(tri, n))
     force = np.zeros((n, 3))
     for q in range(3):
         np.add.at(force, tri[:, q], tf / 3)
@@ -154,7 +159,7 @@ def test_aero_matches_reference():
     out = np.zeros((tri.shape[0], 4))
     h, kd, kl, s, dprev = 1 / 30, 0.3, 0.06, 0.5, np.array([0.01, 0.0, -0.02])
     tri_mass = (1 / (3 * g.inverse_mass))[tri].sum(axis=1)
-    K.aero_forces(x0, xp, tri_mass, tri, h, s, dprev, wind, kd, kl, out)
+    aero_forces(x0, xp, tri_mass, tri, h, s, dprev, wind, kd, kl, out)
     for t, (a, b, c) in enumerate(tri):
         v = ((x0[a] - xp[a]) + (x0[b] - xp[b]) + (x0[c] - xp[c])) / (3 * h) + s * dprev / h
         w = wind - v
@@ -177,7 +182,7 @@ def _collider_arrays(cs, maps, fwd, inv0=None):
     """Flat collider arrays as simulate builds them, posed by fwd (J, 4, 4) at the end of a step."""
     col = _Colliders(cs, maps)
     inv = np.linalg.inv(fwd)
-    K.collider_frames(fwd, inv, inv if inv0 is None else inv0, col.m, col.joint, col.kind, col.index, col.bcenter,
+    collider_frames(fwd, inv, inv if inv0 is None else inv0, col.m, col.joint, col.kind, col.index, col.bcenter,
                       col.bradius, col.sph_center, col.tq, col.tq0, col.fq, col.cw)
     return col
 
@@ -187,9 +192,9 @@ def _collide(col, x, xp, friction=0.0, method=0, passes=4, contact=None):
     out, xp = x.copy(), xp.copy()
     corr, ins, sp = np.zeros(n, np.uint8), np.zeros(n, np.uint8), np.zeros(n)
     contact = np.full((n, col.joint.size), -1, np.int32) if contact is None else contact
-    K.build_grid(col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.fq, col.cw, col.grid_start,
+    build_grid(col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.fq, col.cw, col.grid_start,
                  col.grid_items, col.grid_runs, col.grid_box, col.grid_dims)
-    K.collide(out, xp, np.ones(n), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.tq0, col.fq,
+    collide(out, xp, np.ones(n), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.tq0, col.fq,
               col.cw, col.grid_start, col.grid_items, col.grid_box, col.grid_dims, col.face_edges, col.src_range,
               friction, passes, corr, ins, sp, contact, 1 / 30)
     return out, xp, corr, ins
@@ -231,7 +236,7 @@ def test_hull_response_matches_maps_kernel_and_reports_the_contact_face(method):
     hit_ref, resp_ref = collide_points(maps, pts, 0, method)
     col = _collider_arrays(cs, maps, np.eye(4)[None].copy())
     out, _, corr, ins = _collide(col, pts, pts, method=method)
-    moved = np.linalg.norm(resp_ref - pts, axis=1) >= K.TOUCH_EPS
+    moved = np.linalg.norm(resp_ref - pts, axis=1) >= TOUCH_EPS
     assert np.array_equal(corr.astype(bool), hit_ref & moved)
     np.testing.assert_allclose(out, np.where((hit_ref & moved)[:, None], resp_ref, pts), atol=2e-7)
     # the reported face: the response point lies on its plane (plane of the exit / pushed face)
@@ -247,7 +252,7 @@ def test_hull_response_matches_maps_kernel_and_reports_the_contact_face(method):
 @njit   # not cached: it inlines the kernel under test
 def _cached_face_many(m, face_edges, src_range, pts, face, out):
     for i in range(pts.shape[0]):
-        known, hit, r0, r1, r2 = K._cached_face(m.kind, m.half, m.planes, face_edges, src_range, 0, face[i],
+        known, hit, r0, r1, r2 = _cached_face(m.kind, m.half, m.planes, face_edges, src_range, 0, face[i],
                                                 pts[i, 0], pts[i, 1], pts[i, 2])
         out[i, 0] = known
         out[i, 1] = hit
@@ -400,13 +405,13 @@ def test_springs_skip_coincident_ends_and_leave_pinned_particles():
     x = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.3, 0.4, 0.0]])
     si, sj = np.array([0, 1]), np.array([1, 2])
     rest, wi, wj = np.array([0.1, 0.25]), np.array([0.5, 0.0]), np.array([0.5, 1.0])
-    ij, sp, group_start = K.pack_springs(si, sj, rest, wi, wj, np.array([0, 2, 2], np.int64), 3)
+    ij, sp, group_start = pack_springs(si, sj, rest, wi, wj, np.array([0, 2, 2], np.int64), 3)
     # spring 1 shares particle 1 with spring 0: two groups, each padded with dummies on row 3
     assert ij.dtype == np.uint32 and list(group_start) == [0, 2, 2]
     assert list(ij) == [0, 12, 12, 12, 4, 12, 12, 12, 4, 12, 12, 12, 8, 12, 12, 12]
     assert list(sp[:12]) == [0.1, 0, 0, 0, 0.5, 0, 0, 0, 0.5, 0, 0, 0]
     assert list(sp[12:]) == [0.25, 0, 0, 0, 0.0, 0, 0, 0, 1.0, 0, 0, 0]
     no = np.zeros(0, np.int32)
-    K.correct_springs(x, K.padded_rows(3), ij, sp, group_start, no, no, np.zeros(0), 1)
+    correct_springs(x, padded_rows(3), ij, sp, group_start, no, no, np.zeros(0), 1)
     np.testing.assert_array_equal(x[:2], 0.0)
     np.testing.assert_allclose(x[2], [0.15, 0.2, 0.0], atol=1e-15)

@@ -1,5 +1,5 @@
 """Particles pinched between overlapping colliders (issue 6): when collide's pass budget is spent,
-kernels.escape_union moves the particle out of the union instead of leaving it inside."""
+stages.sim.body_collide.escape_union moves the particle out of the union instead of leaving it inside."""
 import math
 
 import numpy as np
@@ -7,7 +7,7 @@ from hypothesis import given, settings, strategies as st
 
 from stages.hulls.types import ColliderSet, SphereCollider
 from stages.maps.kernels import METHOD_BRUTE, METHOD_PAPER, collide_points
-from stages.sim import kernels as K
+from stages.sim.body_collide import PUSH_EPS
 from tests.test_sim_kernels import _collide, _collider_arrays, _one_hull_maps
 
 
@@ -25,7 +25,7 @@ def _old_collide_ref(p, centres, radii, passes):
     def push(c, p):
         d = p - centres[c]
         n = np.linalg.norm(d)
-        return centres[c] + d / n * (radii[c] + K.PUSH_EPS)
+        return centres[c] + d / n * (radii[c] + PUSH_EPS)
 
     budget = passes * nc
     last, c, streak = -1, 0, 0

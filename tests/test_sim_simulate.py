@@ -154,3 +154,19 @@ def test_world_obstacle_catches_the_cloth():
     p = r.garments[0].positions
     assert np.isfinite(p).all() and p[-1, :, 1].min() > 0.4 - 1e-3       # resting on the top face
     assert any("obstacles" in n for n in r.notes)
+
+
+def test_stiffness_and_damping_mean_the_same_at_any_substep_count():
+    """Frequency scaling: what is left of a violation after one second of rounds, and of the velocity
+    after 1/30 s of steps, does not depend on substeps / iterations; the paper preset is unscaled."""
+    left, kept = [], []
+    for substeps, iterations in ((1, 3), (10, 1), (20, 1), (7, 4)):
+        p = SimParams(substeps=substeps, iterations=iterations, stretch_stiffness=0.6, damping=0.02)
+        rounds_per_s = iterations * substeps / p.dt
+        left.append((1 - p.round_stiffness(0.6)) ** rounds_per_s)
+        kept.append((1 - p.step_damping()) ** substeps)
+    np.testing.assert_allclose(left, left[0], rtol=1e-9)
+    np.testing.assert_allclose(kept, 0.98, rtol=1e-12)
+    paper = SimParams.preset("paper")
+    assert paper.round_stiffness(1.0) == 1.0 and paper.step_damping() == paper.damping
+    assert SimParams().round_stiffness(1.0) == 1.0 and SimParams().round_stiffness(0.0) == 0.0

@@ -1,11 +1,12 @@
-"""The 4-spring groups of the spring correction (stages.sim.kernels.pack_springs / correct_springs)
+"""The 4-spring groups of the spring correction (stages.sim.springs.pack_springs / correct_springs)
 against a scalar Gauss-Seidel loop over the springs in their given order."""
 import numpy as np
 from hypothesis import given, settings, strategies as st
 from numba import njit
 
 from stages.fastmath import inv_sqrt
-from stages.sim import kernels as K
+from stages.sim.simd import padded_rows
+from stages.sim.springs import correct_springs, pack_springs
 
 
 @njit(fastmath=True)   # not cached: it inlines inv_sqrt
@@ -44,7 +45,7 @@ def test_groups_hold_each_spring_once_in_order_on_distinct_particles(seed, n, s,
     rng = np.random.default_rng(seed)
     si, sj, rest, wi, wj = _random_springs(rng, n, s)
     part = np.sort(np.concatenate([[0, s], rng.integers(0, s + 1, n_blocks - 1)])).astype(np.int64)
-    ij, sp, group_start = K.pack_springs(si, sj, rest, wi, wj, part, n)
+    ij, sp, group_start = pack_springs(si, sj, rest, wi, wj, part, n)
     assert ij.dtype == np.uint32 and ij.size == 8 * group_start[-1] and sp.size == 12 * group_start[-1]
     groups_i = ij.reshape(-1, 2, 4)[:, 0] // 4
     groups_j = ij.reshape(-1, 2, 4)[:, 1] // 4
@@ -76,24 +77,24 @@ def test_grouped_correction_equals_the_scalar_loop_bit_for_bit(seed, n, s):
     ref = x0.copy()
     _scalar_gauss_seidel(ref, si, sj, rest, wi, wj, 3)
     x = x0.copy()
-    packed = K.pack_springs(si, sj, rest, wi, wj, np.array([0, s, s], np.int64), n)
+    packed = pack_springs(si, sj, rest, wi, wj, np.array([0, s, s], np.int64), n)
     no = np.zeros(0, np.int32)
-    K.correct_springs(x, K.padded_rows(n), *packed, no, no, np.zeros(0), 3)
+    correct_springs(x, padded_rows(n), *packed, no, no, np.zeros(0), 3)
     np.testing.assert_array_equal(x, ref)
 
 
 def test_scratch_rows_are_aligned_and_its_contents_do_not_matter():
-    x4 = K.padded_rows(10)
+    x4 = padded_rows(10)
     assert x4.shape == (11, 4) and x4.ctypes.data % 32 == 0 and x4.flags.c_contiguous
     rng = np.random.default_rng(3)
     si, sj, rest, wi, wj = _random_springs(rng, 10, 30)
     x0 = rng.uniform(-0.5, 0.5, (10, 3))
-    packed = K.pack_springs(si, sj, rest, wi, wj, np.array([0, 30, 30], np.int64), 10)
+    packed = pack_springs(si, sj, rest, wi, wj, np.array([0, 30, 30], np.int64), 10)
     no = np.zeros(0, np.int32)
     out = []
     for fill in (0.0, np.nan):
         x4[:] = fill
         x = x0.copy()
-        K.correct_springs(x, x4, *packed, no, no, np.zeros(0), 2)
+        correct_springs(x, x4, *packed, no, no, np.zeros(0), 2)
         out.append(x)
     np.testing.assert_array_equal(out[0], out[1])

@@ -4,7 +4,7 @@ the skin.
 - `inside_colliders`: per point and collider, inside or not, by the collider's own geometry (hull
   face planes, sphere distance) in its bone-local frame: independent of the maps' queries.
 - `distance_to_mesh_tree`: exact distance from points to a triangle mesh, branch and bound over the
-  winding-number tree (stages/sim/kernels.py: a ball per node holds the node's triangles, so
+  winding-number tree (stages/sim/winding.py: a ball per node holds the node's triangles, so
   max(0, |p - c| - r) is a lower bound of any of its triangles' distance).
 - `distance_to_mesh_brute`: the same distance over every triangle (the reference of the tree).
 """

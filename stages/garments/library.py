@@ -14,6 +14,7 @@ import numpy as np
 from stages.errors import InputError
 from stages.garments.patterns import (Panel, Pattern, PatternAttachment, Placement, Seam, SeamSide, cubic, line,
                                       quad)
+from stages.garments.types import COMMON_BONE
 
 _WAISTBAND = (SeamSide("front", "waist"), SeamSide("back", "waist"))
 KINDS = ("tshirt", "short_skirt", "long_skirt", "shorts", "trousers", "cape", "square")
@@ -361,7 +362,10 @@ def tshirt(meas: dict, *, ease: float = 0.08, length_below_waist: float | None =
         front_hole, back_hole = ("armhole_l", "armhole_r") if side == "l" else ("armhole_r", "armhole_l")
         seams.append(Seam(SeamSide(pname, "cap_front"), SeamSide("front", front_hole), stage=1))
         seams.append(Seam(SeamSide(pname, "cap_back"), SeamSide("back", back_hole), stage=1))
-    atts = (PatternAttachment("front", "shoulder_l"), PatternAttachment("front", "shoulder_r"))
+    # each shoulder line on one bone (the common ancestor of its nearest colliders' bones, the chest
+    # on the built-in character): pinned to neck, clavicle and upper arm it was torn between them
+    atts = (PatternAttachment("front", "shoulder_l", joint=COMMON_BONE),
+            PatternAttachment("front", "shoulder_r", joint=COMMON_BONE))
     return Pattern(name, tuple(panels), tuple(seams), edge_length, atts,
                    fit_edges=(SeamSide("front", "neck"), SeamSide("back", "neck")))
 

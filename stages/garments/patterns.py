@@ -238,7 +238,8 @@ class Seam:
 class PatternAttachment:
     """Particles pinned to a bone after sewing: the vertices of `edges` of `panel` (all of them, or
     those at the given fractions 0..1 of the edge run's length when `at` is given). joint: a joint
-    name, 'root', or None (the bone of the nearest collider). sewing: pin the middle half of the
+    name, 'root', 'common' (one bone: the common ancestor of the nearest colliders' bones, see
+    stages.garments.types.Attachment) or None (the bone of the nearest collider). sewing: pin the middle half of the
     run (by length) already while sewing, where it was placed (a waistband holding a skirt or
     trousers up, so the garment cannot slide down the body before its seams are closed); the
     run's ends and seam vertices stay free so the seams there can close."""

@@ -29,6 +29,7 @@ from stages.checks import ContractError, check_array, check_index
 from stages.errors import InputError
 
 STRETCH = 0  # spring kind: mesh edge (stretch / shear)
+COMMON_BONE = "common"   # Attachment.joint: the lowest common ancestor of the nearest bones
 BEND = 1     # spring kind: opposite vertices of two adjacent triangles
 
 
@@ -124,7 +125,10 @@ class Attachment:
     target: 'near': a collider name, joint name or joint index. The bone followed is the
         collider's bone / that joint.
     joint: joint name or index to follow for 'indices' and 'top_loop'; None = the bone of the
-        nearest collider (or nearest joint origin when no colliders are given), per particle.
+        nearest collider (or nearest joint origin when no colliders are given), per particle;
+        COMMON_BONE = one bone for all: the lowest common ancestor of those per-particle bones (a
+        run pinned to bones that move apart, a T-shirt's shoulder line on neck, clavicle and upper
+        arm, would be torn between them).
     radius: metres, for 'near'.
     """
 
@@ -162,6 +166,7 @@ class BindPose:
     joint_names: J names. colliders: optional ColliderSet (for 'near' a collider).
     poses: optional (F, J, 4, 4) float64, Motion.joint_world at every frame: attachments are checked
         against the colliders of the other bones over these frames (`swept_attachments`).
+    parents: optional (J,) int32, the joint hierarchy (-1 = root; for Attachment joint COMMON_BONE).
     """
 
     joint_world: np.ndarray
@@ -169,9 +174,12 @@ class BindPose:
     joint_names: tuple[str, ...]
     colliders: object = None
     poses: np.ndarray | None = None
+    parents: np.ndarray | None = None
 
     def __post_init__(self):
         j = len(self.joint_names)
+        if self.parents is not None:
+            check_array("BindPose", "parents", self.parents, (j,), np.int32)
         check_array("BindPose", "joint_world", self.joint_world, (j, 4, 4), np.float64)
         check_array("BindPose", "joint_origins", self.joint_origins, (j, 3), np.float64)
         if self.poses is not None:
@@ -194,7 +202,8 @@ def bind_pose(character, motion, colliders=None) -> BindPose:
     """The bind pose of attachments: frame 0 of `motion` (relative frame), with all its poses."""
     jw = np.ascontiguousarray(motion.joint_world[0], dtype=np.float64)  # bone-local -> relative frame
     return BindPose(jw, np.ascontiguousarray(jw[:, :3, 3]), tuple(character.joint_names), colliders,
-                    np.ascontiguousarray(motion.joint_world, dtype=np.float64))
+                    np.ascontiguousarray(motion.joint_world, dtype=np.float64),
+                    np.ascontiguousarray(character.parents, dtype=np.int32))
 
 
 def swept_attachments(bind: BindPose, local: np.ndarray, joints: np.ndarray, depth: float):
@@ -310,11 +319,36 @@ def _select(att: Attachment, x0: np.ndarray, triangles: np.ndarray, remap: np.nd
         if idx.size == 0:
             raise InputError("attachment", f"no particle within {att.radius} m of {t!r} in the bind pose")
         return idx, joints
-    if att.joint is not None:
+    if att.joint == COMMON_BONE:
+        joints = np.full(idx.size, _common_ancestor(bind, _nearest_bone(bind, x0[idx])), np.int32)
+    elif att.joint is not None:
         joints = np.full(idx.size, bind.joint_index(att.joint), np.int32)
     else:
         joints = _nearest_bone(bind, x0[idx])
     return idx, joints
+
+
+def _common_ancestor(bind: BindPose, bones: np.ndarray) -> int:
+    """The deepest joint that is an ancestor of (or equal to) every one of `bones`."""
+    if bind.parents is None:
+        raise InputError("attachment", "joint 'common' needs the joint hierarchy (BindPose.parents)")
+
+    def chain(j):
+        out = []
+        while j >= 0:
+            out.append(int(j))
+            j = bind.parents[j]
+        return out[::-1]      # root first
+
+    chains = [chain(b) for b in np.unique(bones)]
+    common = -1
+    for level in zip(*chains):
+        if len(set(level)) > 1:
+            break
+        common = level[0]
+    if common < 0:
+        raise InputError("attachment", "the pinned bones have no common ancestor")
+    return common
 
 
 # ---------------------------------------------------------------------------------------------

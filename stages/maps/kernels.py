@@ -1,5 +1,5 @@
 """Numba hull queries over the packed maps (paper A §2.3-2.4): the one home of the hull query, used
-by the maps' tests and benchmark and inside the simulation's njit loops (stages/sim/kernels.py).
+by the maps' tests and benchmark and inside the simulation's njit loops (stages/sim/body_collide.py).
 
 The core, `hull_query`, takes the MapArrays fields one by one (plain arrays, in `QUERY_FIELDS`
 order; `query_arrays(m)` unpacks them) and an OBB-local point, and returns the face it responded

@@ -1,6 +1,6 @@
 """The simulation stage: Verlet mass-spring cloth against the character's colliders (paper A).
 
-One step, in the paper's order (kernels.run_steps):
+One step, in the paper's order (stages.sim.step.run_steps):
 1. character pose without the root translation (Motion.joint_world is in the relative frame);
    colliders and attached particles follow their bones (poses interpolated between frames at
    sub-steps: slerp of the rotation, lerp of the translation);
@@ -39,7 +39,8 @@ from stages.checks import ContractError
 from stages.garments.types import BEND, STRETCH, Garment
 from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER
 from stages.maps.types import KIND_CYLINDER, MapArrays
-from stages.sim import kernels as K
+from stages.sim import body_collide, collider_grid, forces, simd, step, winding
+from stages.sim.springs import pack_springs, partition_springs
 from stages.sim.types import GarmentTrack, SimParams, SimResult, SimulationDiverged
 
 _CYCLES_PER_S = None
@@ -50,11 +51,11 @@ def cycles_per_second() -> float:
     """Calibrate the kernels' cycle counter against perf_counter once per process."""
     global _CYCLES_PER_S
     if _CYCLES_PER_S is None:
-        K.read_cycles()
-        t0, c0 = time.perf_counter(), K.read_cycles()
+        simd.read_cycles()
+        t0, c0 = time.perf_counter(), simd.read_cycles()
         while time.perf_counter() - t0 < 0.02:
             pass
-        t1, c1 = time.perf_counter(), K.read_cycles()
+        t1, c1 = time.perf_counter(), simd.read_cycles()
         _CYCLES_PER_S = max((c1 - c0) / (t1 - t0), 1.0)
     return _CYCLES_PER_S
 
@@ -131,25 +132,26 @@ class _System:
         wsum = w[springs[:, 0]] + w[springs[:, 1]]
         live = wsum > 0
         springs, rest, kinds, wsum = springs[live], rest[live], kinds[live], wsum[live]
-        stiff = np.where(kinds == BEND, params.bend_stiffness, params.stretch_stiffness)
-        order, part_start = K.partition_springs(self.x, springs, n_parts=2)
+        stiff = np.where(kinds == BEND, params.round_stiffness(params.bend_stiffness),
+                         params.round_stiffness(params.stretch_stiffness))
+        order, part_start = partition_springs(self.x, springs, n_parts=2)
         springs, rest, stiff, wsum = springs[order], rest[order], stiff[order], wsum[order]
         self.si = np.ascontiguousarray(springs[:, 0], dtype=np.int32)
         self.sj = np.ascontiguousarray(springs[:, 1], dtype=np.int32)
         self.rest = np.ascontiguousarray(rest)
         self.wi = np.ascontiguousarray(stiff * w[self.si] / wsum)
         self.wj = np.ascontiguousarray(stiff * w[self.sj] / wsum)
-        self.ij, self.sp, self.group_start = K.pack_springs(self.si, self.sj, self.rest, self.wi, self.wj,
+        self.ij, self.sp, self.group_start = pack_springs(self.si, self.sj, self.rest, self.wi, self.wj,
                                                             part_start, n)
-        self.x4 = K.padded_rows(n)
+        self.x4 = simd.padded_rows(n)
         self.tris = np.ascontiguousarray(np.concatenate([g.triangles + o for g, o in zip(garments, self.offsets)]),
                                          dtype=np.int32)
         # mass of each triangle's free vertices (a third of each lumped mass; aerodynamic force cap)
         third = np.where(w > 0, 1.0 / (3.0 * np.where(w > 0, w, 1.0)), 0.0)
         self.tri_mass = np.ascontiguousarray(third[self.tris].sum(axis=1))
         # per triangle (x, y, z, 0) aerodynamic force, row T zero (the padding of vt_table)
-        self.tri_force = K.padded_rows(self.tris.shape[0])
-        self.vt_table = K.vertex_triangles(self.tris, n)
+        self.tri_force = simd.padded_rows(self.tris.shape[0])
+        self.vt_table = forces.vertex_triangles(self.tris, n)
         self.corrected = np.zeros(n, np.uint8)
         self.inside = np.zeros(n, np.uint8)
         self.speed2 = np.zeros(n)
@@ -159,7 +161,7 @@ class _System:
             np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0))
 
     def cloth(self) -> tuple:
-        """The kernels' `cloth` tuple (see stages/sim/kernels.py)."""
+        """The kernels' `cloth` tuple (see stages/sim/step.py)."""
         return (self.x, self.xp, self.inv_mass, self.attach_joint, self.attach_local, self.ij, self.sp,
                 self.group_start, self.ti, self.ta, self.tl, self.tris, self.tri_mass, self.tri_force,
                 self.vt_table, self.x4)
@@ -176,7 +178,7 @@ class _System:
 
 
 def exit_face_data(hull_maps, m) -> tuple[np.ndarray, np.ndarray]:
-    """Per-face and per-hull data of the collision kernel's exit-face cache (K._cached_exit).
+    """Per-face and per-hull data of the collision kernel's exit-face cache (body_collide._cached_face).
 
     face_edges (F, 12) float64: per face (global id, OBB-local frame of its hull) its three edge
     planes (m, o), m the unit in-plane normal pointing into the triangle: inside iff m.r >= o.
@@ -233,13 +235,13 @@ class _Colliders:
             v = hull.simplified.vertices
             c = v.mean(axis=0)
             joint.append(hull.bone)
-            kind.append(K.KIND_HULL)
+            kind.append(collider_grid.KIND_HULL)
             index.append(h)
             bc.append(c)
             br.append(np.linalg.norm(v - c, axis=1).max() * (1 + 1e-9) + 1e-9)
         for k, s in enumerate(spheres):
             joint.append(s.joint)
-            kind.append(K.KIND_SPHERE)
+            kind.append(collider_grid.KIND_SPHERE)
             index.append(k)
             bc.append(s.center)
             br.append(s.radius * (1 + 1e-9) + 1e-9)
@@ -255,14 +257,14 @@ class _Colliders:
         self.tq0 = np.zeros((nc, 12))
         self.fq = np.zeros((nc, 12))
         self.cw = np.zeros((nc, 5))
-        self.grid_start = np.zeros(K.GRID_CELLS + 1, np.int64)
-        self.grid_items = np.zeros(max(nc * K.GRID_CELLS, 1), np.int32)
-        self.grid_runs = np.zeros((max(nc * K.GRID_CELLS, 1), 3), np.int32)
+        self.grid_start = np.zeros(collider_grid.GRID_CELLS + 1, np.int64)
+        self.grid_items = np.zeros(max(nc * collider_grid.GRID_CELLS, 1), np.int32)
+        self.grid_runs = np.zeros((max(nc * collider_grid.GRID_CELLS, 1), 3), np.int32)
         self.grid_box = np.zeros(4)
         self.grid_dims = np.zeros(3, np.int64)
 
     def cols(self) -> tuple:
-        """The kernels' `cols` tuple (see stages/sim/kernels.py)."""
+        """The kernels' `cols` tuple (see stages/sim/step.py)."""
         return (self.joint, self.kind, self.index, self.bcenter, self.bradius, self.sph_center, self.sph_radius,
                 self.tq, self.tq0, self.fq, self.cw, self.grid_start, self.grid_items, self.grid_runs,
                 self.grid_box, self.grid_dims,
@@ -275,11 +277,11 @@ def particles_inside_colliders(points, colliders, maps, pose, method: int = METH
     col = _Colliders(colliders, maps)
     fwd = np.ascontiguousarray(pose, dtype=np.float64)
     inv = np.ascontiguousarray(np.linalg.inv(fwd))
-    K.collider_frames(fwd, inv, inv, col.m, col.joint, col.kind, col.index, col.bcenter, col.bradius,
+    collider_grid.collider_frames(fwd, inv, inv, col.m, col.joint, col.kind, col.index, col.bcenter, col.bradius,
                       col.sph_center, col.tq, col.tq0, col.fq, col.cw)
     p = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
     out = np.zeros(p.shape[0], np.uint8)
-    K.count_inside(p, np.ones(p.shape[0]), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.cw, out)
+    body_collide.count_inside(p, np.ones(p.shape[0]), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.cw, out)
     return out.astype(bool)
 
 
@@ -354,7 +356,7 @@ class BodyAudit:
     def __init__(self, character, beta: float = 2.0):
         self.character = character
         self.beta = float(beta)
-        self.tree = K.build_winding_tree(character.vertices, character.triangles)
+        self.tree = winding.build_winding_tree(character.vertices, character.triangles)
         self.data = np.zeros((self.tree[1].size, 8))
         self.tris = np.ascontiguousarray(character.triangles, dtype=np.int32)
 
@@ -362,13 +364,13 @@ class BodyAudit:
         """Refit the tree to the skinned `vertices` (V, 3) of a frame; queries then use them."""
         order, start, end, kids = self.tree
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
-        K.refit_winding_tree(self.vertices, self.tris, order, start, end, kids, self.data)
+        winding.refit_winding_tree(self.vertices, self.tris, order, start, end, kids, self.data)
 
     def winding_refitted(self, points: np.ndarray) -> np.ndarray:
         """Winding numbers of `points` w.r.t. the vertices of the last `refit`."""
         order, start, end, kids = self.tree
         out = np.empty(points.shape[0])
-        K.winding_numbers_tree(np.ascontiguousarray(points, dtype=np.float64), self.vertices, self.tris, order,
+        winding.winding_numbers_tree(np.ascontiguousarray(points, dtype=np.float64), self.vertices, self.tris, order,
                                start, end, kids, self.data, self.beta, out)
         return out
 
@@ -388,12 +390,12 @@ def winding_number(vertices, triangles, points, *, exact: bool = False, beta: fl
     p = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
     out = np.empty(p.shape[0])
     if exact:
-        K.winding_numbers_brute(p, v, t, out)
+        winding.winding_numbers_brute(p, v, t, out)
         return out
-    order, start, end, kids = K.build_winding_tree(v, t)
+    order, start, end, kids = winding.build_winding_tree(v, t)
     data = np.zeros((start.size, 8))
-    K.refit_winding_tree(v, t, order, start, end, kids, data)
-    K.winding_numbers_tree(p, v, t, order, start, end, kids, data, float(beta), out)
+    winding.refit_winding_tree(v, t, order, start, end, kids, data)
+    winding.winding_numbers_tree(p, v, t, order, start, end, kids, data, float(beta), out)
     return out
 
 
@@ -480,7 +482,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     step_cycles = np.zeros(nf, np.int64)
     n_obst = np.zeros(nf, np.int32)                                # obstacle contacts per frame
     obst_points = [np.zeros((0, 3), np.float32) for _ in range(nf)]
-    prm = (h, float(params.damping), s, k_drag, k_lift, float(params.friction), use_aero, int(params.iterations),
+    prm = (h, params.step_damping(), s, k_drag, k_lift, float(params.friction), use_aero, int(params.iterations),
            int(params.collision_passes), method)
     cloth, cols, flags = sysm.cloth(), col.cols(), sysm.flags()
     max2 = float(params.max_speed) ** 2
@@ -519,13 +521,13 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     # frame 0: the initial state; count particles starting inside a collider (no response)
     fwd0 = np.ascontiguousarray(motion.joint_world[0])
     inv_0 = np.ascontiguousarray(np.linalg.inv(fwd0))
-    K.collider_frames(fwd0, inv_0, inv_0, col.m, col.joint, col.kind, col.index, col.bcenter, col.bradius,
+    collider_grid.collider_frames(fwd0, inv_0, inv_0, col.m, col.joint, col.kind, col.index, col.bcenter, col.bradius,
                       col.sph_center, col.tq, col.tq0, col.fq, col.cw)
-    K.count_inside(sysm.x, sysm.inv_mass, col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.cw,
+    body_collide.count_inside(sysm.x, sysm.inv_mass, col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.cw,
                    sysm.inside)
     sysm.corrected[:] = 0
     sysm.speed2[:] = 0.0
-    K.record_frame(sysm.x, flags, np.inf, sysm.goff, rel[0], pen_col[0], counts[0])
+    step.record_frame(sysm.x, flags, np.inf, sysm.goff, rel[0], pen_col[0], counts[0])
     audit_frames(0, 1)
     if progress is not None:
         progress(1, nf)
@@ -538,7 +540,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
         fwd, inv, inv0, d_prev, d_next, tr, d_last = _chunk_poses(motion, f0, f1, ss, s, d_last)
         timings["poses"] += time.perf_counter() - t0
         if ocol is None:
-            done = K.run_frames(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, ss, max2,
+            done = step.run_frames(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, ss, max2,
                                 sysm.goff, rel[f0:f1], pen_col[f0:f1], counts[f0:f1], step_cycles[f0:f1], flags,
                                 timers)
             if done < f1 - f0:
@@ -546,9 +548,9 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
         else:   # paper B obstacles live in world: hand over world positions after every step
             f = f0
             sysm.corrected[:] = 0
-            c0 = K.read_cycles()
+            c0 = simd.read_cycles()
             for k in range(ss):
-                K.run_steps(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, k, k + 1,
+                step.run_steps(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, k, k + 1,
                             flags, timers)
                 to = time.perf_counter()
                 ta = motion.times[f - 1] + k * h
@@ -559,8 +561,8 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
                 n_obst[f] += ocol.n_contacts
                 timings["obstacles"] += time.perf_counter() - to
             obst_points[f] = ocol.contacts()["point"].astype(np.float32)
-            step_cycles[f] = K.read_cycles() - c0
-            if not K.record_frame(sysm.x, flags, max2, sysm.goff, rel[f], pen_col[f], counts[f]):
+            step_cycles[f] = simd.read_cycles() - c0
+            if not step.record_frame(sysm.x, flags, max2, sysm.goff, rel[f], pen_col[f], counts[f]):
                 raise diverged(f)
         audit_frames(f0, f1)
         if progress is not None:
@@ -574,9 +576,9 @@ def _result(garments, pos, pen_col, pen_body, corrected, max_speed, step_ms, tim
             params, notes, nf) -> SimResult:
     cps = cycles_per_second()
     tm = dict(timings)
-    tm["integrate"] = float(timers[K.T_INTEGRATE] / cps)
-    tm["constraints"] = float(timers[K.T_CONSTRAINTS] / cps)
-    tm["collisions"] = float(timers[K.T_COLLISIONS] / cps)
+    tm["integrate"] = float(timers[step.T_INTEGRATE] / cps)
+    tm["constraints"] = float(timers[step.T_CONSTRAINTS] / cps)
+    tm["collisions"] = float(timers[step.T_COLLISIONS] / cps)
     audit_on = bool((pen_body[:nf] >= 0).all())
     tracks = tuple(GarmentTrack(g.name, g.triangles, pos[i][:nf], np.ascontiguousarray(pen_col[:nf, i]),
                                 np.ascontiguousarray(pen_body[:nf, i]))

@@ -13,16 +13,24 @@ from stages.checks import ContractError, check_array
 
 
 HULL_METHODS = ("ray", "brute_ray", "nearest_plane")
+REFERENCE_RATE = 300.0        # correction rounds / s at which stretch_stiffness and bend_stiffness are stated
+REFERENCE_STEP = 1.0 / 30.0   # s: damping is the share of the velocity lost over this time
 
 
 @dataclass(frozen=True)
 class SimParams:
     """Simulation parameters.
 
+    Defaults are "small steps" (Macklin et al. 2019): 20 steps of two correction rounds per
+    frame, with tethers; `SimParams.preset("paper")` is the paper's 1 step x 3 rounds, no tethers.
+    Stiffness and damping are stated per unit of time, so that they mean the same at any sub-step
+    and round count (frequency-scaled as in NvCloth): see `round_stiffness` and `step_damping`.
+
     dt: frame time, s (the motion's frame spacing). substeps: steps per frame (step h = dt / substeps);
         collider poses are interpolated between frames (slerp + lerp) at each sub-step.
     iterations: rounds of spring position correction per step (paper: 3).
-    gravity: (3,) m/s^2. damping: fraction of the Verlet displacement removed per step, [0, 1).
+    gravity: (3,) m/s^2. damping: fraction of the Verlet velocity removed over REFERENCE_STEP (1/30 s),
+        [0, 1); a step of length h removes 1 - (1 - damping)^(h / REFERENCE_STEP).
     wind: (3,) air velocity, m/s, world. air_density: kg/m^3. drag, lift: aerodynamic coefficients
         of the per-triangle model (0 disables the term).
     friction: Coulomb coefficient, [0, 10]: at a contact the tangential travel relative to the
@@ -30,7 +38,9 @@ class SimParams:
         shorter: static friction). Consistent with stages.obstacles.
     inertia_scale: [0, 1]. 0 = the paper's relative simulation (the cloth does not feel the root
         translation), 1 = plain world-space simulation (see simulate.py for the formula).
-    stretch_stiffness, bend_stiffness: share of each spring correction applied, [0, 1] (paper: 1).
+    stretch_stiffness, bend_stiffness: share of each spring correction applied per round at
+        REFERENCE_RATE (300) rounds per second, [0, 1] (paper: 1); at r rounds per second a round applies
+        1 - (1 - k)^(300 / r) (1 stays 1: fully stiff at any rate).
     tethers: long-range attachments (not in the paper): a free particle of a garment with attached or
         pinned particles is kept within its rest distance along the mesh of the nearest one. Without
         them 3 correction rounds let hanging cloth stretch by up to several times its length.
@@ -42,15 +52,15 @@ class SimParams:
         whose bounding sphere holds it) until one full round sees no push, at most this many rounds;
         a push out of one collider into an overlapping one is so resolved. A particle still inside
         after the budget (pinched between overlapping colliders) is moved to a point outside their
-        union (the shortest of a few escape directions, see kernels.escape_union); one still inside
+        union (the shortest of a few escape directions, see stages.sim.body_collide.escape_union); one still inside
         after that (round-off) is counted in penetrations_colliders.
     max_speed: m/s; a particle faster than this (or NaN / inf) stops the run as diverged.
     body_audit: count particles inside the true skinned mesh per frame (generalised winding number).
     """
 
     dt: float = 1.0 / 30.0
-    substeps: int = 1
-    iterations: int = 3
+    substeps: int = 20
+    iterations: int = 2
     gravity: tuple = (0.0, -9.81, 0.0)
     damping: float = 0.01
     wind: tuple = (0.0, 0.0, 0.0)
@@ -106,12 +116,40 @@ class SimParams:
         """Step length h, s."""
         return self.dt / self.substeps
 
+    @classmethod
+    def preset(cls, name: str, **overrides) -> "SimParams":
+        """The named preset (PRESETS) with `overrides` (keyword fields) on top."""
+        if name not in PRESETS:
+            raise ContractError(f"SimParams.preset: unknown preset {name!r}; choose from {', '.join(PRESETS)}")
+        return cls(**{**PRESETS[name], **overrides})
+
+    def round_stiffness(self, k: float) -> float:
+        """The share of a correction one round applies for stiffness k stated at REFERENCE_RATE."""
+        rate = self.iterations / self.step
+        return 1.0 - (1.0 - float(k)) ** (REFERENCE_RATE / rate)
+
+    def step_damping(self) -> float:
+        """The share of the velocity one step removes (damping is stated over REFERENCE_STEP); the
+        value itself at a step of REFERENCE_STEP (bit for bit: the paper preset's figures)."""
+        ratio = self.step / REFERENCE_STEP
+        if abs(ratio - 1.0) < 1e-12:
+            return float(self.damping)
+        return 1.0 - (1.0 - float(self.damping)) ** ratio
+
     def as_dict(self) -> dict:
         """Plain dict for the recording's static record."""
         d = asdict(self)
         d["gravity"] = list(map(float, self.gravity))
         d["wind"] = list(map(float, self.wind))
         return d
+
+
+# Named parameter sets. "default": the dataclass defaults. "paper": paper A's step (one Verlet step
+# and 3 rounds of spring correction per 1/30 s frame, no tethers), whose figures it reproduces.
+PRESETS = {
+    "default": {},
+    "paper": {"substeps": 1, "iterations": 3, "tethers": False},
+}
 
 
 @dataclass(frozen=True)

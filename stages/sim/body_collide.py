@@ -1,0 +1,509 @@
+"""Collision of the cloth with the character's colliders (paper A §2-3): the inside test and response
+of spheres (eq. 5-6) and hulls (the maps' query, stages.maps.kernels.hull_query), Coulomb friction,
+the escape from overlapping colliders, and the count of particles still inside.
+
+The hull query is inlined: the hull response reports its exit face (the contact normal, no face
+scan); a particle is transformed only after the world sphere test, a hull only queried inside its
+OBB, and only the colliders in the particle's grid cell (stages.sim.collider_grid) are visited.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.maps.kernels import METHOD_NEAREST_PLANE, METHOD_PAPER, ZERO_DIR, hull_query, query_arrays
+from stages.maps.types import KIND_CYLINDER as KIND_CYLINDER_MAP
+from stages.sim.collider_grid import KIND_SPHERE, apply12, grid_cell, rotate12
+
+# the hull query is inlined from stages.maps.kernels: its edits must invalidate this module's cache
+NUMBA_CACHE_DEPENDS = ("stages.maps.kernels", "stages.maps.types", "stages.affine", "stages.sim.collider_grid")
+
+PUSH_EPS = 1e-7      # m: responded particles end this far outside, so the inclusive inside test says "out"
+TOUCH_EPS = 1e-9     # m: a response moving a particle less than this is a touch, not a penetration
+
+
+# -- collider queries -----------------------------------------------------------------------------
+# Hulls: stages.maps.kernels.hull_query over the MapArrays fields as plain arrays (unpacked once per
+# kernel with query_arrays: a named tuple reached inside the loop would cost reference counting per
+# query); the sphere test and the OBB rejection are written out in collide's loop, and only points
+# inside an OBB reach the hull query.
+@njit(cache=True, inline="always")
+def _sphere_hit(rad, q0, q1, q2):
+    """(hit, r0, r1, r2, n0, n1, n2) of a sphere of radius rad at the origin of the query frame:
+    paper eq. 5 (inside iff |q| < r) and eq. 6 (response r q / |q|), outward normal q / |q|."""
+    d2 = q0 * q0 + q1 * q1 + q2 * q2
+    if d2 >= rad * rad:
+        return False, q0, q1, q2, 0.0, 0.0, 0.0
+    d = math.sqrt(d2)
+    if d < 1e-12:                     # at the centre: no direction, push up (deterministic)
+        return True, 0.0, rad, 0.0, 0.0, 1.0, 0.0
+    f = rad / d
+    return True, f * q0, f * q1, f * q2, q0 / d, q1 / d, q2 / d
+
+
+@njit(cache=True, _nrt=False)
+def _collider_hit(c, col_kind, col_index, sph_radius, method,
+                  half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+                  cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                  q0, q1, q2):
+    """(hit, r0, r1, r2, n0, n1, n2): inside test, response point and outward unit contact normal
+    of collider c, all in its query frame (the slow-path form of the test written out in collide)."""
+    idx = col_index[c]
+    if col_kind[c] == KIND_SPHERE:
+        return _sphere_hit(sph_radius[idx], q0, q1, q2)
+    if method != METHOD_NEAREST_PLANE and (abs(q0) > half[idx, 0] or abs(q1) > half[idx, 1] or abs(q2) > half[idx, 2]):
+        return False, q0, q1, q2, 0.0, 0.0, 0.0
+    hit, r0, r1, r2, face = hull_query(
+        half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+        cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+        idx, method, q0, q1, q2)
+    if not hit:
+        return False, q0, q1, q2, 0.0, 0.0, 0.0
+    return True, r0, r1, r2, planes[face, 0], planes[face, 1], planes[face, 2]
+
+
+@njit(cache=True, inline="always")
+def _penetrates(c, col_kind, col_index, sph_radius, method, tq, cw,
+                half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+                cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                px, py, pz):
+    """True if the world point is inside collider c with a real push (world sphere test first)."""
+    dx = px - cw[c, 0]
+    dy = py - cw[c, 1]
+    dz = pz - cw[c, 2]
+    if dx * dx + dy * dy + dz * dz >= cw[c, 4]:
+        return False
+    q0, q1, q2 = apply12(tq, c, px, py, pz)
+    hit, r0, r1, r2, n0, n1, n2 = _collider_hit(
+        c, col_kind, col_index, sph_radius, method,
+        half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+        cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, q0, q1, q2)
+    return hit and (r0 - q0) ** 2 + (r1 - q1) ** 2 + (r2 - q2) ** 2 >= TOUCH_EPS * TOUCH_EPS
+
+
+@njit(cache=True, _nrt=False)
+def _inside_any(col_kind, col_index, sph_radius, method, tq, cw, skip,
+                half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+                cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                px, py, pz):
+    """True if the world point is inside any collider except `skip` (with a real push)."""
+    for c in range(cw.shape[0]):
+        if c != skip and _penetrates(c, col_kind, col_index, sph_radius, method, tq, cw,
+                                     half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes,
+                                     cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                                     px, py, pz):
+            return True
+    return False
+
+
+@njit(cache=True, _nrt=False, inline="always")
+def _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i, friction):
+    """(pushed, px, py, pz): the world position after collider c's response r (query frame, contact
+    normal n) to the point q, with Coulomb friction; moves xp[i] for a fully inelastic contact."""
+    u0 = r0 - q0
+    u1 = r1 - q1
+    u2 = r2 - q2
+    dn = math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+    if dn < TOUCH_EPS:
+        return False, 0.0, 0.0, 0.0
+    depth = u0 * n0 + u1 * n1 + u2 * n2            # the push's normal part: the "normal force"
+    e = PUSH_EPS / dn                              # nudge along the push, strictly outside
+    r0 += e * u0
+    r1 += e * u1
+    r2 += e * u2
+    # displacement relative to the collider over the step (start-of-step position in its frame now)
+    o0, o1, o2 = apply12(tq0, c, xp[i, 0], xp[i, 1], xp[i, 2])
+    v0 = r0 - o0
+    v1 = r1 - o1
+    v2 = r2 - o2
+    vn = v0 * n0 + v1 * n1 + v2 * n2
+    if friction > 0.0:
+        # Coulomb: the tangential travel loses friction * depth (all of it if shorter: static).
+        # Sliding along the contact plane keeps the point outside (convex collider).
+        t0 = v0 - vn * n0
+        t1 = v1 - vn * n1
+        t2 = v2 - vn * n2
+        tl = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        if tl > 0.0:
+            k = min(1.0, friction * max(depth, 0.0) / tl)
+            r0 -= k * t0
+            r1 -= k * t1
+            r2 -= k * t2
+    px, py, pz = apply12(fq, c, r0, r1, r2)
+    if vn > 0.0:
+        # fully inelastic: the push-out must not become an outward Verlet velocity,
+        # so move xp along the (world) normal by the outward relative travel
+        w0, w1, w2 = rotate12(fq, c, n0, n1, n2)
+        xp[i, 0] += vn * w0
+        xp[i, 1] += vn * w1
+        xp[i, 2] += vn * w2
+    return True, px, py, pz
+
+
+EDGE_EPS = 1e-12     # m: slack of the exit-face containment test (rounding is ~1e-17 m here)
+
+
+@njit(cache=True, inline="always")
+def _cached_face(mkind, half, planes, face_edges, src_range, h, f, q0, q1, q2):
+    """(known, inside, r0, r1, r2): the paper's hull query answered from one remembered face f.
+
+    In front of f's plane, q is outside the convex hull (a separating plane). Behind it: the map ray
+    of q (paper A §2.4: from the OBB centre, or q's projection on the cylinder axis, through q)
+    leaves the hull at exactly one point when its source is inside the hull (src_range: the source
+    positions known to be strictly inside); if the ray meets face f's triangle (face_edges: three
+    in-plane inward edge planes) that point is the exit, so q is inside and the point is the
+    response, f the contact face: the same answer as hull_query, from one plane and three edge tests
+    instead of the point location and the cell's face scan. known False: ask hull_query."""
+    if planes[f, 0] * q0 + planes[f, 1] * q1 + planes[f, 2] * q2 > planes[f, 3]:
+        return True, False, q0, q1, q2
+    if mkind[h] == KIND_CYLINDER_MAP:
+        s0 = q0
+        d0 = 0.0
+    else:
+        s0 = 0.0
+        d0 = q0
+    if not (src_range[h, 0] < s0 < src_range[h, 1]):
+        return False, False, q0, q1, q2
+    nd = planes[f, 0] * d0 + planes[f, 1] * q1 + planes[f, 2] * q2
+    z = ZERO_DIR * half[h, 0]
+    if nd <= 0.0 or d0 * d0 + q1 * q1 + q2 * q2 <= z * z:
+        return False, False, q0, q1, q2
+    tau = (planes[f, 3] - planes[f, 0] * s0) / nd
+    r0 = s0 + tau * d0
+    r1 = tau * q1
+    r2 = tau * q2
+    for k in range(0, 12, 4):
+        if face_edges[f, k] * r0 + face_edges[f, k + 1] * r1 + face_edges[f, k + 2] * r2 < face_edges[f, k + 3] - EDGE_EPS:
+            return False, False, q0, q1, q2
+    return True, True, r0, r1, r2
+
+
+# -- overlapping colliders: escape from their union when the pass budget is spent ------------------
+@njit(cache=True, inline="always")
+def _outward(c, col_kind, face_start, planes, idx, tq, px, py, pz):
+    """World unit direction out of collider c at the world point p: sphere, radial from its centre;
+    hull, the normal of the face whose plane p is farthest in front of (the nearest face from inside).
+    Normals go to world by the transpose of tq's linear part (inverse transpose of query -> world)."""
+    q0, q1, q2 = apply12(tq, c, px, py, pz)
+    if col_kind[c] == KIND_SPHERE:
+        n0, n1, n2 = q0, q1, q2
+        if n0 * n0 + n1 * n1 + n2 * n2 < 1e-24:
+            n0, n1, n2 = 0.0, 1.0, 0.0
+    else:
+        best = -np.inf
+        n0 = n1 = n2 = 0.0
+        for f in range(face_start[idx], face_start[idx + 1]):
+            s = planes[f, 0] * q0 + planes[f, 1] * q1 + planes[f, 2] * q2 - planes[f, 3]
+            if s > best:
+                best = s
+                n0 = planes[f, 0]
+                n1 = planes[f, 1]
+                n2 = planes[f, 2]
+    w0 = tq[c, 0] * n0 + tq[c, 4] * n1 + tq[c, 8] * n2
+    w1 = tq[c, 1] * n0 + tq[c, 5] * n1 + tq[c, 9] * n2
+    w2 = tq[c, 2] * n0 + tq[c, 6] * n1 + tq[c, 10] * n2
+    k = 1.0 / max(math.sqrt(w0 * w0 + w1 * w1 + w2 * w2), 1e-300)
+    return w0 * k, w1 * k, w2 * k
+
+
+@njit(cache=True, inline="always")
+def _ray_exit(c, col_kind, face_start, planes, idx, sph_radius, tq, px, py, pz, dx, dy, dz):
+    """Parameter t >= 0 where the world ray p + t d leaves convex collider c (0 if p is not inside).
+    The query frame is affine in world, so t is the same in both frames: q(p + t d) = q(p) + t e."""
+    q0, q1, q2 = apply12(tq, c, px, py, pz)
+    e0, e1, e2 = rotate12(tq, c, dx, dy, dz)
+    if col_kind[c] == KIND_SPHERE:
+        r = sph_radius[idx]
+        a = e0 * e0 + e1 * e1 + e2 * e2
+        b = q0 * e0 + q1 * e1 + q2 * e2
+        cc = q0 * q0 + q1 * q1 + q2 * q2 - r * r
+        if cc >= 0.0 or a <= 0.0:
+            return 0.0
+        return (-b + math.sqrt(max(b * b - a * cc, 0.0))) / a
+    t = np.inf
+    for f in range(face_start[idx], face_start[idx + 1]):
+        nd = planes[f, 0] * e0 + planes[f, 1] * e1 + planes[f, 2] * e2
+        room = planes[f, 3] - (planes[f, 0] * q0 + planes[f, 1] * q1 + planes[f, 2] * q2)
+        if nd > 0.0:
+            t = min(t, room / nd)
+        elif room < 0.0:        # outside this face's half-space and not moving towards it
+            return 0.0
+    return max(t, 0.0) if t < np.inf else 0.0
+
+
+@njit(cache=True, _nrt=False)
+def _escape_along(col_kind, col_index, sph_radius, method, tq, cw,
+                  half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+                  cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                  px, py, pz, dx, dy, dz):
+    """(ok, s): the distance s along the world unit direction d at which p + s d is outside every
+    collider (the detection's inside test), walking from exit to exit: a ray leaves a convex
+    collider once and never re-enters it, so each round passes at least one collider for good and
+    nc + 1 rounds suffice (ok False only on round-off)."""
+    nc = cw.shape[0]
+    s = 0.0
+    for _ in range(nc + 1):
+        x0 = px + s * dx
+        x1 = py + s * dy
+        x2 = pz + s * dz
+        step = -1.0
+        for c in range(nc):
+            if _penetrates(c, col_kind, col_index, sph_radius, method, tq, cw,
+                           half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+                           cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, x0, x1, x2):
+                step = max(step, _ray_exit(c, col_kind, face_start, planes, col_index[c], sph_radius, tq,
+                                           x0, x1, x2, dx, dy, dz))
+        if step < 0.0:
+            return True, s
+        s += step + PUSH_EPS
+    return False, s
+
+
+@njit(cache=True, inline="always")
+def _settle(xp, i, px, py, pz, wx, wy, wz):
+    """After the escape p -> w: fully inelastic along its direction d (as _push): xp[i] moves along
+    d by the outward part of the travel w - xp[i], so the escape is no outward Verlet velocity."""
+    dx = wx - px
+    dy = wy - py
+    dz = wz - pz
+    dl = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if dl <= 0.0:
+        return
+    dx /= dl
+    dy /= dl
+    dz /= dl
+    vn = (wx - xp[i, 0]) * dx + (wy - xp[i, 1]) * dy + (wz - xp[i, 2]) * dz
+    if vn > 0.0:
+        xp[i, 0] += vn * dx
+        xp[i, 1] += vn * dy
+        xp[i, 2] += vn * dz
+
+
+@njit(cache=True, _nrt=False)
+def escape_union(c, last, col_kind, col_index, sph_radius, method, tq, cw,
+                 half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+                 cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                 px, py, pz):
+    """(ok, x, y, z): a world point outside every collider near p, for a particle still inside
+    collider c when collide's pass budget is spent (pushed back and forth between overlapping
+    colliders; `last` the collider of its last push, -1 if none). Candidate directions: out of
+    `last` at p (the last push), out of c, their bisector, and the four directions perpendicular to
+    the first (the crease between two colliders pressing from opposite sides); along each, the
+    exit of the union of the colliders (_escape_along); the shortest wins (first on ties)."""
+    ax, ay, az = _outward(c, col_kind, face_start, planes, col_index[c], tq, px, py, pz)
+    if last >= 0:
+        bx, by, bz = _outward(last, col_kind, face_start, planes, col_index[last], tq, px, py, pz)
+    else:
+        bx, by, bz = ax, ay, az
+    # a unit vector perpendicular to b: cross with the world axis least aligned with it
+    if abs(bx) <= abs(by) and abs(bx) <= abs(bz):
+        ux, uy, uz = 0.0, bz, -by
+    elif abs(by) <= abs(bz):
+        ux, uy, uz = -bz, 0.0, bx
+    else:
+        ux, uy, uz = by, -bx, 0.0
+    k = 1.0 / math.sqrt(ux * ux + uy * uy + uz * uz)
+    ux *= k
+    uy *= k
+    uz *= k
+    vx = by * uz - bz * uy
+    vy = bz * ux - bx * uz
+    vz = bx * uy - by * ux
+    mx = ax + bx
+    my = ay + by
+    mz = az + bz
+    ml = math.sqrt(mx * mx + my * my + mz * mz)
+    best = np.inf
+    ex = ey = ez = 0.0
+    for kcand in range(7):
+        if kcand == 0:
+            dx, dy, dz = bx, by, bz
+        elif kcand == 1:
+            dx, dy, dz = ax, ay, az
+        elif kcand == 2:
+            if ml < 0.1:      # (nearly) opposite: no bisector
+                continue
+            dx, dy, dz = mx / ml, my / ml, mz / ml
+        elif kcand == 3:
+            dx, dy, dz = ux, uy, uz
+        elif kcand == 4:
+            dx, dy, dz = -ux, -uy, -uz
+        elif kcand == 5:
+            dx, dy, dz = vx, vy, vz
+        else:
+            dx, dy, dz = -vx, -vy, -vz
+        ok, s = _escape_along(col_kind, col_index, sph_radius, method, tq, cw,
+                              half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+                              cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                              px, py, pz, dx, dy, dz)
+        if ok and s < best:
+            best = s
+            ex = dx
+            ey = dy
+            ez = dz
+    if best == np.inf:
+        return False, px, py, pz
+    return True, px + best * ex, py + best * ey, pz + best * ez
+
+
+@njit(cache=True, parallel=True, _nrt=False)
+def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
+            grid_start, grid_items, grid_box, grid_dims, face_edges, src_range, friction, passes, corrected, inside,
+            speed2, contact, h):
+    """Collision detection and response of every free particle against every collider.
+
+    Per particle: the colliders listed in its grid cell (build_grid) whose world bounding sphere
+    holds it are tested in their query frame (spheres: paper eq. 5-6; hulls: OBB rejection, then
+    stages.maps.kernels.hull_query with `method`). After a push by collider c the particle is outside c
+    (by PUSH_EPS; friction slides it along the contact plane); the colliders of the cell of its new
+    position are then visited cyclically after c (world sphere test first) until every one has been
+    checked at the current position without a push, at most `passes` x (number of colliders) visits.
+    A particle still inside one when the budget is spent is being pushed back and forth between
+    overlapping colliders: `escape_union` moves it to a point outside all of them (no friction,
+    inelastic along the escape). The response gets Coulomb friction relative to the collider: its
+    tangential travel over the step loses up to `friction` times the push's normal depth.
+    corrected[i] |= 1 if the particle was pushed; inside[i] = 1 if it is still inside a collider at
+    the end; speed2[i] = |x - xp|^2 / h^2 at the end (divergence check).
+    Temporal coherence (METHOD_PAPER): contact (N, C) int32 holds per particle and hull the face of
+    its last verdict (the exit face of a push, or a separating face), -1 unknown; the next query of
+    that hull first tries that face (_cached_face: the same answer when it gives one), which is right
+    again for a particle resting on, sliding over or hovering near the hull. face_edges (F, 12),
+    src_range (H, 2): see _cached_face and stages/sim/simulate.py.
+    """
+    (half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base, cell_start, cell_tris,
+     loc_base, loc_x, loc_start, loc_y, loc_face) = query_arrays(m)
+    nc = cw.shape[0]
+    ih2 = 1.0 / (h * h)
+    for i in prange(x.shape[0]):   # particles are independent: any thread count, same result
+        px = x[i, 0]
+        py = x[i, 1]
+        pz = x[i, 2]
+        inside[i] = 0
+        b = grid_cell(grid_box, grid_dims, px, py, pz) if inv_mass[i] > 0.0 else -1
+        if b >= 0:
+            # one visiting loop (a single inlined query site keeps the loop small):
+            # stage 0, the cell's colliders; stage 1, after a push, the others cyclically until all
+            # were seen without a push; stage 2, the budget spent: only detect (no push).
+            e = grid_start[b]
+            e1 = grid_start[b + 1]
+            stage = 0
+            last = -1
+            streak = 0
+            budget = passes * nc
+            c = 0
+            k = k0 = k1 = 0             # stages 1-2: the cell list of the current position, its cursor
+            while True:
+                if stage == 0:
+                    if e == e1:
+                        if last < 0 or nc == 1:
+                            break
+                        stage = 1
+                        streak = -1
+                        continue
+                    c = grid_items[e]
+                    e += 1
+                else:
+                    if streak < 0:      # a new position: cycle over its cell's colliders (no other can hold it)
+                        bb = grid_cell(grid_box, grid_dims, px, py, pz)
+                        if bb < 0:
+                            break
+                        k0 = grid_start[bb]
+                        k1 = grid_start[bb + 1]
+                        k = k1 - 1      # the cursor before the first collider after `last` (cyclic)
+                        streak = 0
+                        for j in range(k0, k1):
+                            if grid_items[j] <= last:
+                                k = j
+                                streak = int(grid_items[j] == last)     # `last` is left outside by its push: seen
+                    if streak >= k1 - k0:
+                        break
+                    k = k + 1 if k + 1 < k1 else k0
+                    c = grid_items[k]
+                    if stage == 1:
+                        budget -= 1
+                        if budget < 0:
+                            stage = 2
+                            streak = -1
+                            continue
+                dx = px - cw[c, 0]
+                dy = py - cw[c, 1]
+                dz = pz - cw[c, 2]
+                if dx * dx + dy * dy + dz * dz < cw[c, 4]:
+                    q0, q1, q2 = apply12(tq, c, px, py, pz)
+                    idx = col_index[c]
+                    hit = False
+                    r0 = r1 = r2 = n0 = n1 = n2 = 0.0
+                    if col_kind[c] == KIND_SPHERE:
+                        hit, r0, r1, r2, n0, n1, n2 = _sphere_hit(sph_radius[idx], q0, q1, q2)
+                    elif method == METHOD_NEAREST_PLANE or (abs(q0) <= half[idx, 0] and abs(q1) <= half[idx, 1]
+                                                            and abs(q2) <= half[idx, 2]):
+                        known = False
+                        face = contact[i, c]
+                        if method == METHOD_PAPER and face >= 0:
+                            known, hit, r0, r1, r2 = _cached_face(mkind, half, planes, face_edges, src_range, idx,
+                                                                  face, q0, q1, q2)
+                        if not known:
+                            hit, r0, r1, r2, face = hull_query(
+                                half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+                                cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                                idx, method, q0, q1, q2)
+                            if face >= 0:
+                                contact[i, c] = face
+                        if hit:
+                            n0 = planes[face, 0]
+                            n1 = planes[face, 1]
+                            n2 = planes[face, 2]
+                    if hit:
+                        if stage == 2:
+                            if (r0 - q0) ** 2 + (r1 - q1) ** 2 + (r2 - q2) ** 2 >= TOUCH_EPS * TOUCH_EPS:
+                                # budget spent between overlapping colliders: leave their union
+                                ok, wx, wy, wz = escape_union(
+                                    c, last, col_kind, col_index, sph_radius, method, tq, cw,
+                                    half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes,
+                                    cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                                    px, py, pz)
+                                if ok:
+                                    _settle(xp, i, px, py, pz, wx, wy, wz)
+                                    px = wx
+                                    py = wy
+                                    pz = wz
+                                    last = c
+                                else:
+                                    inside[i] = 1
+                                break
+                        else:
+                            pushed, wx, wy, wz = _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i, friction)
+                            if pushed:
+                                px = wx
+                                py = wy
+                                pz = wz
+                                last = c
+                                streak = -1
+                                continue
+                streak += 1
+            if last >= 0:
+                corrected[i] = 1
+                x[i, 0] = px
+                x[i, 1] = py
+                x[i, 2] = pz
+        vx = px - xp[i, 0]
+        vy = py - xp[i, 1]
+        vz = pz - xp[i, 2]
+        speed2[i] = (vx * vx + vy * vy + vz * vz) * ih2
+
+
+@njit(cache=True, _nrt=False)
+def count_inside(x, inv_mass, m, method, col_kind, col_index, sph_radius, tq, cw, inside):
+    """inside[i] = 1 if free particle i is inside any collider (no response)."""
+    (half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base, cell_start, cell_tris,
+     loc_base, loc_x, loc_start, loc_y, loc_face) = query_arrays(m)
+    for i in range(x.shape[0]):
+        inside[i] = 0
+        if inv_mass[i] > 0.0:
+            inside[i] = _inside_any(
+                col_kind, col_index, sph_radius, method, tq, cw, -1,
+                half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
+                cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, x[i, 0], x[i, 1], x[i, 2])

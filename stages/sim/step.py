@@ -1,0 +1,129 @@
+"""The cloth step as a short loop over named phases (run_steps), and whole chunks of frames (run_frames).
+
+Layout: all garments concatenated into one particle system; flat float64 / int32 arrays.
+x (N, 3) current positions, xp (N, 3) previous positions (Verlet), both in the relative frame.
+Poses: fwd (J, 4, 4) bone-local -> relative frame at the END of the step, inv (J, 4, 4) its inverse,
+inv0 (J, 4, 4) the inverse at the START of the step (for friction relative to a moving collider).
+
+Phases, one module each: stages.sim.forces (aerodynamic forces), stages.sim.integrate (Verlet,
+gravity, attachments), stages.sim.springs (spring corrections and tethers), stages.sim.collider_grid
+(collider frames, broad phase), stages.sim.body_collide (colliders).
+
+Speed (issue 6): a whole chunk of frames runs in one call (`run_frames`): nothing is allocated and
+no Python runs between steps. The per-step phases are parallel loops (prange) over disjoint
+particles / triangles / spring blocks, so the result is the same for any thread count (OpenMP
+regions cost ~1 us each; the caller picks the threads, 1 by default). Hot kernels are compiled with
+`_nrt=False`: numba otherwise increments / decrements (atomically) the reference count of every
+array argument of each helper inlined into the loop, which cost more than the hull query itself.
+
+Cloth-side argument tuples (built once by simulate.py, unpacked for free inside njit):
+    cloth = (x, xp, inv_mass, attach_joint, attach_local, ij, sp, group_start, ti, ta, tl, tris,
+             tri_mass, tri_force, vt_table, x4)
+    cols  = (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
+             tq, tq0, fq, cw, grid_start, grid_items, grid_runs, grid_box, grid_dims, face_edges, src_range)
+    prm   = (h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method)
+    flags = (corrected, inside, speed2, contact)
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.sim.body_collide import collide
+from stages.sim.collider_grid import build_grid, collider_frames
+from stages.sim.forces import aero_forces
+from stages.sim.integrate import integrate
+from stages.sim.simd import cycles
+from stages.sim.springs import correct_springs
+
+# the phases are compiled into the step loop: an edit of any of them must invalidate its cache
+NUMBA_CACHE_DEPENDS = ("stages.sim.body_collide", "stages.sim.collider_grid", "stages.sim.forces",
+                       "stages.sim.integrate", "stages.sim.simd", "stages.sim.springs", "stages.maps.kernels",
+                       "stages.maps.types", "stages.affine", "stages.fastmath")
+
+# timer slots (CPU cycles; simulate.py converts to seconds)
+T_INTEGRATE = 0
+T_CONSTRAINTS = 1
+T_COLLISIONS = 2
+
+
+# -- steps and frames ------------------------------------------------------------------------------
+@njit(cache=True, _nrt=False)
+def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, k0, k1, flags, timers):
+    """Steps k0..k1-1 in the paper's order: forces, Verlet (+ attachments), spring corrections,
+    collisions. Per step k: fwd[k] / inv[k] (J, 4, 4) the pose at its end, inv0[k] at its start;
+    d_prev[k] / d_next[k] (3,) the root translation over the previous / this step.
+    timers (3,) int64 accumulate cycles of integrate / constraints / collisions."""
+    (x, xp, inv_mass, attach_joint, attach_local, ij, sp, group_start, ti, ta, tl, tris, tri_mass,
+     tri_force, vt_table, x4) = cloth
+    (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
+     tq, tq0, fq, cw, grid_start, grid_items, grid_runs, grid_box, grid_dims, face_edges, src_range) = cols
+    h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method = prm
+    corrected, inside, speed2, contact = flags
+    for k in range(k0, k1):
+        t0 = cycles()
+        if use_aero:
+            aero_forces(x, xp, tri_mass, tris, h, s, d_prev[k], wind, k_drag, k_lift, tri_force)
+        integrate(x, xp, inv_mass, attach_joint, attach_local, fwd[k], h, gravity, damping, s,
+                  d_prev[k], d_next[k], use_aero, tri_force, vt_table)
+        t1 = cycles()
+        correct_springs(x, x4, ij, sp, group_start, ti, ta, tl, iterations)
+        t2 = cycles()
+        collider_frames(fwd[k], inv[k], inv0[k], m, col_joint, col_kind, col_index, col_bcenter, col_bradius,
+                        sph_center, tq, tq0, fq, cw)
+        build_grid(m, method, col_kind, col_index, sph_radius, tq, fq, cw, grid_start, grid_items, grid_runs, grid_box,
+                   grid_dims)
+        collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
+                grid_start, grid_items, grid_box, grid_dims, face_edges, src_range, friction, passes, corrected, inside,
+                speed2, contact, h)
+        t3 = cycles()
+        timers[T_INTEGRATE] += t1 - t0
+        timers[T_CONSTRAINTS] += t2 - t1
+        timers[T_COLLISIONS] += t3 - t2
+
+
+@njit(cache=True, _nrt=False)
+def record_frame(x, flags, max_speed2, goff, pos, pen, counts):
+    """Store one frame: pos (N, 3) float32 <- x; pen (G,) particles inside a collider per garment
+    (garment g = goff[g]..goff[g+1]); counts = (corrected particles, max speed^2).
+    Returns False (storing nothing) if a particle is non-finite or faster than sqrt(max_speed2)."""
+    corrected, inside, speed2, _ = flags
+    vmax = 0.0
+    for i in range(x.shape[0]):
+        v = speed2[i]
+        if not (v <= max_speed2) or not (np.isfinite(x[i, 0]) and np.isfinite(x[i, 1]) and np.isfinite(x[i, 2])):
+            return False
+        vmax = max(vmax, v)
+    nc = 0
+    for g in range(goff.size - 1):
+        n_in = 0
+        for i in range(goff[g], goff[g + 1]):
+            pos[i, 0] = x[i, 0]
+            pos[i, 1] = x[i, 1]
+            pos[i, 2] = x[i, 2]
+            n_in += inside[i]
+            nc += corrected[i]
+        pen[g] = n_in
+    counts[0] = nc
+    counts[1] = vmax
+    return True
+
+
+@njit(cache=True, _nrt=False)
+def run_frames(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, substeps, max_speed2,
+               goff, pos, pen, counts, step_cycles, flags, timers):
+    """Frames 0..F-1 of a chunk (F = pos.shape[0]), `substeps` steps each (pose arrays: F * substeps),
+    each recorded with record_frame into pos[f], pen[f], counts[f]; step_cycles[f] the frame's
+    stepping cycles (recording excluded). Returns the number of frames done: F, or the index of the
+    first frame that diverged (not recorded; the state is left as it diverged)."""
+    corrected = flags[0]
+    for f in range(pos.shape[0]):
+        corrected[:] = 0
+        c0 = cycles()
+        run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next,
+                  f * substeps, (f + 1) * substeps, flags, timers)
+        step_cycles[f] = cycles() - c0
+        if not record_frame(cloth[0], flags, max_speed2, goff, pos[f], pen[f], counts[f]):
+            return f
+    return pos.shape[0]
