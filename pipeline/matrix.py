@@ -15,6 +15,7 @@ floor at every frame.
 from __future__ import annotations
 
 import os
+import re
 import time
 import warnings
 from pathlib import Path
@@ -88,7 +89,9 @@ def run_pair(prepared: Prepared, scene) -> dict:
             garments, builds = build_scene_garments(scene, p.character, p.motion, p.colliders, p.maps)
             result = simulate(p.character, p.motion, p.colliders, p.maps, garments, sim_params(scene))
         except (SceneError, InputError, ContractError, SimulationDiverged) as err:   # what `run` exits 2 on
-            return {"status": f"error: {err}", "seconds": time.perf_counter() - t0}
+            # the scene and garment are the row: keep what went wrong
+            return {"status": "error: " + re.sub(r"^.*? on '[^']*': ", "", str(err)), "message": str(err),
+                    "seconds": time.perf_counter() - t0}
     g = garments[0]
     log, build = builds[g.name]
     fit = garment_fit(p.character, p.skinned[0], g.positions, build.fit_vertices, result.garments[0], p.floor_y)
