@@ -219,9 +219,14 @@ def scene_pattern(scene: Scene, index: int, character, motion, colliders):
     sized for is a SceneError naming the scene file and the garment."""
     from stages.checks import ContractError
     from stages.errors import InputError
-    from stages.garments.library import garment_measurements, library_pattern
+    from stages.garments.library import ANCHORS, garment_measurements, library_pattern
+    from stages.rig.humanoid import humanoid_joints
     g = scene["garments"][index]
     check_pattern(scene, index)
+    try:
+        humanoid_joints(character).require(ANCHORS.get(g["kind"], ()), f"garment {g['name']!r}")
+    except InputError as err:
+        raise SceneError(f"{_garment_where(scene, index, character)}: {err.problem}") from None
     try:
         return library_pattern(g["kind"], garment_measurements(character, colliders, motion),
                                edge_length=g["edge_length"], name=g["name"],

@@ -17,6 +17,9 @@ from stages.garments.patterns import (Panel, Pattern, PatternAttachment, Placeme
 from stages.garments.types import COMMON_BONE
 
 _WAISTBAND = (SeamSide("front", "waist"), SeamSide("back", "waist"))
+# the humanoid parts (stages.rig.humanoid.HumanoidJoints) each kind is placed on
+ANCHORS = {"tshirt": ("arm_l", "arm_r", "neck"), "shorts": ("leg_l", "leg_r"), "trousers": ("leg_l", "leg_r"),
+           "cape": ("neck",)}
 KINDS = ("tshirt", "short_skirt", "long_skirt", "shorts", "trousers", "cape", "square")
 
 

@@ -155,16 +155,16 @@ class HumanoidJoints:
         missing = [p for p in parts if (getattr(self, p) is None or getattr(self, p) == -1)]
         if not missing:
             return
-        looked = {"arm": ARM_CHAINS, "leg": LEG_CHAINS}
-        hints = []
-        for p in missing:
-            kind = p.split("_")[0]
-            if kind in looked:
-                hints.append(f"{p}: a chain named like " + " or ".join("/".join(c) for c in looked[kind])
-                             + f", or a {kind} found by the skeleton's shape")
+        kinds = sorted({p.split("_")[0] for p in missing})
+        looked = []
+        for kind in kinds:
+            if kind in ("arm", "leg"):
+                chains = ARM_CHAINS if kind == "arm" else LEG_CHAINS
+                looked.append(f"{kind}s named like " + ", ".join("/".join(c) for c in chains)
+                              + " (right side mirrored) or found by the skeleton's shape")
             else:
-                hints.append(f"{p}: the spine joint above the arms' branch point")
-        raise InputError(what, f"cannot find the humanoid's {', '.join(missing)} (looked for {'; '.join(hints)}); "
+                looked.append("the neck: the spine joint above where the arms branch off")
+        raise InputError(what, f"cannot find the humanoid's {', '.join(missing)}; looked for {'; '.join(looked)}; "
                                f"the rig's joints: {', '.join(self.names)}")
 
 
