@@ -370,10 +370,33 @@ def sim_params(scene: Scene):
                      body_audit=sp["body_audit"], tethers=sp["tethers"])
 
 
+def blueprint_of(scene: Scene, character, motion, skinned, colliders, coverage_ran: bool, obstacles, garments,
+                 builds, result):
+    """The recording's blueprint (pipeline.blueprint) for what this run logged: the cameras frame
+    the body over every frame, the simulated garments and the obstacles (a flat one, a floor, only
+    where the rest stands on it)."""
+    from pipeline import blueprint as bp
+    body = bp.hull_points(skinned + motion.root_translation[:, None, :])
+    framed = [body] + ([t.positions for t in result.garments] if result is not None else [])
+    names = []
+    if obstacles is not None:
+        for ob in obstacles.obstacles:
+            names.append(ob.name)
+            if np.ptp(ob.vertices, axis=0).min() > 1e-6:   # a solid: frame it; a plane (a floor): not
+                framed.append(ob.vertices)
+    sewing = [np.concatenate([b.flat_positions, b.placed_positions]) for _, b in builds.values()]
+    return bp.build(bp.Contents(
+        fps=1.0 / scene["simulation"]["dt"], forward=bp.facing(character, motion), scene_box=bp.hull_points(*framed),
+        body_box=body, bind_box=bp.hull_points(character.vertices),
+        garments=[t.name for t in result.garments] if result is not None else [], sewn=list(builds),
+        sewing_box=bp.hull_points(*sewing) if sewing else None, obstacles=names, hulls=[h.name for h in colliders.hulls],
+        spheres=[sp.name for sp in colliders.spheres], coverage=coverage_ran))
+
+
 def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = None,
               progress: bool = True, on_stage=None) -> RunSummary:
     """Run every stage the scene needs and write the recording atomically."""
-    from pipeline import logs
+    from pipeline import logs, style
     from pipeline.progress import Progress
     from pipeline.recording import atomic_recording
     from stages.rig.skinning import skin
@@ -440,7 +463,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             r.sizes.update(maps=len(maps.maps))
         summary.tables["map cells"] = logs.log_maps(rec, character, motion, maps)
 
-        obstacles = None
+        coverage_ran = "collider coverage" in summary.tables
+        obstacles, garments, builds, result = None, [], {}, None
         if s["obstacles"]:
             say("obstacles")
             with _Timer(summary, "obstacles") as r:
@@ -458,7 +482,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                     r.sizes[f"{name} sewing"] = (f"{log.iterations} it in {log.seconds:.2f} s, gap {log.gap_max[-1] * 1000:.1f} mm, "
                                                  f"{'converged' if log.converged else 'NOT converged'}")
             for name, (log, build) in builds.items():
-                logs.log_sewing(rec, name, log, build, next(g for g in garments if g.name == name))
+                i = next(k for k, g in enumerate(garments) if g.name == name)
+                logs.log_sewing(rec, name, log, build, garments[i], color=style.fabric(i))
             say("simulation")
             from stages.sim import simulate
             sp = s["simulation"]
@@ -475,5 +500,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             summary.tables["garment fit"] = garment_fit_report(character, motion, skinned, garments, builds, result)
             logs.log_text(rec, "sim/fit", summary.tables["garment fit"])
         logs.log_text(rec, "meta/summary", summary.markdown())
+        rec.send_blueprint(blueprint_of(scene, character, motion, skinned, colliders, coverage_ran,
+                                        obstacles, garments, builds, result), make_active=True, make_default=True)
     summary.output = out
     return summary
