@@ -178,9 +178,11 @@ class Contents:
 
 
 # aspect ratios (width / height) of the views in a 1920 x 1080 window with the side panels collapsed
-ASPECT_OVERVIEW = 1.3     # 3/5 of the width beside the plots
-ASPECT_HALF = 1.05        # the rig tab's two views side by side
-ASPECT_WIDE = 1.6         # a 3D view beside a report column
+# (measured on snapshots: 1145 x 952 beside a column of 2/5, 960 x 952 for half, 1920 x 952 whole)
+ASPECT_OVERVIEW = 1.15    # 3/5 of the width beside the plots
+ASPECT_HALF = 0.95        # the rig tab's two views side by side
+ASPECT_WIDE = 1.15        # a 3D view beside a report column (3/5)
+ASPECT_FULL = 1.9         # a 3D view alone in its tab
 
 
 def strain_contents(garments) -> list[str]:
@@ -188,19 +190,19 @@ def strain_contents(garments) -> list[str]:
     return [f"+ /sim/{g}/strain/**" for g in garments]
 
 
-def scene_view(c: Contents) -> rrb.Spatial3DView:
+def scene_view(c: Contents, aspect: float) -> rrb.Spatial3DView:
     contents = ["+ /rig/mesh"]
     for g in c.garments:
         contents += [f"+ /sim/{g}/mesh", f"+ /sim/{g}/attached"]
     contents += [f"+ /obstacles/{o}/mesh" for o in c.obstacles]
     return rrb.Spatial3DView(name="scene", origin="/", contents=contents,
-                             eye_controls=front_three_quarter(c.scene_box, c.forward, aspect=ASPECT_OVERVIEW).controls())
+                             eye_controls=front_three_quarter(c.scene_box, c.forward, aspect=aspect).controls())
 
 
 def overview(c: Contents):
-    scene = scene_view(c)
-    if not c.garments:
-        return rrb.Horizontal(scene, name="overview")
+    if not c.garments:   # nothing simulated: the scene alone, no empty plots
+        return rrb.Horizontal(scene_view(c, ASPECT_FULL), name="overview")
+    scene = scene_view(c, ASPECT_OVERVIEW)
     plots = rrb.Vertical(
         rrb.TimeSeriesView(name="particles inside the body / a collider", origin="/sim/penetrations",
                            contents=["+ /sim/penetrations/**"], plot_legend=rrb.Corner2D.LeftTop),
@@ -249,7 +251,7 @@ def build(c: Contents) -> rrb.Blueprint:
     if c.maps:
         tabs.append(rrb.Spatial3DView(name="maps", origin="/maps",
                                       eye_controls=front_three_quarter(dilated(c.body_box, 0.06), c.forward,
-                                                                       aspect=ASPECT_WIDE).controls()))
+                                                                       aspect=ASPECT_FULL).controls()))
     if c.sewn:
         tabs.append(rrb.Horizontal(
             rrb.Spatial3DView(name="sewing: flat panels, placed, sewn", origin="/garments",
@@ -263,7 +265,7 @@ def build(c: Contents) -> rrb.Blueprint:
         contents += ["+ /sim/contacts/obstacles/points"]
         tabs.append(rrb.Spatial3DView(name="obstacles", origin="/", contents=contents,
                                       eye_controls=front_three_quarter(c.scene_box, c.forward,
-                                                                       aspect=ASPECT_WIDE).controls()))
+                                                                       aspect=ASPECT_FULL).controls()))
     if c.garments:
         tabs.append(rrb.Vertical(
             rrb.TimeSeriesView(name="step time (ms)", origin="/sim/step_ms"),
