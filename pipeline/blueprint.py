@@ -254,11 +254,12 @@ def build(c: Contents) -> rrb.Blueprint:
                                                                        aspect=ASPECT_FULL).controls()))
     if c.sewn:
         tabs.append(rrb.Horizontal(
-            rrb.Spatial3DView(name="sewing: flat panels, placed, sewn", origin="/garments",
+            rrb.Spatial3DView(name="sewing: flat panels, placed on the body, sewn (progress and seam gap: timeline "
+                                   "sewing_iteration)", origin="/garments",
                               eye_controls=front_three_quarter(c.bind_box if c.sewing_box is None else c.sewing_box, c.forward,
                                                                aspect=ASPECT_WIDE).controls()),
-            rrb.TimeSeriesView(name="seam gap per sewing iteration (timeline sewing_iteration)", origin="/garments",
-                               contents=[f"+ /garments/{g}/sewing/**" for g in c.sewn]),
+            rrb.Vertical(*[rrb.TextDocumentView(name=f"{g}: sewing report", origin=f"/garments/{g}/report")
+                           for g in c.sewn]),
             column_shares=[3, 2], name="garments"))
     if c.obstacles:
         contents = [f"+ /obstacles/{o}/**" for o in c.obstacles] + [f"+ /sim/{g}/mesh" for g in c.garments]
@@ -274,12 +275,12 @@ def build(c: Contents) -> rrb.Blueprint:
             name="performance"))
     tabs.append(rrb.Vertical(
         rrb.TextDocumentView(name="summary", origin="/meta/summary"),
-        rrb.TextDocumentView(name="scene", origin="/meta/scene"),
+        rrb.TextDocumentView(name="scene file", origin="/meta/scene"),
         rrb.TextDocumentView(name="provenance", origin="/meta/provenance"),
         name="meta"))
     return rrb.Blueprint(
         rrb.Tabs(*tabs, active_tab=0),
-        rrb.TimePanel(timeline="frame", play_state="playing", loop_mode="all", fps=float(c.fps), state="collapsed"),
+        rrb.TimePanel(timeline="frame", play_state="playing", loop_mode="all", fps=round(float(c.fps), 3), state="collapsed"),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
     )

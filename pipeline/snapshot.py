@@ -90,11 +90,12 @@ class Viewer:
 
     def __init__(self, *, timeout: float = 60.0):
         self.exe = viewer_binary()
+        env = dict(os.environ)
+        env.setdefault("WGPU_BACKEND", "vulkan")
+        check_vulkan(env)
         self.scratch = tempfile.TemporaryDirectory(prefix="snapshot-")
-        self.env = dict(os.environ, XDG_DATA_HOME=self.scratch.name, XDG_CONFIG_HOME=self.scratch.name,
+        self.env = dict(env, XDG_DATA_HOME=self.scratch.name, XDG_CONFIG_HOME=self.scratch.name,
                         XDG_CACHE_HOME=self.scratch.name)
-        self.env.setdefault("WGPU_BACKEND", "vulkan")
-        check_vulkan(self.env)
         self.timeout = timeout
         self.proc = None
         self.log_path = Path(self.scratch.name) / "viewer.log"
@@ -178,11 +179,12 @@ def snapshot(rrd: Path, frames: list[int], out: Path, *, tab: str | None = None,
     rrd = Path(rrd).resolve()
     if not rrd.is_file():
         raise SnapshotError(f"{rrd}: no such recording")
+    viewer = Viewer()   # checks the binary and Vulkan before anything is written
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     stem = rrd.stem + (f"_{tab}" if tab else "")
     written = []
-    with Viewer() as viewer:
+    with viewer:
         v = viewer.client
         v.open(str(rrd))
         deadline = time.monotonic() + 120
