@@ -139,18 +139,21 @@ def front_three_quarter(points, forward, *, aspect: float, margin: float = 0.06,
 
 
 def facing(character, motion) -> np.ndarray:
-    """The character's forward direction (horizontal unit vector) at frame 0: from its hips (left
-    minus right, crossed with up); the walk's direction when the hips are not found; +Z (glTF's
-    front) otherwise."""
+    """The way the character faces over the clip (horizontal unit vector): its hips' left-to-right
+    axis crossed with up, averaged over the frames (a character that turns into its walk after a
+    blend from the bind pose is seen from the front of the walk); the walk's direction when the hips
+    are not found; +Z (glTF's front) otherwise."""
     try:
         from stages.rig.humanoid import humanoid_joints
         hj = humanoid_joints(character)
         if hj.leg_l and hj.leg_r:
-            p = motion.joint_world[0, :, :3, 3]
-            f = np.cross(p[hj.leg_l[0]] - p[hj.leg_r[0]], UP) * [1, 0, 1]
-            if np.linalg.norm(f) > 1e-6:
+            p = motion.joint_world[:, :, :3, 3]
+            f = np.cross(p[:, hj.leg_l[0]] - p[:, hj.leg_r[0]], UP) * [1, 0, 1]
+            f = f / np.maximum(np.linalg.norm(f, axis=1, keepdims=True), 1e-9)
+            f = f.mean(0)
+            if np.linalg.norm(f) > 1e-3:
                 return f / np.linalg.norm(f)
-    except Exception:   # a non-humanoid rig: fall back below
+    except Exception:   # a rig without two legs: fall back below
         pass
     walk = (motion.root_translation[-1] - motion.root_translation[0]) * [1, 0, 1]
     if np.linalg.norm(walk) > 0.2:

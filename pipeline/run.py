@@ -373,11 +373,17 @@ def sim_params(scene: Scene):
 def blueprint_of(scene: Scene, character, motion, skinned, colliders, coverage_ran: bool, obstacles, garments,
                  builds, result):
     """The recording's blueprint (pipeline.blueprint) for what this run logged: the cameras frame
-    the body over every frame, the simulated garments and the obstacles (a flat one, a floor, only
-    where the rest stands on it)."""
+    the body over every frame, the simulated garments (down to 25 cm below the floor) and the solid
+    obstacles (not a floor plane)."""
     from pipeline import blueprint as bp
-    body = bp.hull_points(skinned + motion.root_translation[:, None, :])
-    framed = [body] + ([t.positions for t in result.garments] if result is not None else [])
+    world = skinned + motion.root_translation[:, None, :]
+    body = bp.hull_points(world)
+    framed = [body]
+    if result is not None:
+        # cloth that falls off the body and through the (absent) floor is followed only to just below
+        # it: framing a fall of metres would shrink the character to a speck
+        floor = float(world[..., 1].min()) - 0.25
+        framed += [np.maximum(t.positions, [-np.inf, floor, -np.inf]) for t in result.garments]
     names = []
     if obstacles is not None:
         for ob in obstacles.obstacles:
