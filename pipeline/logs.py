@@ -330,7 +330,7 @@ def log_obstacles(rec: rr.RecordingStream, obstacles, times: np.ndarray, *, kdop
     otherwise), at obstacles/<name>/kdop."""
     from stages.obstacles import kdop_box, kdop_wireframe
     tree = obstacles.tree
-    for ob in obstacles.obstacles:
+    for i, ob in enumerate(obstacles.obstacles):
         base = f"obstacles/{ob.name}"
         c = style.OBSTACLE[:3]
         rec.log(f"{base}/mesh", rr.Mesh3D(vertex_positions=ob.vertices.astype(np.float32),
