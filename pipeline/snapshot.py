@@ -146,8 +146,9 @@ class Viewer:
 def _tab_views(bp: dict, tab: str | None) -> tuple[str | None, list[str], str | None]:
     """(tabs container path, view ids in the chosen tab depth first, the tab's entry); tab None:
     the active one. A blueprint without tabs: every view."""
-    def kids(path):
-        return bp.get(path, {}).get("ContainerBlueprint", {}).get("contents", [])
+    def kids(path):   # the viewer reports a single entry as a string, not a list
+        c = bp.get(path, {}).get("ContainerBlueprint", {}).get("contents", [])
+        return [c] if isinstance(c, str) else list(c)
     tabs = next((p for p, v in bp.items() if v.get("ContainerBlueprint", {}).get("container_kind") == "Tabs"), None)
     if tabs is None:
         if tab is not None:
