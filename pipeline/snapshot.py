@@ -101,6 +101,13 @@ class Viewer:
         self.log_path = Path(self.scratch.name) / "viewer.log"
 
     def __enter__(self):
+        try:
+            return self._start()
+        except BaseException:   # an error or Ctrl-C while it starts: `with` would not call __exit__
+            self.__exit__(None, None, None)
+            raise
+
+    def _start(self):
         from rerun.experimental import ViewerClient
         port = free_port()
         log = open(self.log_path, "w")
@@ -239,4 +246,7 @@ def main(args) -> int:
     except SnapshotError as err:
         print(f"error: {err}", file=sys.stderr)
         return EXIT_MISSING
+    except KeyboardInterrupt:
+        print("\ninterrupted: the viewer was stopped", file=sys.stderr)
+        return 130
     return 0

@@ -100,3 +100,17 @@ def test_missing_recording_is_one_error_line(tmp_path):
     r = run_cli("snapshot", str(tmp_path / "nothing.rrd"), "-o", str(tmp_path / "o"))
     assert r.returncode == 2 and r.stderr.startswith("error: ") and "no such recording" in r.stderr
     assert r.stderr.strip().count("\n") == 0
+
+
+def test_the_viewer_is_stopped_when_the_snapshot_fails(tmp_path):
+    reason = viewer_unavailable()
+    if reason:
+        pytest.skip(f"the headless Rerun viewer cannot start here: {reason}")
+    from pipeline.snapshot import Viewer
+    viewer = Viewer()
+    with pytest.raises(RuntimeError):
+        with viewer:
+            assert viewer.proc.poll() is None and "127.0.0.1" in viewer.proc.args
+            raise RuntimeError("a failure while shooting")
+    assert viewer.proc.poll() is not None          # stopped, not left running
+    assert not Path(viewer.scratch.name).exists()  # its scratch config removed
