@@ -1,4 +1,4 @@
-"""Command line: `python -m pipeline run|validate|bench ...` (also the `garment-sim` script).
+"""Command line: `python -m pipeline run|validate|bench|matrix|snapshot ...` (also the `garment-sim` script).
 
 User errors (bad scene, bad asset, broken stage input) print one line `error: ...` and exit 2,
 without a traceback. Ctrl-C exits 130. Neither leaves a recording under the final name.
@@ -76,6 +76,11 @@ def cmd_matrix(args) -> int:
                     for r in per.values()) else 1
 
 
+def cmd_snapshot(args) -> int:
+    from pipeline.snapshot import main
+    return main(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m pipeline",
                                 description="Garment simulation with character colliders, written to Rerun recordings.")
@@ -101,6 +106,15 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--json", help="also write the figures to this JSON file")
     m.add_argument("-q", "--quiet", action="store_true", help="only the table")
     m.set_defaults(func=cmd_matrix)
+    sn = sub.add_parser("snapshot", help="PNGs of a recording's scene view at chosen frames, through the Rerun "
+                                         "viewer (headless; software Vulkan without a GPU)")
+    sn.add_argument("recording", help="the .rrd file")
+    sn.add_argument("--frames", default="0,45,-1", help="frame numbers on the timeline, comma-separated; -1 = last "
+                                                        "(default 0,45,-1)")
+    sn.add_argument("-o", "--out", default="snapshots", help="folder for the PNGs (default snapshots/)")
+    sn.add_argument("--tab", help="a tab other than the opening one (rig, colliders, maps, garments, obstacles)")
+    sn.add_argument("--timeline", default="frame", help=argparse.SUPPRESS)
+    sn.set_defaults(func=cmd_snapshot)
     return p
 
 
@@ -112,7 +126,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 def main(argv: list[str] | None = None) -> int:
     import warnings
     args = build_parser().parse_args(argv)
-    if getattr(args, "frames", None) is not None and args.frames < 1:
+    if isinstance(getattr(args, "frames", None), int) and args.frames < 1:
         print(f"error: --frames: expected a positive integer, got {args.frames}", file=sys.stderr)
         return EXIT_USAGE
     shown, warnings.showwarning = warnings.showwarning, _show_warning

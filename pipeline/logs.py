@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import rerun as rr
 
+from pipeline import style
 from stages.rig.skinning import vertex_normals
 from stages.rig.types import Character, Motion, RegionSplit
 
@@ -80,18 +81,25 @@ def world_joint_matrices(character: Character, motion: Motion) -> np.ndarray:
 
 def log_rig(rec: rr.RecordingStream, character: Character, split: RegionSplit, motion: Motion,
             skinned: np.ndarray) -> None:
-    """rig/mesh (per frame, coloured by region), rig/regions (bind pose, static), rig/skeleton."""
+    """rig/mesh (per frame, neutral skin tone), rig/regions (bind pose, static, coloured by region,
+    rig/regions/labels: each rigid region's bone name at its centre), rig/skeleton, rig/joints."""
     n_j = character.n_joints
     colors = palette(n_j)
     region_color = colors[split.region_joint].copy()
     # flexible regions: the joint colour washed towards white, so joints read as bands
     region_color[~split.rigid, :3] = (0.45 * region_color[~split.rigid, :3] + 0.55 * 255).astype(np.uint8)
     world = skinned + motion.root_translation[:, None, :]
-    log_mesh_series(rec, "rig/mesh", character.triangles, world, motion.times, colors=region_color)
+    log_mesh_series(rec, "rig/mesh", character.triangles, world, motion.times, albedo=style.SKIN)
     rec.log("rig/regions", rr.Mesh3D(
         vertex_positions=character.vertices.astype(np.float32),
         vertex_normals=vertex_normals(character.vertices, character.triangles).astype(np.float32),
         triangle_indices=character.triangles.astype(np.uint32), vertex_colors=region_color), static=True)
+    bones = [j for j in range(n_j) if (split.rigid & (split.region_joint == j)).any()]
+    if bones:   # the legend: a label per rigid region, at the region's centre
+        centres = np.array([character.vertices[split.rigid & (split.region_joint == j)].mean(0) for j in bones])
+        rec.log("rig/regions/labels", rr.Points3D(centres.astype(np.float32), colors=colors[bones], radii=0.01,
+                                                  labels=[character.joint_names[j] for j in bones],
+                                                  show_labels=True), static=True)
     # skeleton: one segment per parent-child pair; a joint's position is its global transform's origin
     joints = world_joint_matrices(character, motion)[:, :, :3, 3]
     kids = np.flatnonzero(character.parents >= 0)
@@ -133,6 +141,9 @@ def log_colliders(rec: rr.RecordingStream, character: Character, motion: Motion,
         _convex_mesh(rec, f"{base}/raw", h.raw, (*c, 90))
         _convex_mesh(rec, f"{base}/inflated", h.inflated, (*c, 60))
         _convex_mesh(rec, f"{base}/simplified", h.simplified, (*c, 200))
+        if h.kind != "swept":   # rigid hulls carry their bone's name (swept ones share its colour)
+            rec.log(f"{base}/label", rr.Points3D([h.simplified.vertices.mean(0).astype(np.float32)], radii=0.004,
+                                                 colors=[(*c, 255)], labels=[h.name], show_labels=True), static=True)
         # the region's vertices in the bind pose (region_points add the bone's core and, for a
         # swept hull, every pose)
         ib = character.inverse_bind[h.bone]
@@ -270,23 +281,21 @@ STRAIN_RAMP_MAX = 0.10      # per-vertex strain colouring: this strain and above
 
 
 def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=None) -> dict:
-    """Cloth meshes, penetration counts, step time and the parameters; with `audit` (a
-    stages.sim.audit.ClothAudit) the strain and crossing series and, when it has per-vertex strain,
-    the meshes coloured by it. Returns the summary figures."""
-    colors = [(70, 130, 230), (230, 120, 60), (90, 190, 110), (200, 80, 160)]
+    """Cloth meshes (each garment its fabric colour), penetration counts, step time and the
+    parameters; with `audit` (a stages.sim.audit.ClothAudit) the strain and crossing series and, when
+    it has per-vertex strain, the meshes coloured by it. Returns the summary figures."""
     for i, (track, g) in enumerate(zip(result.garments, garments)):
-        c = colors[i % len(colors)]
         vs = audit.garments[i].vertex_strain if audit is not None else None
         frame_colors = None
         if vs is not None:
             frame_colors = ramp(vs.ravel(), 0.0, STRAIN_RAMP_MAX).reshape(*vs.shape, 4)
         log_mesh_series(rec, f"sim/{track.name}/mesh", track.triangles, track.positions, result.times,
-                        albedo=None if vs is not None else (*c, 255), frame_colors=frame_colors)
+                        albedo=None if vs is not None else style.fabric(i), frame_colors=frame_colors)
         a = g.attached
         if a.size:   # attached particles: rigid ones dark, yielding ones (see Garment.attach_joint) amber
             path = f"sim/{track.name}/attached"
-            rgba = np.where((g.inverse_mass[a] > 0)[:, None], [[255, 170, 0, 255]], [[40, 40, 40, 255]]).astype(np.uint8)
-            rec.log(path, rr.Points3D.from_fields(colors=rgba, radii=[0.006]), static=True)
+            rgba = np.where((g.inverse_mass[a] > 0)[:, None], [style.PIN_YIELDING], [style.PIN_RIGID]).astype(np.uint8)
+            rec.log(path, rr.Points3D.from_fields(colors=rgba, radii=[style.PIN_RADIUS]), static=True)
             rec.send_columns(path, indexes=time_columns(result.times),
                              columns=rr.Points3D.columns(positions=track.positions[:, a].reshape(-1, 3)).partition(
                                  np.full(len(result.times), a.size)))
@@ -350,10 +359,9 @@ def log_obstacles(rec: rr.RecordingStream, obstacles, times: np.ndarray, *, kdop
     otherwise), at obstacles/<name>/kdop."""
     from stages.obstacles import kdop_box, kdop_wireframe
     tree = obstacles.tree
-    colors = palette(len(obstacles.obstacles), seed=3)
     for i, ob in enumerate(obstacles.obstacles):
         base = f"obstacles/{ob.name}"
-        c = tuple(int(x) for x in colors[i][:3])
+        c = style.OBSTACLE[:3]
         rec.log(f"{base}/mesh", rr.Mesh3D(vertex_positions=ob.vertices.astype(np.float32),
                                           vertex_normals=vertex_normals(ob.vertices, ob.triangles).astype(np.float32),
                                           triangle_indices=ob.triangles.astype(np.uint32), albedo_factor=(*c, 255)),
@@ -374,7 +382,7 @@ def log_obstacles(rec: rr.RecordingStream, obstacles, times: np.ndarray, *, kdop
                                                     colors=[(*c, 255)], radii=0.001), static=True)
 
 
-def log_sewing(rec: rr.RecordingStream, name: str, log, build, garment) -> None:
+def log_sewing(rec: rr.RecordingStream, name: str, log, build, garment, color=style.FABRICS[0]) -> None:
     """garments/<name>/{flat, placed, sewing, sewn}: the pattern's flat panels, the panels wrapped
     around the body, the sewing progress on the `sewing_iteration` timeline, and the sewn mesh."""
     base = f"garments/{name}"
@@ -387,12 +395,12 @@ def log_sewing(rec: rr.RecordingStream, name: str, log, build, garment) -> None:
     rec.log(f"{base}/sewn", rr.Mesh3D(vertex_positions=garment.positions.astype(np.float32),
                                       vertex_normals=vertex_normals(garment.positions, garment.triangles).astype(np.float32),
                                       triangle_indices=garment.triangles.astype(np.uint32),
-                                      albedo_factor=(70, 130, 230, 255)), static=True)
+                                      albedo_factor=color), static=True)
     k = len(log.logged)
     if k:
         it = [rr.TimeColumn("sewing_iteration", sequence=np.asarray(log.logged, np.int64))]
         rec.log(f"{base}/sewing", rr.Mesh3D.from_fields(triangle_indices=log.triangles.astype(np.uint32),
-                                                        albedo_factor=(70, 130, 230, 255)), static=True)
+                                                        albedo_factor=color), static=True)
         n = log.positions.shape[1]
         rec.send_columns(f"{base}/sewing", indexes=it, columns=rr.Mesh3D.columns(
             vertex_positions=log.positions.reshape(-1, 3).astype(np.float32),

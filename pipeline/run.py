@@ -379,10 +379,39 @@ def garment_fit_report(character, motion, skinned, garments, builds, result) -> 
     return fit_table(fits, gaps)
 
 
+def blueprint_of(scene: Scene, character, motion, skinned, colliders, coverage_ran: bool, obstacles, garments,
+                 builds, result):
+    """The recording's blueprint (pipeline.blueprint) for what this run logged: the cameras frame
+    the body over every frame, the simulated garments (down to 25 cm below the floor) and the solid
+    obstacles (not a floor plane)."""
+    from pipeline import blueprint as bp
+    world = skinned + motion.root_translation[:, None, :]
+    body = bp.hull_points(world)
+    framed = [body]
+    if result is not None:
+        # cloth that falls off the body and through the (absent) floor is followed only to just below
+        # it: framing a fall of metres would shrink the character to a speck
+        floor = float(world[..., 1].min()) - 0.25
+        framed += [np.maximum(t.positions, [-np.inf, floor, -np.inf]) for t in result.garments]
+    names = []
+    if obstacles is not None:
+        for ob in obstacles.obstacles:
+            names.append(ob.name)
+            if np.ptp(ob.vertices, axis=0).min() > 1e-6:   # a solid: frame it; a plane (a floor): not
+                framed.append(ob.vertices)
+    sewing = [np.concatenate([b.flat_positions, b.placed_positions]) for _, b in builds.values()]
+    return bp.build(bp.Contents(
+        fps=1.0 / scene["simulation"]["dt"], forward=bp.facing(character, motion), scene_box=bp.hull_points(*framed),
+        body_box=body, bind_box=bp.hull_points(character.vertices),
+        garments=[t.name for t in result.garments] if result is not None else [], sewn=list(builds),
+        sewing_box=bp.hull_points(*sewing) if sewing else None, obstacles=names, hulls=[h.name for h in colliders.hulls],
+        spheres=[sp.name for sp in colliders.spheres], coverage=coverage_ran))
+
+
 def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = None,
               progress: bool = True, on_stage=None) -> RunSummary:
     """Run every stage the scene needs and write the recording atomically."""
-    from pipeline import logs
+    from pipeline import logs, style
     from pipeline.progress import Progress
     from pipeline.recording import atomic_recording
     from stages.rig.skinning import skin
@@ -449,7 +478,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             r.sizes.update(maps=len(maps.maps))
         summary.tables["map cells"] = logs.log_maps(rec, character, motion, maps)
 
-        obstacles = None
+        coverage_ran = "collider coverage" in summary.tables
+        obstacles, garments, builds, result = None, [], {}, None
         if s["obstacles"]:
             say("obstacles")
             with _Timer(summary, "obstacles") as r:
@@ -467,7 +497,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                     r.sizes[f"{name} sewing"] = (f"{log.iterations} it in {log.seconds:.2f} s, gap {log.gap_max[-1] * 1000:.1f} mm, "
                                                  f"{'converged' if log.converged else 'NOT converged'}")
             for name, (log, build) in builds.items():
-                logs.log_sewing(rec, name, log, build, next(g for g in garments if g.name == name))
+                i = next(k for k, g in enumerate(garments) if g.name == name)
+                logs.log_sewing(rec, name, log, build, garments[i], color=style.fabric(i))
             say("simulation")
             from stages.sim import simulate
             sp = s["simulation"]
@@ -495,5 +526,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             summary.tables["garment fit"] = garment_fit_report(character, motion, skinned, garments, builds, result)
             logs.log_text(rec, "sim/fit", summary.tables["garment fit"])
         logs.log_text(rec, "meta/summary", summary.markdown())
+        rec.send_blueprint(blueprint_of(scene, character, motion, skinned, colliders, coverage_ran,
+                                        obstacles, garments, builds, result), make_active=True, make_default=True)
     summary.output = out
     return summary

@@ -56,3 +56,64 @@ def content(path: Path) -> list:
 def same_content(a: Path, b: Path) -> bool:
     ca, cb = content(a), content(b)
     return len(ca) == len(cb) and all(ea == eb and ba.equals(bb) for (ea, ba), (eb, bb) in zip(ca, cb))
+
+
+LISTS = {"ContainerBlueprint:contents", "ViewContents:query", "ContainerBlueprint:col_shares",
+         "ContainerBlueprint:row_shares"}
+
+
+def blueprint(path: Path) -> dict:
+    """The recording's stored blueprint (the last one in the file): {entity path: {column: value}},
+    e.g. bp['/time_panel']['TimePanelBlueprint:timeline'] == 'frame'. Lists of one are unwrapped."""
+    reader = RrdReader(path)
+    stores = reader.blueprints()
+    if not stores:
+        return {}
+    out: dict = {}
+    for chunk in reader.stream(store=stores[-1]).to_chunks():
+        batch = chunk.to_record_batch()
+        entry = out.setdefault(str(chunk.entity_path), {})
+        for name in batch.schema.names:
+            if ":" not in name:   # row ids, the blueprint / log_time indexes
+                continue
+            for v in batch.column(name).to_pylist():
+                if v is not None:
+                    entry[name] = v[0] if isinstance(v, list) and len(v) == 1 and name not in LISTS else v
+    return out
+
+
+def blueprint_views(bp: dict) -> dict:
+    """{view display name: {'id', 'class', 'origin', 'contents', 'eye': (position, look_target) or None}}."""
+    views = {}
+    for path, comp in bp.items():
+        if path.startswith("/view/") and path.count("/") == 2 and "ViewBlueprint:class_identifier" in comp:
+            eye = bp.get(f"{path}/EyeControls3D", {})
+            views[comp.get("ViewBlueprint:display_name")] = {
+                "id": path.split("/")[2], "class": comp["ViewBlueprint:class_identifier"],
+                "origin": comp.get("ViewBlueprint:space_origin"),
+                "contents": bp.get(f"{path}/ViewContents", {}).get("ViewContents:query", []),
+                "eye": (np.array(eye["EyeControls3D:position"]), np.array(eye["EyeControls3D:look_target"]))
+                if "EyeControls3D:position" in eye else None}
+    return views
+
+
+def blueprint_tabs(bp: dict) -> dict:
+    """{tab name: [view ids in it]}, in tab order, and the active tab's entry under key None."""
+    def kids(entry):
+        return bp.get("/" + entry, {}).get("ContainerBlueprint:contents", []) or []
+
+    def name(entry):
+        c = bp.get("/" + entry, {})
+        return c.get("ContainerBlueprint:display_name") or c.get("ViewBlueprint:display_name")
+
+    def views(entry):
+        if entry.startswith("view/"):
+            return [entry.split("/")[1]]
+        return [v for k in kids(entry) for v in views(k)]
+    tabs = next(p for p, c in bp.items() if c.get("ContainerBlueprint:container_kind") == TABS_KIND)
+    out = {name(e): views(e) for e in kids(tabs[1:])}
+    out[None] = name(bp[tabs].get("ContainerBlueprint:active_tab") or kids(tabs[1:])[0])
+    return out
+
+
+TABS_KIND = 1   # rerun.blueprint.components.ContainerKind.Tabs

@@ -190,6 +190,15 @@ def test_obstacle_scene_logs_obstacles_contacts_and_keeps_cloth_on_the_table(tmp
            (np.abs(cloth[:, 2] - o["center"][2]) < o["size"][2] / 2 - 0.02)
     assert over.sum() > 500
     assert cloth[over, 1].min() > top - 1e-3                  # nothing fell through the top
+    # the recording opens on the table and the cloth: an obstacles tab, a scene camera that holds them
+    from pipeline.blueprint import ASPECT_OVERVIEW, Camera
+    from tests.rrd_read import blueprint, blueprint_tabs, blueprint_views
+    bp = blueprint(out)
+    assert "obstacles" in blueprint_tabs(bp)
+    pos, target = blueprint_views(bp)["scene"]["eye"]
+    table = rows(out, "obstacles/table/mesh", "Mesh3D:vertex_positions")[0][1]
+    falling = np.stack([v for _, v in rows(out, "sim/cloth/mesh", "Mesh3D:vertex_positions")])
+    assert Camera(pos, target).sees(np.concatenate([table, falling.reshape(-1, 3)]), aspect=ASPECT_OVERVIEW)
 
 
 def test_the_papers_colliders_still_run_and_are_reported_the_same_way(tmp_path):
