@@ -41,7 +41,7 @@ def read_mesh_file(path, *, what: str = "mesh"):
 
     p = Path(path)
     if not p.exists():
-        raise InputError(p, f"{what} file not found")
+        raise InputError(p, "file not found")
     if p.is_dir():
         raise InputError(p, f"is a folder, expected a {what} file")
     try:
