@@ -43,7 +43,7 @@ def read_mesh_file(path, *, what: str = "mesh"):
     if not p.exists():
         raise InputError(p, "file not found")
     if p.is_dir():
-        raise InputError(p, f"is a folder, expected a {what} file")
+        raise InputError(p, "is a folder, expected a mesh file")
     try:
         data = p.read_bytes()
     except OSError as exc:
