@@ -7,6 +7,7 @@ never destroys an earlier recording there.
 from __future__ import annotations
 
 import contextlib
+import datetime
 import hashlib
 import os
 import uuid
@@ -126,8 +127,12 @@ def atomic_recording(path: Path, *, scene_name: str, scene_text: str, seed: int)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    # chunks cut by size only, never by the batcher's 200 ms clock: the same logging gives the same
+    # chunks, so `rerun rrd compare` (which compares chunk by chunk) finds two runs equal
+    batcher = rr.ChunkBatcherConfig(flush_tick=datetime.timedelta(days=1), flush_num_bytes=2 * 1024 * 1024,
+                                    flush_num_rows=2**63 - 1)
     rec = rr.RecordingStream(APP_ID, recording_id=recording_id(scene_name, scene_text, seed),
-                             send_properties=False)
+                             send_properties=False, batcher_config=batcher)
     rec.set_log_time_enabled(False)  # no wall clock: identical runs give identical recordings
     ok = False
     try:

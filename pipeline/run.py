@@ -32,6 +32,7 @@ class RunSummary:
     penetrations: dict = field(default_factory=dict)
     tables: dict = field(default_factory=dict)   # name -> markdown table (fit report, map stats)
     timings: dict = field(default_factory=dict)  # wall-clock seconds besides the stages' (sewing)
+    speeds: dict = field(default_factory=dict)   # wall-clock rates, formatted (simulation steps/s)
 
     def text(self) -> str:
         lines = [f"scene {self.scene}: {self.frames} frames"]
@@ -40,6 +41,8 @@ class RunSummary:
             lines.append(f"  {s.name:<10} {s.seconds * 1000:9.1f} ms   {sizes}")
         for k, v in self.timings.items():
             lines.append(f"  {k:<10} {v * 1000:9.1f} ms")
+        for k, v in self.speeds.items():
+            lines.append(f"  {k}: {v}")
         for k, v in self.penetrations.items():
             lines.append(f"  {k}: {v}")
         if "garment fit" in self.tables:
@@ -64,6 +67,7 @@ class RunSummary:
         out = ["| stage | wall time (ms) |", "| --- | ---: |"]
         out += [f"| {s.name} | {s.seconds * 1000:.1f} |" for s in self.stages]
         out += [f"| {k} | {v * 1000:.1f} |" for k, v in self.timings.items()]
+        out += [""] + [f"- {k}: {v}" for k, v in self.speeds.items()] if self.speeds else []
         return "\n".join(out)
 
 
@@ -596,6 +600,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                     bar.close()
                 r.sizes.update(steps=result.steps)
             summary.penetrations = logs.log_sim(rec, motion, garments, result)
+            summary.speeds = {k: summary.penetrations.pop(k) for k in list(summary.penetrations) if k.startswith("steps/s")}
             step_ms = result.step_ms
             summary.tables["garment fit"] = garment_fit_report(character, motion, skinned, garments, builds, result)
             logs.log_text(rec, "sim/fit", summary.tables["garment fit"])

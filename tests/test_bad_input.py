@@ -223,3 +223,29 @@ def test_latin1_obj_comment_and_binary_stl_header_are_read(tmp_path, monkeypatch
     out = capsys.readouterr()
     assert code == 0, out.err
     assert "2 mesh files read" in out.out
+
+
+def _rerun_cli() -> str:
+    import shutil
+    exe = Path(sys.executable).with_name("rerun")
+    return str(exe) if exe.exists() else (shutil.which("rerun") or pytest.skip("the rerun CLI is not installed"))
+
+
+def test_deterministic_runs_give_recordings_rerun_compares_equal(tmp_path):
+    """The README's promise: same scene + seed, same recording. With --deterministic the wall-clock
+    timings stay out, and `rerun rrd compare` (which ignores only log_time) finds two runs equal;
+    without it they are in their own timings/ entities."""
+    from tests.rrd_read import entity_paths
+    outs = []
+    for k in range(2):
+        out = tmp_path / f"run{k}.rrd"
+        r = subprocess.run([sys.executable, "-m", "pipeline", "run", "scenes/default.yaml", "--frames", "3", "-q",
+                            "--deterministic", "-o", str(out)], cwd=REPO, capture_output=True, text=True, timeout=900)
+        assert r.returncode == 0, r.stderr
+        outs.append(out)
+    paths = entity_paths(outs[0])
+    assert "/sim/skirt/mesh" in paths and "/meta/summary" in paths
+    assert not [p for p in paths if p.startswith("/timings")]
+    r = subprocess.run([_rerun_cli(), "rrd", "compare", str(outs[0]), str(outs[1])], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
