@@ -34,20 +34,18 @@ def cmd_validate(args) -> int:
     with where.item(f"character {scene['character']['source']}"):
         character = load_character(scene)
     check_references(scene, character)
-    patterns = [i for i, g in enumerate(scene["garments"]) if g["type"] == "pattern"]
-    if patterns:   # size and place (not sew) every pattern garment on the bind pose: cheap, and
-        # where a garment cannot be dressed the error comes before a run
-        from pipeline.run import frame_times, place_scene_pattern, sample_scene_motion, split_and_fit
+    patterns = 0
+    if scene["garments"]:   # build every garment as a run does, patterns sized and placed but not
+        # sewn, on the bind pose: cheap, and where a garment cannot be dressed the error comes before a run
+        from pipeline.run import check_scene_garments, frame_times, sample_scene_motion, split_and_fit
         motion = sample_scene_motion(scene, character, frame_times(scene))
         where.stage("colliders")
         _, colliders = split_and_fit(scene, character, motion)
         where.stage("garments")
-        for i in patterns:
-            with where.item(f"garments[{i}] ({scene['garments'][i]['name']!r})"):
-                place_scene_pattern(scene, i, character, motion, colliders)
+        patterns = check_scene_garments(scene, character, motion, colliders, meshes)
     print(f"{args.scene}: ok — scene {scene.name!r}, character {character.name!r} "
           f"({character.vertices.shape[0]} vertices, {character.n_joints} joints, "
-          f"{len(character.clips)} clips), {len(scene['garments'])} garments ({len(patterns)} patterns sized and placed), "
+          f"{len(character.clips)} clips), {len(scene['garments'])} garments built ({patterns} patterns sized and placed, not sewn), "
           f"{len(scene['obstacles'])} obstacles ({len(meshes)} mesh files read), {scene['frames']['count']} frames "
           f"-> {scene.output}")
     for note in character.notes:

@@ -360,12 +360,40 @@ def build_scene_garments(scene: Scene, character, motion, colliders, maps, meshe
             try:
                 garment, built = _build_scene_garment(scene, i, character, motion, colliders, maps, meshes)
             except (ContractError, InputError) as err:
-                raise SceneError(f"{scene.path or '<scene>'}: {_item(scene, 'garments', i)}: cannot build the "
-                                 f"garment: {' '.join(str(err).split())}") from None
+                raise _garment_build_error(scene, i, err) from None
         out.append(garment)
         if built is not None:
             builds[g["name"]] = built
     return out, builds
+
+
+def _garment_build_error(scene: Scene, index: int, err: Exception) -> SceneError:
+    """A stage's refusal to build a garment, as a SceneError naming the scene file, the key path
+    (`garments[i].pin` for an attachment) and the garment."""
+    key = f"garments[{index}]" + (".pin" if getattr(err, "source", None) == "attachment" else "")
+    problem = err.problem if hasattr(err, "problem") else str(err)
+    return SceneError(f"{scene.path or '<scene>'}: {key} ({scene['garments'][index]['name']!r}): cannot build the "
+                      f"garment: {' '.join(str(problem).split())}")
+
+
+def check_scene_garments(scene: Scene, character, motion, colliders, meshes: dict) -> int:
+    """What `validate` does with the garments: builds every garment as a run does, except that a
+    pattern garment is sized and placed but not sewn. Returns the number of pattern garments."""
+    from pipeline import where
+    from stages.checks import ContractError
+    from stages.errors import InputError
+    patterns = 0
+    for i, g in enumerate(scene["garments"]):
+        with where.item(f"{_item(scene, 'garments', i)}, type {g['type']}"):
+            if g["type"] == "pattern":
+                place_scene_pattern(scene, i, character, motion, colliders)
+                patterns += 1
+                continue
+            try:
+                _build_scene_garment(scene, i, character, motion, colliders, None, meshes)
+            except (ContractError, InputError) as err:
+                raise _garment_build_error(scene, i, err) from None
+    return patterns
 
 
 def _build_scene_garment(scene: Scene, i: int, character, motion, colliders, maps, meshes):

@@ -41,6 +41,9 @@ MESH_FILES = {   # kind -> (file name, bytes, fragment of the problem expected i
     "a folder": ("m.obj", None, "is a folder"),
     "missing": ("m.obj", "missing", "file not found"),
 }
+BOX_OBJ = (b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n"
+           b"f 1 3 2\nf 1 4 3\nf 5 6 7\nf 5 7 8\nf 1 2 6\nf 1 6 5\nf 2 3 7\nf 2 7 6\nf 3 4 8\nf 3 8 7\n"
+           b"f 4 1 5\nf 4 5 8\n")   # closed: no boundary loop
 NON_MANIFOLD = ("m.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nf 1 2 3\nf 2 1 4\nf 1 2 5\n", "non-manifold")
 
 
@@ -89,6 +92,10 @@ CASES.update({
     "pinned index out of range (mesh)": (
         FAST + "garments:\n  - {type: mesh, name: sheet, path: s.obj, pin: {indices: [3, 12]}}\n",
         {"s.obj": SHEET_OBJ.encode()}, ["garments[0].pin.indices[1]", "'sheet'", "12", "9 particles"], BOTH),
+    "pin by the top boundary of a closed mesh (needs the character)": (
+        FAST + "garments:\n  - {type: mesh, name: bag, path: box.obj, translate: [0, 1, 0], "
+               "pin: {boundary: top, collider: spine}}\n",
+        {"box.obj": BOX_OBJ}, ["garments[0].pin", "'bag'", "'top_loop'", "without boundary"], BOTH),
     "output: parent is a file": (
         FAST.replace("out.rrd", "afile/out.rrd"), {"afile": b"x"}, ["output", "afile", "is a file"], BOTH),
     "output: an existing folder": (
@@ -249,3 +256,37 @@ def test_deterministic_runs_give_recordings_rerun_compares_equal(tmp_path):
     r = subprocess.run([_rerun_cli(), "rrd", "compare", str(outs[0]), str(outs[1])], capture_output=True, text=True,
                        timeout=300)
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+
+
+ZUP_SCENE = ("character: {{source: gltf, path: {glb}, clip: {clip}}}\nframes: {{count: 2}}\noutput: out.rrd\n"
+             "colliders: {{report_every: 0}}\n"
+             "garments:\n  - {{type: pattern, name: skirt, kind: short_skirt}}\n{more}")
+
+
+def test_z_up_gltf_dresses_and_runs(tmp_path, monkeypatch, capsys):
+    """A glTF stored Z up (a humanoid figure whose root node stands it along +Z) goes through the
+    garment stage: `up_axis: auto` stands it up; validate and run both succeed."""
+    from tests.test_rig_gltf_frames import HUMANOID, STORE, build_figure
+    build_figure(HUMANOID, STORE["+z"]).write_glb(tmp_path / "robot_z.glb")
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(ZUP_SCENE.format(glb="robot_z.glb", clip="rest",
+                                      more="  - {type: tube, name: tube, at_joint: hips}\n"))
+    monkeypatch.chdir(tmp_path)
+    assert main(["validate", str(scene)]) == 0, capsys.readouterr().err
+    assert "up axis: file +Z (auto" in capsys.readouterr().out
+    assert main(["run", str(scene), "-q"]) == 0, capsys.readouterr().err
+    assert (tmp_path / "out.rrd").is_file()
+
+
+@pytest.mark.assets
+def test_cesium_man_stored_z_up_dresses_and_runs(assets_dir, tmp_path, monkeypatch, capsys):
+    """The real asset re-stored Z up (tests/test_rig_gltf_frames.z_up_copy) with a sewn skirt."""
+    from tests.test_rig_gltf_frames import z_up_copy
+    z_up_copy(assets_dir / "CesiumMan.glb", tmp_path / "cesium_z.glb")
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(ZUP_SCENE.format(glb="cesium_z.glb", clip=0, more=""))
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", str(scene), "-q"]) == 0, capsys.readouterr().err
+    from tests.rrd_read import rows
+    assert "up axis: file +Z (auto" in str(rows(tmp_path / "out.rrd", "rig/notes", "TextDocument:text")[0][1])
+    assert len(rows(tmp_path / "out.rrd", "sim/skirt/mesh", "Mesh3D:vertex_positions")) == 2
