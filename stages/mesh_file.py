@@ -13,6 +13,8 @@ import io
 import struct
 from pathlib import Path
 
+import numpy as np
+
 from stages.errors import InputError
 
 TEXT_FORMATS = ("obj", "off", "xyz")
@@ -63,4 +65,12 @@ def read_mesh_file(path, *, what: str = "mesh"):
         raise InputError(p, f"cannot read the {what} ({type(exc).__name__}: {msg or 'no detail'})") from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         raise InputError(p, f"no triangle faces in the {what} file")
+    v, f = np.asarray(loaded.vertices), np.asarray(loaded.faces)
+    if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+        raise InputError(p, f"vertices are not 3D points (array of shape {v.shape})")
+    if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
+        raise InputError(p, f"faces are not triangles of vertex indices (array of shape {f.shape})")
+    if f.min() < 0 or f.max() >= len(v):
+        raise InputError(p, f"a face refers to vertex {int(f.max()) + 1 if f.max() >= len(v) else int(f.min()) + 1} "
+                            f"of {len(v)}")
     return loaded
