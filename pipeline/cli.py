@@ -158,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
     scene = getattr(args, "scene", None)
     where.reset(scene)
     if getattr(args, "frames", None) is not None and args.frames < 1:
-        print(f"error: --frames: expected a positive integer, got {args.frames}", file=sys.stderr)
+        print(f"error: {scene}: --frames: expected a positive integer, got {args.frames}", file=sys.stderr)
         return EXIT_USAGE
     shown, warnings.showwarning = warnings.showwarning, _show_warning
     try:

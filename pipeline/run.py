@@ -269,9 +269,12 @@ def preflight(scene: Scene, output: Path | None, *, create: bool, output_flag: b
     where.stage("checking the scene")
     src = scene.path or "<scene>"
     out = Path(output) if output is not None else scene.output
-    check_output_path(out, where=f"{src}: {'--output' if output_flag else 'output'}", create=create)
+    key = f"{src}: {'--output' if output_flag else 'output'}"
+    check_output_path(out, where=key, create=False)
     meshes = load_scene_meshes(scene)
     check_pins(scene, meshes)
+    if create:   # last, so that a scene refused above leaves no new folder behind
+        check_output_path(out, where=key, create=True)
     return meshes
 
 

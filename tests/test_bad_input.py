@@ -96,6 +96,9 @@ CASES.update({
         FAST + "garments:\n  - {type: mesh, name: bag, path: box.obj, translate: [0, 1, 0], "
                "pin: {boundary: top, collider: spine}}\n",
         {"box.obj": BOX_OBJ}, ["garments[0].pin", "'bag'", "'top_loop'", "without boundary"], BOTH),
+    "bad mesh with the output in a new folder (no folder left)": (
+        FAST.replace("out.rrd", "new/sub/out.rrd") + "obstacles:\n  - {type: mesh, name: rock, path: m.stl}\n",
+        {"m.stl": b"solid x\nendsolid x\n"}, ["obstacles[0].path", "'rock'", "m.stl"], BOTH),
     "output: parent is a file": (
         FAST.replace("out.rrd", "afile/out.rrd"), {"afile": b"x"}, ["output", "afile", "is a file"], BOTH),
     "output: an existing folder": (
