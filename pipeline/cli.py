@@ -155,10 +155,11 @@ def main(argv: list[str] | None = None) -> int:
 
     from pipeline import where
     args = build_parser().parse_args(argv)
-    scene = getattr(args, "scene", None)
+    scene = str(Path(args.scene)) if getattr(args, "scene", None) else None   # as load_scene names it
     where.reset(scene)
     if getattr(args, "frames", None) is not None and args.frames < 1:
-        print(f"error: {scene}: --frames: expected a positive integer, got {args.frames}", file=sys.stderr)
+        print(f"error: {scene + ': ' if scene else ''}--frames: expected a positive integer, got {args.frames}",
+              file=sys.stderr)
         return EXIT_USAGE
     shown, warnings.showwarning = warnings.showwarning, _show_warning
     try:
