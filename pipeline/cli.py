@@ -26,12 +26,12 @@ def _user_errors():
 
 def cmd_validate(args) -> int:
     from pipeline import where
-    from pipeline.run import check_references, load_character, preflight
+    from pipeline.run import character_item, check_references, load_character, preflight
     from pipeline.scene import load_scene
     scene = load_scene(args.scene)
     meshes = preflight(scene, None, create=False)   # output path, every mesh file, pinned indices
     where.stage("rig")
-    with where.item(f"character {scene['character']['source']}"):
+    with where.item(character_item(scene)):
         character = load_character(scene)
     check_references(scene, character)
     patterns = 0

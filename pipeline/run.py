@@ -100,15 +100,28 @@ def load_character(scene: Scene):
     if c["source"] == "procedural":
         from stages.rig.procedural import procedural_character
         return procedural_character(body_params(scene.settings))
+    from stages.errors import InputError
+    src = scene.path or "<scene>"
     path = Path(c["path"])
     if not path.is_file():
-        raise SceneError(f"{scene.path or '<scene>'}: character.path: file not found: {path}")
-    if c["source"] == "gltf":
-        from stages.rig.gltf import load_gltf
-        return load_gltf(path, scale=c["scale"], up_axis=c["up_axis"])
-    from stages.rig.bvh import load_bvh_character
-    return load_bvh_character(path, scale=c["scale"], body=body_params(scene.settings),
-                              bind_pose=c["bind_pose"] or "neutral")
+        raise SceneError(f"{src}: character.path: file not found: {path}")
+    try:
+        if c["source"] == "gltf":
+            from stages.rig.gltf import load_gltf
+            return load_gltf(path, scale=c["scale"], up_axis=c["up_axis"])
+        from stages.rig.bvh import load_bvh_character
+        return load_bvh_character(path, scale=c["scale"], body=body_params(scene.settings),
+                                  bind_pose=c["bind_pose"] or "neutral")
+    except InputError as err:   # the loader names the file; the scene's key path goes first
+        if str(err.source) == str(path):
+            raise SceneError(f"{src}: character.path: {' '.join(err.problem.split())}: {path}") from None
+        raise SceneError(f"{src}: character ({c['source']} {path}): {' '.join(str(err).split())}") from None
+
+
+def character_item(scene: Scene) -> str:
+    """The character as the last-resort error line names it."""
+    c = scene["character"]
+    return f"character {c['source']}" + (f" {c['path']}" if c["path"] else "")
 
 
 def frame_times(scene: Scene, frames: int | None = None) -> np.ndarray:
@@ -542,8 +555,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     with atomic_recording(out, scene_name=scene.name, scene_text=scene.text, seed=s["seed"]) as rec:
         say("rig")
         with _Timer(summary, "rig") as r:
-            with where.item(f"character {scene['character']['source']}"
-                            + (f" {scene['character']['path']}" if scene["character"]["path"] else "")):
+            with where.item(character_item(scene)):
                 character = load_character(scene)
             check_references(scene, character)
             motion = sample_scene_motion(scene, character, times)

@@ -99,6 +99,14 @@ CASES.update({
     "bad mesh with the output in a new folder (no folder left)": (
         FAST.replace("out.rrd", "new/sub/out.rrd") + "obstacles:\n  - {type: mesh, name: rock, path: m.stl}\n",
         {"m.stl": b"solid x\nendsolid x\n"}, ["obstacles[0].path", "'rock'", "m.stl"], BOTH),
+    "character: corrupt glb": (
+        "character: {source: gltf, path: c.glb}\noutput: out.rrd\n", {"c.glb": b"glTF\x02\x00\x00\x00\x10\x00"},
+        ["character.path", "c.glb", "truncated"], BOTH),
+    "character: corrupt bvh": (
+        "character: {source: bvh, path: c.bvh}\noutput: out.rrd\n", {"c.bvh": b"HIERARCHY\nROOT hips\n{\n OFFSET 0 0\n"},
+        ["character.path", "c.bvh", "line 4"], BOTH),
+    "character: empty bvh": (
+        "character: {source: bvh, path: c.bvh}\noutput: out.rrd\n", {"c.bvh": b""}, ["character.path", "c.bvh"], BOTH),
     "output: parent is a file": (
         FAST.replace("out.rrd", "afile/out.rrd"), {"afile": b"x"}, ["output", "afile", "is a file"], BOTH),
     "output: an existing folder": (
