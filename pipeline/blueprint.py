@@ -272,7 +272,7 @@ def build(c: Contents) -> rrb.Blueprint:
                                                                        aspect=ASPECT_FULL).controls()))
     if c.garments:
         tabs.append(rrb.Vertical(
-            rrb.TimeSeriesView(name="step time (ms)", origin="/sim/step_ms"),
+            rrb.TimeSeriesView(name="step time (ms)", origin="/timings/step_ms"),
             rrb.TimeSeriesView(name="contacts (particles per frame)", origin="/sim/contacts",
                                contents=["+ /sim/contacts/**", "- /sim/contacts/obstacles/points"]),
             name="performance"))

@@ -1,7 +1,10 @@
 """Command line: `python -m pipeline run|validate|bench|matrix|snapshot ...` (also the `garment-sim` script).
 
-User errors (bad scene, bad asset, broken stage input) print one line `error: ...` and exit 2,
-without a traceback. Ctrl-C exits 130. Neither leaves a recording under the final name.
+User errors (bad scene, bad asset, bad output path, broken stage input) print one line
+`error: ...` naming the scene file and exit 2, without a traceback. Any other exception is a bug:
+one line naming the stage, the scene file and the item being processed, exit 1 (`--debug` shows
+the traceback). Ctrl-C exits 130. None of them leaves a recording, or a temporary file, behind;
+an earlier recording stays.
 """
 from __future__ import annotations
 
@@ -10,6 +13,7 @@ import sys
 from pathlib import Path
 
 EXIT_USAGE = 2
+EXIT_BUG = 1
 
 
 def _user_errors():
@@ -21,23 +25,29 @@ def _user_errors():
 
 
 def cmd_validate(args) -> int:
-    from pipeline.run import check_references, load_character
+    from pipeline import where
+    from pipeline.run import character_item, check_references, load_character, preflight
     from pipeline.scene import load_scene
     scene = load_scene(args.scene)
-    character = load_character(scene)
+    meshes = preflight(scene, None, create=False)   # output path, every mesh file, pinned indices
+    where.stage("rig")
+    with where.item(character_item(scene)):
+        character = load_character(scene)
     check_references(scene, character)
-    patterns = [i for i, g in enumerate(scene["garments"]) if g["type"] == "pattern"]
-    if patterns:   # size and place (not sew) every pattern garment on the bind pose: cheap, and
-        # where a garment cannot be dressed the error comes before a run
-        from pipeline.run import frame_times, place_scene_pattern, sample_scene_motion, split_and_fit
+    patterns = 0
+    if scene["garments"]:   # build every garment as a run does, patterns sized and placed but not
+        # sewn, on the bind pose: cheap, and where a garment cannot be dressed the error comes before a run
+        from pipeline.run import check_scene_garments, frame_times, sample_scene_motion, split_and_fit
         motion = sample_scene_motion(scene, character, frame_times(scene))
+        where.stage("colliders")
         _, colliders = split_and_fit(scene, character, motion)
-        for i in patterns:
-            place_scene_pattern(scene, i, character, motion, colliders)
+        where.stage("garments")
+        patterns = check_scene_garments(scene, character, motion, colliders, meshes)
     print(f"{args.scene}: ok — scene {scene.name!r}, character {character.name!r} "
           f"({character.vertices.shape[0]} vertices, {character.n_joints} joints, "
-          f"{len(character.clips)} clips), {len(scene['garments'])} garments ({len(patterns)} patterns sized and placed), "
-          f"{len(scene['obstacles'])} obstacles, {scene['frames']['count']} frames -> {scene.output}")
+          f"{len(character.clips)} clips), {len(scene['garments'])} garments built ({patterns} patterns sized and placed, not sewn), "
+          f"{len(scene['obstacles'])} obstacles ({len(meshes)} mesh files read), {scene['frames']['count']} frames "
+          f"-> {scene.output}")
     for note in character.notes:
         print(f"  {note}")
     return 0
@@ -51,8 +61,8 @@ def cmd_run(args) -> int:
         if not args.quiet:
             print(f"{stage} ...", file=sys.stderr, flush=True)
 
-    summary = run_scene(scene, output=Path(args.output) if args.output else None, frames=args.frames,
-                        progress=not args.quiet, on_stage=announce)
+    summary = run_scene(scene, output=Path(args.output) if args.output is not None else None, frames=args.frames,
+                        progress=not args.quiet, on_stage=announce, deterministic=args.deterministic)
     print(summary.text())
     return 0
 
@@ -84,22 +94,28 @@ def cmd_snapshot(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m pipeline",
                                 description="Garment simulation with character colliders, written to Rerun recordings.")
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--debug", action="store_true",
+                        help="show the Python traceback of an unexpected error (a bug) instead of one line")
     sub = p.add_subparsers(dest="command", required=True)
-    r = sub.add_parser("run", help="run a scene and write its .rrd recording")
+    r = sub.add_parser("run", parents=[common], help="run a scene and write its .rrd recording")
     r.add_argument("scene", help="scene .yaml file (see scenes/)")
     r.add_argument("-o", "--output", help="recording path (default: the scene's output, or recordings/<name>.rrd)")
     r.add_argument("--frames", type=int, help="override the number of frames")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress line")
+    r.add_argument("--deterministic", action="store_true",
+                   help="leave the wall-clock timings (timings/ entities) out of the recording: the same scene "
+                        "and seed then give recordings `rerun rrd compare` finds equal")
     r.set_defaults(func=cmd_run)
-    v = sub.add_parser("validate", help="check a scene without running it")
+    v = sub.add_parser("validate", parents=[common], help="check a scene without running it")
     v.add_argument("scene")
     v.set_defaults(func=cmd_validate)
-    b = sub.add_parser("bench", help="run the benchmarks (separate from the tests)")
+    b = sub.add_parser("bench", parents=[common], help="run the benchmarks (separate from the tests)")
     b.add_argument("which", nargs="*", default=["all"],
                    help="any of: hulls maps sim obstacles all (default: all)")
     b.add_argument("--json", help="also write the figures to this JSON file")
     b.set_defaults(func=cmd_bench)
-    m = sub.add_parser("matrix", help="dress every garment kind on every character and tabulate the fit")
+    m = sub.add_parser("matrix", parents=[common], help="dress every garment kind on every character and tabulate the fit")
     m.add_argument("--frames", type=int, default=30, help="frames simulated per pair (default 30)")
     m.add_argument("--character", action="append", help="only this character (repeatable)")
     m.add_argument("--garment", action="append", help="only this garment kind (repeatable)")
@@ -123,21 +139,57 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
     print(f"warning: {message}", file=sys.stderr if file is None else file, flush=True)
 
 
+def _one_line(text: str, limit: int = 600) -> str:
+    line = " ".join(str(text).split())
+    return line if len(line) <= limit else line[:limit - 3] + "..."
+
+
+def _user_message(e: BaseException, scene: str | None) -> str:
+    """The error's text on one line, prefixed with the scene file (and the item) when it lacks it."""
+    from pipeline import where
+    msg = _one_line(e)
+    if scene and scene not in msg:
+        now = where.current()
+        item = f" {now['item']}:" if now["item"] else ""
+        msg = f"{scene}: {now['stage']}:{item} {msg}"
+    return msg
+
+
+def _bug_message(e: BaseException, scene: str | None) -> str:
+    from pipeline import where
+    now = where.current()
+    item = f" while processing {now['item']}" if now["item"] else ""
+    detail = _one_line(f"{type(e).__name__}: {e}", 300)
+    return (f"internal error in stage {now['stage']!r} of {scene or '<no scene>'}{item}: {detail} "
+            f"(a bug, not your input; run again with --debug for the traceback)")
+
+
 def main(argv: list[str] | None = None) -> int:
     import warnings
+
+    from pipeline import where
     args = build_parser().parse_args(argv)
-    if isinstance(getattr(args, "frames", None), int) and args.frames < 1:
-        print(f"error: --frames: expected a positive integer, got {args.frames}", file=sys.stderr)
+    scene = str(Path(args.scene)) if getattr(args, "scene", None) else None   # as load_scene names it
+    where.reset(scene)
+    if isinstance(getattr(args, "frames", None), int) and args.frames < 1:   # snapshot's --frames is a list
+        print(f"error: {scene + ': ' if scene else ''}--frames: expected a positive integer, got {args.frames}",
+              file=sys.stderr)
         return EXIT_USAGE
     shown, warnings.showwarning = warnings.showwarning, _show_warning
     try:
         return args.func(args)
     except _user_errors() as e:
-        print(f"error: {e}", file=sys.stderr)
+        print(f"error: {_user_message(e, scene)}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         print("\ninterrupted: no recording written", file=sys.stderr)
         return 130
+    except Exception as e:   # last resort: a bug. One line, exit 1; the recording was not written
+        if args.debug:
+            import traceback
+            traceback.print_exc()
+        print(f"error: {_bug_message(e, scene)}", file=sys.stderr)
+        return EXIT_BUG
     finally:
         warnings.showwarning = shown
 

@@ -305,7 +305,7 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=Non
     if audited:
         log_scalar_series(rec, "sim/penetrations/body", result.penetrations_body, result.times,
                           name="inside the body mesh", color=(150, 60, 200))
-    log_scalar_series(rec, "sim/step_ms", result.step_ms, result.times, name="step (ms)", color=(60, 160, 90))
+    # the step time (wall clock) is logged by run_scene under timings/, outside sim/
     log_scalar_series(rec, "sim/contacts/colliders", result.corrected, result.times,
                       name="particles moved by a collider", color=(90, 90, 90))
     if result.contacts_obstacles.any():

@@ -8,6 +8,7 @@ never destroys an earlier recording there.
 from __future__ import annotations
 
 import contextlib
+import datetime
 import hashlib
 import os
 import uuid
@@ -45,22 +46,66 @@ def package_versions() -> str:
     return "\n".join(lines)
 
 
+def check_output_path(path, *, where: str, create: bool) -> Path:
+    """Refuse, before any work, a recording path the run could not write: a folder, a parent that
+    is a file or cannot be created, a location that is not writable. `where` names the scene file
+    and the key ('scene.yaml: output' or 'scene.yaml: --output') in the InputError. With `create`
+    the missing parents are made and a probe file is written and removed; without, only checked."""
+    from stages.errors import InputError
+    p = Path(path)
+    if p.is_dir() or str(path).endswith(("/", os.sep)) or p.name in ("", ".", ".."):
+        raise InputError(where, f"{str(path)!r} is a folder; expected a recording file path such as "
+                                f"{str(Path(path) / 'out.rrd')!r}")
+    parent = p.parent
+    existing = parent
+    while not existing.exists():   # the nearest ancestor that exists must be a writable folder
+        if existing == existing.parent:
+            break
+        existing = existing.parent
+    if existing.exists() and not existing.is_dir():
+        raise InputError(where, f"{str(path)!r}: cannot create folder {str(parent)!r}: {str(existing)!r} is a file")
+    if not create:
+        if not os.access(existing, os.W_OK | os.X_OK):
+            raise InputError(where, f"{str(path)!r}: folder {str(existing)!r} is not writable")
+        return p
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise InputError(where, f"{str(path)!r}: cannot create folder {str(parent)!r} "
+                                f"({e.strerror or e.__class__.__name__})") from None
+    probe = parent / f".{p.name}.probe-{os.getpid()}"
+    try:
+        with open(probe, "xb"):
+            pass
+    except OSError as e:
+        raise InputError(where, f"{str(path)!r}: cannot write in folder {str(parent)!r} "
+                                f"({e.strerror or e.__class__.__name__})") from None
+    finally:
+        with contextlib.suppress(OSError):
+            probe.unlink()
+    return p
+
+
 @contextlib.contextmanager
 def atomic_recording(path: Path, *, scene_name: str, scene_text: str, seed: int):
     """Yield a RecordingStream saving to a temporary file; rename it to `path` on success.
 
-    On any exception (including KeyboardInterrupt) the temporary file is removed and the
-    exception propagates; an earlier file at `path` is left untouched.
+    On any exception (including KeyboardInterrupt, and a failed rename) the temporary file is
+    removed and the exception propagates; an earlier file at `path` is left untouched.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    # chunks cut by size only, never by the batcher's 200 ms clock: the same logging gives the same
+    # chunks, so `rerun rrd compare` (which compares chunk by chunk) finds two runs equal
+    batcher = rr.ChunkBatcherConfig(flush_tick=datetime.timedelta(days=1), flush_num_bytes=2 * 1024 * 1024,
+                                    flush_num_rows=2**63 - 1)
     rec = rr.RecordingStream(APP_ID, recording_id=recording_id(scene_name, scene_text, seed),
-                             send_properties=False)
+                             send_properties=False, batcher_config=batcher)
     rec.set_log_time_enabled(False)  # no wall clock: identical runs give identical recordings
-    rec.save(tmp)   # the blueprint is sent at the end of the run (pipeline.blueprint)
     ok = False
     try:
+        rec.save(tmp)   # the blueprint is sent at the end of the run (pipeline.blueprint)
         rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Y_UP, static=True)  # the pipeline is Y up, metres
         rec.log("meta/scene", rr.TextDocument(f"```yaml\n{scene_text}\n```", media_type="text/markdown"), static=True)
         rec.log("meta/provenance", rr.TextDocument(
@@ -69,9 +114,11 @@ def atomic_recording(path: Path, *, scene_name: str, scene_text: str, seed: int)
         yield rec
         ok = True
     finally:
-        rec.disconnect()  # writes the footer; flushes everything
-        if ok:
-            os.replace(tmp, path)
-        else:
-            with contextlib.suppress(FileNotFoundError):
-                tmp.unlink()
+        try:
+            rec.disconnect()  # writes the footer; flushes everything
+            if ok:
+                os.replace(tmp, path)
+        finally:
+            with contextlib.suppress(OSError):
+                if tmp.exists():   # anything but a completed rename: no temporary file survives
+                    tmp.unlink()

@@ -31,12 +31,18 @@ class RunSummary:
     stages: list[StageReport] = field(default_factory=list)
     penetrations: dict = field(default_factory=dict)
     tables: dict = field(default_factory=dict)   # name -> markdown table (fit report, map stats)
+    timings: dict = field(default_factory=dict)  # wall-clock seconds besides the stages' (sewing)
+    speeds: dict = field(default_factory=dict)   # wall-clock rates, formatted (simulation steps/s)
 
     def text(self) -> str:
         lines = [f"scene {self.scene}: {self.frames} frames"]
         for s in self.stages:
             sizes = ", ".join(f"{k} {v}" for k, v in s.sizes.items())
             lines.append(f"  {s.name:<10} {s.seconds * 1000:9.1f} ms   {sizes}")
+        for k, v in self.timings.items():
+            lines.append(f"  {k:<10} {v * 1000:9.1f} ms")
+        for k, v in self.speeds.items():
+            lines.append(f"  {k}: {v}")
         for k, v in self.penetrations.items():
             lines.append(f"  {k}: {v}")
         if "garment fit" in self.tables:
@@ -46,13 +52,22 @@ class RunSummary:
         return "\n".join(lines)
 
     def markdown(self) -> str:
-        out = [f"# {self.scene}", "", f"{self.frames} frames", "", "| stage | time (ms) | sizes |", "| --- | ---: | --- |"]
+        """The summary without wall-clock times (those are `timings_markdown`): the same run gives
+        the same text."""
+        out = [f"# {self.scene}", "", f"{self.frames} frames", "", "| stage | sizes |", "| --- | --- |"]
         for s in self.stages:
-            out.append(f"| {s.name} | {s.seconds * 1000:.1f} | " + ", ".join(f"{k} {v}" for k, v in s.sizes.items()) + " |")
+            out.append(f"| {s.name} | " + ", ".join(f"{k} {v}" for k, v in s.sizes.items()) + " |")
         if self.penetrations:
             out += ["", "## Penetrations", ""] + [f"- {k}: {v}" for k, v in self.penetrations.items()]
         for name, table in self.tables.items():
             out += ["", f"## {name}", "", table]
+        return "\n".join(out)
+
+    def timings_markdown(self) -> str:
+        out = ["| stage | wall time (ms) |", "| --- | ---: |"]
+        out += [f"| {s.name} | {s.seconds * 1000:.1f} |" for s in self.stages]
+        out += [f"| {k} | {v * 1000:.1f} |" for k, v in self.timings.items()]
+        out += [""] + [f"- {k}: {v}" for k, v in self.speeds.items()] if self.speeds else []
         return "\n".join(out)
 
 
@@ -100,15 +115,28 @@ def load_character(scene: Scene):
     if c["source"] == "procedural":
         from stages.rig.procedural import procedural_character
         return procedural_character(body_params(scene.settings))
+    from stages.errors import InputError
+    src = scene.path or "<scene>"
     path = Path(c["path"])
     if not path.is_file():
-        raise SceneError(f"{scene.path or '<scene>'}: character.path: file not found: {path}")
-    if c["source"] == "gltf":
-        from stages.rig.gltf import load_gltf
-        return load_gltf(path, scale=c["scale"], up_axis=c["up_axis"])
-    from stages.rig.bvh import load_bvh_character
-    return load_bvh_character(path, scale=c["scale"], body=body_params(scene.settings),
-                              bind_pose=c["bind_pose"] or "neutral")
+        raise SceneError(f"{src}: character.path: file not found: {path}")
+    try:
+        if c["source"] == "gltf":
+            from stages.rig.gltf import load_gltf
+            return load_gltf(path, scale=c["scale"], up_axis=c["up_axis"])
+        from stages.rig.bvh import load_bvh_character
+        return load_bvh_character(path, scale=c["scale"], body=body_params(scene.settings),
+                                  bind_pose=c["bind_pose"] or "neutral")
+    except InputError as err:   # the loader names the file; the scene's key path goes first
+        if str(err.source) == str(path):
+            raise SceneError(f"{src}: character.path: {' '.join(err.problem.split())}: {path}") from None
+        raise SceneError(f"{src}: character ({c['source']} {path}): {' '.join(str(err).split())}") from None
+
+
+def character_item(scene: Scene) -> str:
+    """The character as the last-resort error line names it."""
+    c = scene["character"]
+    return f"character {c['source']}" + (f" {c['path']}" if c["path"] else "")
 
 
 def frame_times(scene: Scene, frames: int | None = None) -> np.ndarray:
@@ -209,6 +237,75 @@ def check_pattern(scene: Scene, index: int) -> None:
                              f"options: {', '.join(allowed) or 'none'}")
 
 
+def _item(scene: Scene, section: str, index: int) -> str:
+    return f"{section}[{index}] ({scene[section][index]['name']!r})"
+
+
+def load_scene_meshes(scene: Scene) -> dict:
+    """Every mesh file the scene references, read and checked: {(section, index): (x, tri)}. A
+    missing, empty, corrupt or degenerate file is a SceneError naming the scene file, the key
+    path, the item and the mesh file (what `validate` and `run` check before any stage)."""
+    from stages.errors import InputError
+    from stages.garments.importer import import_garment_mesh
+    from stages.obstacles import load_obstacle_mesh
+    from pipeline import where
+    src = scene.path or "<scene>"
+    out = {}
+    for section, load in (("garments", import_garment_mesh), ("obstacles", load_obstacle_mesh)):
+        for i, it in enumerate(scene[section]):
+            if it["type"] != "mesh":
+                continue
+            with where.item(f"{_item(scene, section, i)} mesh file {it['path']}"):
+                try:
+                    out[(section, i)] = load(it["path"], scale=it["scale"], transform=placement_matrix(it))
+                except InputError as err:
+                    raise SceneError(f"{src}: {section}[{i}].path: {err.problem}: {err.source} "
+                                     f"({section[:-1]} {it['name']!r})") from None
+    return out
+
+
+def particle_count(g: dict, meshes: dict, index: int) -> int | None:
+    """How many particles a rectangle, tube or mesh garment has (None for a pattern: known once sized)."""
+    if g["type"] == "rectangle":
+        return g["resolution"][0] * g["resolution"][1]
+    if g["type"] == "tube":
+        return g["n_around"] * g["n_down"]
+    if g["type"] == "mesh" and ("garments", index) in meshes:
+        return len(meshes[("garments", index)][0])
+    return None
+
+
+def check_pins(scene: Scene, meshes: dict) -> None:
+    """Pinned particle indices inside the garment's particle range."""
+    src = scene.path or "<scene>"
+    for i, g in enumerate(scene["garments"]):
+        pin = g.get("pin")
+        n = particle_count(g, meshes, i)
+        if not pin or pin["indices"] is None or n is None:
+            continue
+        for k, idx in enumerate(pin["indices"]):
+            if not 0 <= idx < n:
+                raise SceneError(f"{src}: garments[{i}].pin.indices[{k}] ({g['name']!r}): particle index {idx} "
+                                 f"is out of range: the garment has {n} particles, expected 0 to {n - 1}")
+
+
+def preflight(scene: Scene, output: Path | None, *, create: bool, output_flag: bool = False) -> dict:
+    """Every check that needs no character, before any work: the recording path, the mesh files,
+    the pinned indices. Returns the loaded meshes (see `load_scene_meshes`)."""
+    from pipeline import where
+    from pipeline.recording import check_output_path
+    where.stage("checking the scene")
+    src = scene.path or "<scene>"
+    out = Path(output) if output is not None else scene.output
+    key = f"{src}: {'--output' if output_flag else 'output'}"
+    check_output_path(out, where=key, create=False)
+    meshes = load_scene_meshes(scene)
+    check_pins(scene, meshes)
+    if create:   # last, so that a scene refused above leaves no new folder behind
+        check_output_path(out, where=key, create=True)
+    return meshes
+
+
 def _garment_where(scene: Scene, index: int, character) -> str:
     g = scene["garments"][index]
     return f"{scene.path or '<scene>'}: garments[{index}] ({g['name']!r}, kind {g['kind']}) on {character.name!r}"
@@ -283,78 +380,138 @@ def placement_matrix(item: dict) -> np.ndarray:
     return m
 
 
-def build_scene_garments(scene: Scene, character, motion, colliders, maps):
+def build_scene_garments(scene: Scene, character, motion, colliders, maps, meshes: dict | None = None):
     """Garments of the scene, placed in the relative frame at frame 0.
 
+    meshes: the files already read by `load_scene_meshes` (read here when not given).
     Returns (garments, builds): builds maps a pattern garment's name to (SewingLog, GarmentBuild).
     """
-    from stages.garments.importer import import_garment_mesh
-    from stages.garments.simple import rectangle_cloth, tube_skirt
-    from stages.garments.types import (COMMON_BONE, attach_indices, attach_near, attach_top_loop, bind_pose,
-                                       build_garment)
-    bind = bind_pose(character, motion, colliders)
+    from pipeline import where
+    from stages.checks import ContractError
+    from stages.errors import InputError
+    meshes = load_scene_meshes(scene) if meshes is None else meshes
     out, builds = [], {}
     for i, g in enumerate(scene["garments"]):
-        if g["type"] == "pattern":
-            garment, log, build = build_pattern_garment(scene, i, character, motion, colliders, maps)
-            out.append(garment)
-            builds[g["name"]] = (log, build)
-            continue
-        if g["type"] == "mesh":
-            x, tri = import_garment_mesh(g["path"], scale=g["scale"], transform=placement_matrix(g))
-        elif g["type"] == "rectangle":
-            nx, ny = g["resolution"]
-            axis = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}[g["normal"]]
-            x, tri = rectangle_cloth(g["width"], g["height"], nx, ny, center=g["center"], normal=axis)
-        else:  # tube
-            top = np.asarray(g["center"] if g["center"] is not None else
-                             bind.joint_origins[bind.joint_index(g["at_joint"] or character.joint_names[character.root_joint])])
-            x, tri = tube_skirt(g["radius_top"], g["radius_bottom"], g["length"], g["n_around"], g["n_down"],
-                                center=top + np.asarray(g["offset"]))
-        atts = []
-        pin = g["pin"]
-        if pin is not None:
-            if pin["indices"] is not None:
-                atts.append(attach_indices(pin["indices"], pin["collider"]))
-            elif pin["collider"] is not None and pin["boundary"] is None:
-                atts.append(attach_near(pin["collider"], pin["within"]))
-            if pin["boundary"] == "top":
-                # one bone for the whole loop: a waistband pinned to pelvis and thighs is torn between them
-                atts.append(attach_top_loop(pin["collider"] if pin["collider"] is not None else COMMON_BONE))
-        out.append(build_garment(g["name"], x, tri, density=g["density"], attachments=atts, bind=bind))
+        with where.item(f"{_item(scene, 'garments', i)}, type {g['type']}"):
+            try:
+                garment, built = _build_scene_garment(scene, i, character, motion, colliders, maps, meshes)
+            except (ContractError, InputError) as err:
+                raise _garment_build_error(scene, i, err) from None
+        out.append(garment)
+        if built is not None:
+            builds[g["name"]] = built
     return out, builds
 
 
-def build_scene_obstacles(scene: Scene, duration: float):
-    """The scene's obstacles (world frame) with their k-DOP trees."""
-    from stages.obstacles import (ObstacleMotion, box_mesh, build_obstacle_set, cylinder_mesh,
-                                  load_obstacle_mesh, make_obstacle, plane_mesh, sphere_mesh, table_mesh)
+def _garment_build_error(scene: Scene, index: int, err: Exception) -> SceneError:
+    """A stage's refusal to build a garment, as a SceneError naming the scene file, the key path
+    (`garments[i].pin` for an attachment) and the garment."""
+    key = f"garments[{index}]" + (".pin" if getattr(err, "source", None) == "attachment" else "")
+    problem = err.problem if hasattr(err, "problem") else str(err)
+    return SceneError(f"{scene.path or '<scene>'}: {key} ({scene['garments'][index]['name']!r}): cannot build the "
+                      f"garment: {' '.join(str(problem).split())}")
+
+
+def check_scene_garments(scene: Scene, character, motion, colliders, meshes: dict) -> int:
+    """What `validate` does with the garments: builds every garment as a run does, except that a
+    pattern garment is sized and placed but not sewn. Returns the number of pattern garments."""
+    from pipeline import where
+    from stages.checks import ContractError
+    from stages.errors import InputError
+    patterns = 0
+    for i, g in enumerate(scene["garments"]):
+        with where.item(f"{_item(scene, 'garments', i)}, type {g['type']}"):
+            if g["type"] == "pattern":
+                place_scene_pattern(scene, i, character, motion, colliders)
+                patterns += 1
+                continue
+            try:
+                _build_scene_garment(scene, i, character, motion, colliders, None, meshes)
+            except (ContractError, InputError) as err:
+                raise _garment_build_error(scene, i, err) from None
+    return patterns
+
+
+def _build_scene_garment(scene: Scene, i: int, character, motion, colliders, maps, meshes):
+    """One garment: (Garment, (SewingLog, GarmentBuild) of a pattern or None)."""
+    from stages.garments.simple import rectangle_cloth, tube_skirt
+    from stages.garments.types import (COMMON_BONE, attach_indices, attach_near, attach_top_loop, bind_pose,
+                                       build_garment)
+    g = scene["garments"][i]
+    if g["type"] == "pattern":
+        garment, log, build = build_pattern_garment(scene, i, character, motion, colliders, maps)
+        return garment, (log, build)
+    bind = bind_pose(character, motion, colliders)
+    if g["type"] == "mesh":
+        x, tri = meshes[("garments", i)]
+    elif g["type"] == "rectangle":
+        nx, ny = g["resolution"]
+        axis = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}[g["normal"]]
+        x, tri = rectangle_cloth(g["width"], g["height"], nx, ny, center=g["center"], normal=axis)
+    else:  # tube
+        top = np.asarray(g["center"] if g["center"] is not None else
+                         bind.joint_origins[bind.joint_index(g["at_joint"] or character.joint_names[character.root_joint])])
+        x, tri = tube_skirt(g["radius_top"], g["radius_bottom"], g["length"], g["n_around"], g["n_down"],
+                            center=top + np.asarray(g["offset"]))
+    atts = []
+    pin = g["pin"]
+    if pin is not None:
+        if pin["indices"] is not None:
+            atts.append(attach_indices(pin["indices"], pin["collider"]))
+        elif pin["collider"] is not None and pin["boundary"] is None:
+            atts.append(attach_near(pin["collider"], pin["within"]))
+        if pin["boundary"] == "top":
+            # one bone for the whole loop: a waistband pinned to pelvis and thighs is torn between them
+            atts.append(attach_top_loop(pin["collider"] if pin["collider"] is not None else COMMON_BONE))
+    return build_garment(g["name"], x, tri, density=g["density"], attachments=atts, bind=bind), None
+
+
+def build_scene_obstacles(scene: Scene, duration: float, meshes: dict | None = None):
+    """The scene's obstacles (world frame) with their k-DOP trees. meshes: the files already read
+    by `load_scene_meshes` (read here when not given)."""
+    from pipeline import where
+    from stages.checks import ContractError
+    from stages.errors import InputError
+    meshes = load_scene_meshes(scene) if meshes is None else meshes
     out = []
-    for o in scene["obstacles"]:
-        t = o["type"]
-        if t == "box":
-            mesh, pivot = box_mesh(o["center"], o["size"]), o["center"]
-        elif t == "table":
-            c = np.asarray(o["center"])
-            mesh = table_mesh(top_center=c + [0.0, o["height"], 0.0], top_size=tuple(o["top_size"]),
-                              top_thickness=o["top_thickness"])
-            pivot = c
-        elif t == "sphere":
-            mesh, pivot = sphere_mesh(o["center"], o["radius"], o["subdivisions"]), o["center"]
-        elif t == "plane":
-            mesh, pivot = plane_mesh(o["point"], o["normal"], (o["size"], o["size"])), o["point"]
-        elif t == "cylinder":
-            mesh, pivot = cylinder_mesh(o["center"], o["radius"], o["height"], o["sections"]), o["center"]
-        else:  # mesh file
-            mesh = load_obstacle_mesh(o["path"], scale=o["scale"], transform=placement_matrix(o))
-            pivot = o["translate"]
-        motion = None
-        if any(o["velocity"]) or any(o["angular_velocity"]):
-            motion = ObstacleMotion.from_velocity(o["velocity"], o["angular_velocity"], pivot=pivot,
-                                                  duration=max(duration, 1e-3) + 1.0)
-        out.append(make_obstacle(o["name"], mesh, thickness=max(o["thickness"], 1e-4), friction=o["friction"],
-                                 restitution=o["restitution"], motion=motion))
-    return build_obstacle_set(out)
+    for i, o in enumerate(scene["obstacles"]):
+        with where.item(f"{_item(scene, 'obstacles', i)}, type {o['type']}"):
+            try:
+                out.append(_build_scene_obstacle(o, meshes.get(("obstacles", i)), duration))
+            except (ContractError, InputError) as err:
+                raise SceneError(f"{scene.path or '<scene>'}: {_item(scene, 'obstacles', i)}: cannot build the "
+                                 f"obstacle: {' '.join(str(err).split())}") from None
+    from stages.obstacles import build_obstacle_set
+    with where.item("the obstacle set (k-DOP trees)"):
+        return build_obstacle_set(out)
+
+
+def _build_scene_obstacle(o: dict, file_mesh, duration: float):
+    from stages.obstacles import (ObstacleMotion, box_mesh, cylinder_mesh, make_obstacle, plane_mesh,
+                                  sphere_mesh, table_mesh)
+    t = o["type"]
+    if t == "box":
+        mesh, pivot = box_mesh(o["center"], o["size"]), o["center"]
+    elif t == "table":
+        c = np.asarray(o["center"])
+        mesh = table_mesh(top_center=c + [0.0, o["height"], 0.0], top_size=tuple(o["top_size"]),
+                          top_thickness=o["top_thickness"])
+        pivot = c
+    elif t == "sphere":
+        mesh, pivot = sphere_mesh(o["center"], o["radius"], o["subdivisions"]), o["center"]
+    elif t == "plane":
+        mesh, pivot = plane_mesh(o["point"], o["normal"], (o["size"], o["size"])), o["point"]
+    elif t == "cylinder":
+        mesh, pivot = cylinder_mesh(o["center"], o["radius"], o["height"], o["sections"]), o["center"]
+    else:  # mesh file
+        mesh = file_mesh
+        pivot = o["translate"]
+    motion = None
+    if any(o["velocity"]) or any(o["angular_velocity"]):
+        motion = ObstacleMotion.from_velocity(o["velocity"], o["angular_velocity"], pivot=pivot,
+                                              duration=max(duration, 1e-3) + 1.0)
+    return make_obstacle(o["name"], mesh, thickness=max(o["thickness"], 1e-4), friction=o["friction"],
+                         restitution=o["restitution"], motion=motion)
 
 
 def garment_fit_report(character, motion, skinned, garments, builds, result) -> str:
@@ -409,22 +566,35 @@ def blueprint_of(scene: Scene, character, motion, skinned, colliders, coverage_r
 
 
 def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = None,
-              progress: bool = True, on_stage=None) -> RunSummary:
-    """Run every stage the scene needs and write the recording atomically."""
-    from pipeline import logs, style
+              progress: bool = True, on_stage=None, deterministic: bool = False) -> RunSummary:
+    """Check the inputs that need no character (`preflight`), run every stage the scene needs and
+    write the recording atomically.
+
+    Wall-clock timings (stage times, sewing time, step times) go to the `timings/` entities only;
+    `deterministic` leaves them out, so the same scene and seed give recordings `rerun rrd compare`
+    finds equal.
+    """
+    from pipeline import logs, style, where
     from pipeline.progress import Progress
     from pipeline.recording import atomic_recording
     from stages.rig.skinning import skin
 
     out = Path(output) if output is not None else scene.output
     times = frame_times(scene, frames)
+    meshes = preflight(scene, output, create=True, output_flag=output is not None)
     summary = RunSummary(scene=scene.name, output=None, frames=len(times))
-    say = on_stage or (lambda name: None)
+    announce = on_stage or (lambda name: None)
+
+    def say(name: str) -> None:
+        where.stage(name)
+        announce(name)
+
     s = scene.settings
     with atomic_recording(out, scene_name=scene.name, scene_text=scene.text, seed=s["seed"]) as rec:
         say("rig")
         with _Timer(summary, "rig") as r:
-            character = load_character(scene)
+            with where.item(character_item(scene)):
+                character = load_character(scene)
             check_references(scene, character)
             motion = sample_scene_motion(scene, character, times)
             times = motion.times
@@ -483,7 +653,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
         if s["obstacles"]:
             say("obstacles")
             with _Timer(summary, "obstacles") as r:
-                obstacles = build_scene_obstacles(scene, float(times[-1] - times[0]))
+                obstacles = build_scene_obstacles(scene, float(times[-1] - times[0]), meshes)
                 r.sizes.update(obstacles=len(obstacles.obstacles), triangles=obstacles.triangles.shape[0],
                                tree_nodes=obstacles.tree.node_min.shape[0])
             logs.log_obstacles(rec, obstacles, times)
@@ -491,11 +661,12 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
         if s["garments"]:
             say("garments")
             with _Timer(summary, "garments") as r:
-                garments, builds = build_scene_garments(scene, character, motion, colliders, maps)
+                garments, builds = build_scene_garments(scene, character, motion, colliders, maps, meshes)
                 r.sizes.update(particles=sum(g.n_particles for g in garments))
                 for name, (log, _) in builds.items():
-                    r.sizes[f"{name} sewing"] = (f"{log.iterations} it in {log.seconds:.2f} s, gap {log.gap_max[-1] * 1000:.1f} mm, "
+                    r.sizes[f"{name} sewing"] = (f"{log.iterations} it, gap {log.gap_max[-1] * 1000:.1f} mm, "
                                                  f"{'converged' if log.converged else 'NOT converged'}")
+                    summary.timings[f"{name} sewing"] = log.seconds
             for name, (log, build) in builds.items():
                 i = next(k for k, g in enumerate(garments) if g.name == name)
                 logs.log_sewing(rec, name, log, build, garments[i], color=style.fabric(i))
@@ -523,9 +694,17 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 for w in audit.warnings:
                     warnings.warn(w, stacklevel=1)
             summary.penetrations = logs.log_sim(rec, motion, garments, result, audit)
+            summary.speeds = {k: summary.penetrations.pop(k) for k in list(summary.penetrations) if k.startswith("steps/s")}
+            step_ms = result.step_ms
             summary.tables["garment fit"] = garment_fit_report(character, motion, skinned, garments, builds, result)
             logs.log_text(rec, "sim/fit", summary.tables["garment fit"])
+        where.stage("writing the recording")
         logs.log_text(rec, "meta/summary", summary.markdown())
+        if not deterministic:   # wall-clock figures: their own entities, left out by --deterministic
+            logs.log_text(rec, "timings/stages", summary.timings_markdown())
+            if s["garments"]:
+                logs.log_scalar_series(rec, "timings/step_ms", step_ms, result.times, name="step (ms)",
+                                       color=(60, 160, 90))
         rec.send_blueprint(blueprint_of(scene, character, motion, skinned, colliders, coverage_ran,
                                         obstacles, garments, builds, result), make_active=True, make_default=True)
     summary.output = out

@@ -277,9 +277,19 @@ def parse_scene_text(text: str, *, source: str = "<scene>", base_dir: Path | Non
     marks: dict = {}
     if node is not None:
         _marks(node, "", marks)
-    if data is None:
-        data = {}
+    if data is None:   # nothing but blanks and comments: running the defaults would be a surprise
+        raise SceneError(f"{source}: the scene file is empty (expected a mapping such as 'character:', "
+                         f"'garments:'; write '{{}}' to run every default)")
     settings = validate(SCENE_SPEC, data, source=source, marks=marks, base_dir=base_dir)
+    for section in ("garments", "obstacles"):   # names are entity paths: sim/<name>, obstacles/<name>
+        first: dict = {}
+        for i, item in enumerate(settings[section]):
+            j = first.setdefault(item["name"], i)
+            if j != i:
+                mark = marks.get(f"{section}[{i}].name")
+                at = f"{source}:{mark[0]}:{mark[1]}" if mark else source
+                raise SceneError(f"{at}: {section}[{i}].name: {item['name']!r} is already the name of "
+                                 f"{section}[{j}]; names must be unique")
     name = settings["name"] or default_name
     if not re.fullmatch(r"[A-Za-z0-9_.-]+", name):
         raise SceneError(f"{source}: name: {name!r} must use only letters, digits, '_', '-' and '.'")

@@ -167,7 +167,7 @@ def _value(f: Field, v, path: str, ctx: _Ctx):
         if f.tag not in v:
             ctx.fail(_join(path, f.tag), f"missing required key (one of {', '.join(f.variants)})")
         tag = v[f.tag]
-        if tag not in f.variants:
+        if not isinstance(tag, str) or tag not in f.variants:
             near = difflib.get_close_matches(str(tag), list(f.variants), n=1, cutoff=0.5)
             hint = f" (did you mean {near[0]!r}?)" if near else ""
             ctx.fail(_join(path, f.tag), f"{_describe(tag)} is not one of {', '.join(f.variants)}{hint}")

@@ -43,6 +43,18 @@ def test_failure_leaves_no_file_and_keeps_the_earlier_one(tmp_path):
     assert [f.name for f in tmp_path.iterdir()] == ["a.rrd"]
 
 
+def test_a_failed_rename_leaves_no_temporary_file(tmp_path):
+    """The final path became a folder while the run went on (the reported case left a complete
+    hidden .<name>.tmp-<pid> behind): the rename fails, the error propagates, no temporary stays."""
+    p = tmp_path / "a.rrd"
+    with pytest.raises(OSError):
+        with atomic_recording(p, scene_name="t", scene_text="name: t\n", seed=0) as rec:
+            log_scalar_series(rec, "sim/x", np.ones(2), np.arange(2) / 30.0, name="x")
+            p.mkdir()
+            (p / "keep").write_text("a folder in the way")
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["a.rrd"] and p.is_dir()
+
+
 def test_same_input_gives_identical_content(tmp_path):
     write(tmp_path / "a.rrd", [1.0, 2.0])
     write(tmp_path / "b.rrd", [1.0, 2.0])

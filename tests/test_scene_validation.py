@@ -14,7 +14,7 @@ def error_of(text: str) -> str:
 
 
 def test_defaults_fill_every_section():
-    s = parse_scene_text("", source="s.yaml", default_name="empty")
+    s = parse_scene_text("{}", source="s.yaml", default_name="empty")
     assert s.name == "empty"
     assert s["character"]["source"] == "procedural"
     assert s["simulation"]["preset"] == "default" and s["simulation"]["iterations"] is None   # from the preset

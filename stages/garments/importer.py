@@ -20,20 +20,15 @@ def import_garment_mesh(path, *, scale: float = 1.0, transform=None):
     multiplied by `scale`, then by the (4, 4) `transform` (default identity)."""
     import trimesh
 
+    from stages.mesh_file import read_mesh_file
+
     p = Path(path)
-    if not p.is_file():
-        raise InputError(p, "file not found")
     if not (np.isfinite(scale) and scale > 0):
         raise InputError(p, f"scale must be positive, got {scale}")
     m4 = np.eye(4) if transform is None else np.asarray(transform, dtype=np.float64)
     if m4.shape != (4, 4) or not np.isfinite(m4).all():
         raise InputError(p, "transform must be a finite 4x4 matrix")
-    try:
-        loaded = trimesh.load(p, force="mesh", process=False)
-    except Exception as exc:  # trimesh raises many kinds for corrupt files
-        raise InputError(p, f"cannot read the mesh ({type(exc).__name__}: {exc})") from None
-    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
-        raise InputError(p, "no triangle faces in the file")
+    loaded = read_mesh_file(p, what="garment mesh")
     v = np.asarray(loaded.vertices, dtype=np.float64)
     f = np.asarray(loaded.faces, dtype=np.int64)
     if not np.isfinite(v).all():

@@ -293,7 +293,8 @@ def _select(att: Attachment, x0: np.ndarray, triangles: np.ndarray, remap: np.nd
     if att.kind == "indices":
         idx = np.asarray(att.indices, dtype=np.int64)
         if idx.size and (idx.min() < 0 or idx.max() >= remap.size):
-            raise InputError("attachment", f"particle index out of range [0, {remap.size})")
+            bad = int(idx[(idx < 0) | (idx >= remap.size)][0])
+            raise InputError("attachment", f"pinned particle index {bad} out of range [0, {remap.size})")
         idx = remap[idx]
         if np.any(idx < 0):
             raise InputError("attachment", "an attached index refers to a vertex no triangle uses")

@@ -123,19 +123,14 @@ def load_obstacle_mesh(path, scale: float = 1.0, transform=None) -> tuple[np.nda
     unsupported suffix, an unreadable / corrupt file, a file with no triangles, non-finite
     coordinates, or a mesh with no triangle of non-zero area.
     """
+    from stages.mesh_file import read_mesh_file
+
     p = Path(path)
-    if not p.is_file():
-        raise InputError(p, "obstacle mesh file not found")
     if p.suffix.lower() not in MESH_SUFFIXES:
         raise InputError(p, f"unsupported mesh format {p.suffix!r} (expected one of {', '.join(MESH_SUFFIXES)})")
     if not np.isfinite(scale) or scale <= 0:
         raise InputError(p, f"scale must be a positive number, got {scale}")
-    try:
-        loaded = trimesh.load(str(p), force="mesh", process=False)
-    except Exception as exc:  # trimesh raises many types for corrupt files; report one
-        raise InputError(p, f"could not read mesh ({type(exc).__name__}: {exc})") from None
-    if not isinstance(loaded, trimesh.Trimesh):
-        raise InputError(p, f"no triangle mesh in file (got {type(loaded).__name__})")
+    loaded = read_mesh_file(p, what="obstacle mesh")
     faces = np.asarray(loaded.faces)
     if faces.ndim != 2 or faces.shape[0] == 0 or faces.shape[1] != 3:
         raise InputError(p, "the file holds no triangles")

@@ -131,7 +131,15 @@ def _number(src, tok: str, line: int, what: str) -> float:
         raise InputError(src, f"line {line}: bad number {tok!r} in {what}") from None
     if not np.isfinite(v):
         raise InputError(src, f"line {line}: non-finite number {tok!r} in {what}")
+    if abs(v) > MAX_ABS:
+        raise InputError(src, f"line {line}: {tok!r} in {what} is beyond +-{MAX_ABS:g} (no BVH length in "
+                              f"centimetres or angle in degrees is)")
     return v
+
+
+# Larger values are corrupt data: a length of 10 km in centimetres, or an angle of 1e6 degrees
+# (which the motion code would carry to overflows and NaN before any check).
+MAX_ABS = 1e6
 
 
 class _HierarchyParser:
@@ -417,12 +425,12 @@ def _parse_frames(src, lines: list[str], start: int, n_frames: int, n_channels: 
             for t in r:
                 _number(src, t, ln, "MOTION data")
         raise  # unreachable: one token above failed
-    if not np.all(np.isfinite(data)):
-        pos = int(np.argmax(~np.isfinite(data)))
+    if not np.all(np.isfinite(data) & (np.abs(data) <= MAX_ABS)):
+        pos = int(np.argmax(~(np.isfinite(data) & (np.abs(data) <= MAX_ABS))))
         seen = 0
         for ln, r in rows:
             if pos < seen + len(r):
-                raise InputError(src, f"line {ln}: non-finite number {r[pos - seen]!r} in MOTION data")
+                _number(src, r[pos - seen], ln, "MOTION data")   # raises: names the line and the value
             seen += len(r)
     return data.reshape(n_frames, n_channels)
 

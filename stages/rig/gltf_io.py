@@ -82,7 +82,25 @@ def load_document(path: Path):
         doc = pygltflib.GLTF2.from_json(json_text)
     except Exception as e:  # pygltflib / dataclasses_json raise assorted types on malformed fields
         raise InputError(path, f"malformed glTF JSON ({type(e).__name__}: {e})") from None
+    _check_node_transforms(path, doc)
     return doc, bin_chunk
+
+
+_NODE_SIZES = {"translation": 3, "rotation": 4, "scale": 3, "matrix": 16}
+
+
+def _check_node_transforms(path: Path, doc) -> None:
+    """Node TRS / matrix fields are lists of finite numbers of the spec's length (pygltflib takes
+    any JSON there: a 4-number translation reached the matrix code as a broadcast error)."""
+    for i, n in enumerate(doc.nodes or []):
+        for key, size in _NODE_SIZES.items():
+            v = getattr(n, key, None)
+            if v is None:
+                continue
+            ok = isinstance(v, (list, tuple)) and len(v) == size and all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in v)
+            if not ok:
+                raise InputError(path, f"node {i} ({n.name!r}): {key} must be {size} finite numbers, got {str(v)[:60]}")
 
 
 class Reader:
