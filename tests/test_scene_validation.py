@@ -27,7 +27,7 @@ def test_simulation_preset_and_overrides():
     """simulation.preset picks the SimParams preset; keys the scene sets win over it."""
     from pipeline.run import sim_params
     from stages.sim.types import SimParams
-    default = sim_params(parse_scene_text("", source="s.yaml"))
+    default = sim_params(parse_scene_text("{}", source="s.yaml"))
     assert default == SimParams()
     assert (default.substeps, default.iterations, default.tethers) == (20, 2, True)
     paper = sim_params(parse_scene_text("simulation: {preset: paper}", source="s.yaml"))
