@@ -53,16 +53,22 @@ def data():
 def test_npz_reads_back_with_numpy(data, tmp_path):
     paths = ex.write(data, ["npz"], tmp_path)
     assert [p.name for p in paths] == ["syn.skirt.npz", "syn.body.npz"]
-    for m, p in zip(data.meshes, paths):
-        z = np.load(p)
+    check_npz(data, tmp_path)
+
+
+def check_npz(data, folder):
+    frames = len(data.times)
+    CHECK = (0, frames // 2, frames - 1)
+    for m in data.meshes:
+        z = np.load(folder / f"{data.scene_name}.{m.name}.npz")
         assert z["vertices_seq"].dtype == np.float32 and z["vertices_seq"].shape == m.vertices_seq.shape
         for k in CHECK:
             np.testing.assert_array_equal(z["vertices_seq"][k], m.vertices_seq[k])
         np.testing.assert_array_equal(z["faces"], m.faces)
-        assert float(z["fps"]) == pytest.approx(1 / DT) and len(z["times"]) == FRAMES
-        np.testing.assert_array_equal(z["times"], data.times)
+        assert float(z["fps"]) == pytest.approx(data.fps) and len(z["times"]) == frames
+        np.testing.assert_allclose(z["times"], data.times, atol=1e-9)
         meta = json.loads(str(z["meta"]))
-        assert meta["up_axis"] == "Y" and meta["units"] == "metres" and meta["frames"] == FRAMES
+        assert meta["up_axis"] == "Y" and meta["units"] == "metres" and meta["frames"] == frames
         if m.uv is not None:
             np.testing.assert_array_equal(z["uv"][z["uv_faces"]], m.uv[m.uv_faces])
         else:
@@ -70,11 +76,18 @@ def test_npz_reads_back_with_numpy(data, tmp_path):
 
 
 def test_pc2_header_bytes_and_reader_and_obj_rest_mesh(data, tmp_path):
-    import trimesh
     paths = ex.write(data, ["pc2"], tmp_path)
     assert sorted(p.name for p in paths) == ["syn.body.obj", "syn.body.pc2", "syn.skirt.obj", "syn.skirt.pc2"]
+    check_pc2_obj(data, tmp_path)
+
+
+def check_pc2_obj(data, tmp_path):
+    import trimesh
+    FRAMES = len(data.times)
+    CHECK = (0, FRAMES // 2, FRAMES - 1)
+    syn = data.scene_name
     for m in data.meshes:
-        raw = (tmp_path / f"syn.{m.name}.pc2").read_bytes()
+        raw = (tmp_path / f"{syn}.{m.name}.pc2").read_bytes()
         n = m.vertices_seq.shape[1]
         assert raw[:12] == b"POINTCACHE2\0"
         assert struct.unpack("<i", raw[12:16])[0] == 1                       # version
@@ -83,11 +96,11 @@ def test_pc2_header_bytes_and_reader_and_obj_rest_mesh(data, tmp_path):
         assert struct.unpack("<f", raw[24:28])[0] == 1.0                     # sample rate
         assert struct.unpack("<i", raw[28:32])[0] == FRAMES                  # samples
         assert len(raw) == 32 + FRAMES * n * 12
-        pos, start, rate = ex.read_pc2(tmp_path / f"syn.{m.name}.pc2")
+        pos, start, rate = ex.read_pc2(tmp_path / f"{syn}.{m.name}.pc2")
         for k in CHECK:
             np.testing.assert_array_equal(pos[k], m.vertices_seq[k])
         # the rest mesh: trimesh, vertex order kept
-        obj = trimesh.load(tmp_path / f"syn.{m.name}.obj", process=False, maintain_order=m.uv is None)
+        obj = trimesh.load(tmp_path / f"{syn}.{m.name}.obj", process=False, maintain_order=m.uv is None)
         if m.uv is None:
             np.testing.assert_array_equal(np.asarray(obj.vertices, np.float32), m.vertices_seq[0])
             np.testing.assert_array_equal(obj.faces, m.faces)
@@ -95,8 +108,8 @@ def test_pc2_header_bytes_and_reader_and_obj_rest_mesh(data, tmp_path):
             np.testing.assert_array_equal(np.asarray(obj.vertices, np.float32)[obj.faces],
                                           m.vertices_seq[0][m.faces])
             np.testing.assert_allclose(obj.visual.uv[obj.faces], m.uv[m.uv_faces], atol=1e-7)
-        text = (tmp_path / f"syn.{m.name}.obj").read_text()
-        assert "# up_axis: Y" in text and f"# fps: {1 / DT}" in text
+        text = (tmp_path / f"{syn}.{m.name}.obj").read_text()
+        assert "# up_axis: Y" in text and f"# fps: {data.fps}" in text
 
 
 def _gltf_array(gltf, blob, index):
@@ -110,11 +123,17 @@ def _gltf_array(gltf, blob, index):
 
 
 def test_glb_reads_back_with_pygltflib(data, tmp_path):
-    import pygltflib as g
     (path,) = ex.write(data, ["glb"], tmp_path)
+    check_glb(data, path)
+
+
+def check_glb(data, path):
+    import pygltflib as g
+    FRAMES = len(data.times)
+    CHECK = (0, FRAMES // 2, FRAMES - 1)
     gltf = g.GLTF2().load(str(path))
     blob = gltf.binary_blob()
-    assert gltf.asset.extras["up_axis"] == "Y" and gltf.asset.extras["fps"] == pytest.approx(1 / DT)
+    assert gltf.asset.extras["up_axis"] == "Y" and gltf.asset.extras["fps"] == pytest.approx(data.fps)
     anim = gltf.animations[0]
     for mi, m in enumerate(data.meshes):
         mesh = gltf.meshes[mi]
@@ -138,7 +157,7 @@ def test_glb_reads_back_with_pygltflib(data, tmp_path):
         sampler = anim.samplers[anim.channels[mi].sampler]
         assert anim.channels[mi].target.path == "weights" and sampler.interpolation == "STEP"
         t = _gltf_array(gltf, blob, sampler.input)
-        assert len(t) == FRAMES and 1 / np.median(np.diff(t)) == pytest.approx(1 / DT, rel=1e-5)
+        assert len(t) == FRAMES and 1 / np.median(np.diff(t)) == pytest.approx(data.fps, rel=1e-5)
         w = _gltf_array(gltf, blob, sampler.output).reshape(FRAMES, FRAMES)
         np.testing.assert_array_equal(w, np.eye(FRAMES))               # frame k shows target k only
 
@@ -147,9 +166,16 @@ def test_usd_reads_back_with_pxr(data, tmp_path):
     pytest.importorskip("pxr", reason="the 'usd' extra (usd-core) is not installed: pip install -e '.[usd]'")
     from pxr import Usd, UsdGeom
     (path,) = ex.write(data, ["usd"], tmp_path)
+    check_usd(data, path)
+
+
+def check_usd(data, path):
+    from pxr import Usd, UsdGeom
+    FRAMES = len(data.times)
+    CHECK = (0, FRAMES // 2, FRAMES - 1)
     stage = Usd.Stage.Open(str(path))
     assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.y and UsdGeom.GetStageMetersPerUnit(stage) == 1.0
-    assert stage.GetTimeCodesPerSecond() == pytest.approx(1 / DT)
+    assert stage.GetTimeCodesPerSecond() == pytest.approx(data.fps)
     assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (0, FRAMES - 1)
     for m in data.meshes:
         mesh = UsdGeom.Mesh(stage.GetPrimAtPath(f"/Root/{m.name}"))
@@ -286,3 +312,51 @@ def _has_pxr() -> bool:
         return True
     except ImportError:
         return False
+
+
+def test_scene_output_mapping_is_validated():
+    from pipeline.scene import parse_scene_text
+    from pipeline.schema import SceneError
+    s = parse_scene_text("output: {path: r/x.rrd, export: [npz, usd]}\n", source="s.yaml", base_dir=Path("/b"))
+    assert s.output == Path("/b/r/x.rrd") and s.export == {"formats": ["npz", "usd"], "dir": None}
+    assert parse_scene_text("output: x.rrd\n", source="s.yaml").export["formats"] == []
+    with pytest.raises(SceneError, match=r"s\.yaml:1:\d+: output\.export\[1\]: 'fbx' is not one of"):
+        parse_scene_text("output: {export: [npz, fbx]}\n", source="s.yaml")
+    with pytest.raises(SceneError, match=r"output\.exprt: unknown key"):
+        parse_scene_text("output: {exprt: [npz]}\n", source="s.yaml")
+
+
+def test_a_missing_extra_stops_a_run_before_it_starts(tmp_path, monkeypatch, capsys):
+    def no_usd(formats, where="--format"):
+        raise ex.ExportError(f"{where}: usd export needs the 'usd' extra: pip install -e \".[usd]\"")
+    monkeypatch.setattr(ex, "check_formats", no_usd)
+    scene = tmp_path / "s.yaml"
+    scene.write_text("output: {path: r.rrd, export: [usd]}\n")
+    assert main(["run", str(scene), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "s.yaml" in err and ".[usd]" in err
+    assert not (tmp_path / "r.rrd").exists()
+
+
+def test_walk_tshirt_skirt_every_format_reads_back_exactly(tmp_path, monkeypatch, capsys):
+    """The issue's scene, 5 frames, through `export SCENE.yaml`: every file against the recording's
+    positions (UVs against the npz's per-corner layout)."""
+    monkeypatch.chdir(tmp_path)
+    formats = "npz,pc2,obj,glb" + (",usd" if _has_pxr() else "")
+    repo = Path(__file__).resolve().parent.parent
+    assert main(["export", str(repo / "scenes" / "walk_tshirt_skirt.yaml"), "--frames", "5", "-q",
+                 "--format", formats, "-o", "out"]) == 0
+    capsys.readouterr()
+    data = ex.from_recording(tmp_path / "recordings" / "walk_tshirt_skirt.rrd")
+    assert [m.name for m in data.meshes] == ["skirt", "tshirt", "body"] and len(data.times) == 5
+    for m in data.meshes:
+        if m.kind == "garment":   # the run's UV layout (checked per format against it)
+            z = np.load(tmp_path / "out" / f"walk_tshirt_skirt.{m.name}.npz")
+            m.uv, m.uv_faces = z["uv"], z["uv_faces"]
+            assert len(m.uv) > m.vertices_seq.shape[1] and 0 <= m.uv.min() and m.uv.max() <= 1
+    data.scene_name = "walk_tshirt_skirt"
+    check_npz(data, tmp_path / "out")
+    check_pc2_obj(data, tmp_path / "out")
+    check_glb(data, tmp_path / "out" / "walk_tshirt_skirt.glb")
+    if _has_pxr():
+        check_usd(data, tmp_path / "out" / "walk_tshirt_skirt.usdc")
