@@ -109,7 +109,9 @@ def check_pc2_obj(data, tmp_path):
                                           m.vertices_seq[0][m.faces])
             np.testing.assert_allclose(obj.visual.uv[obj.faces], m.uv[m.uv_faces], atol=1e-7)
         text = (tmp_path / f"{syn}.{m.name}.obj").read_text()
-        assert "# up_axis: Y" in text and f"# fps: {data.fps}" in text
+        assert "# up_axis: Y" in text and f"# frames: {FRAMES}" in text
+        fps = float(next(line for line in text.splitlines() if line.startswith("# fps: ")).split()[-1])
+        assert fps == pytest.approx(data.fps, rel=1e-6)   # a recording keeps times in whole ns
 
 
 def _gltf_array(gltf, blob, index):
@@ -135,8 +137,12 @@ def check_glb(data, path):
     blob = gltf.binary_blob()
     assert gltf.asset.extras["up_axis"] == "Y" and gltf.asset.extras["fps"] == pytest.approx(data.fps)
     anim = gltf.animations[0]
-    for mi, m in enumerate(data.meshes):
+    names = [mm.name for mm in gltf.meshes]
+    assert sorted(names) == sorted(m.name for m in data.meshes)
+    for m in data.meshes:
+        mi = names.index(m.name)
         mesh = gltf.meshes[mi]
+        assert gltf.nodes[mi].mesh == mi and anim.channels[mi].target.node == mi
         prim = mesh.primitives[0]
         assert len(prim.targets) == FRAMES
         base = _gltf_array(gltf, blob, prim.attributes.POSITION)
