@@ -90,7 +90,7 @@ def cmd_export(args) -> int:
     """A recording: read its garments and body back; a scene: run it (recording included), then export."""
     from pipeline import export
     formats = export.check_formats([f for arg in args.format for f in arg.split(",") if f])
-    src = Path(args.source)
+    src = Path(args.scene)
     if src.suffix in (".yaml", ".yml"):
         from pipeline.run import run_scene
         from pipeline.scene import load_scene
@@ -145,7 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
     m.set_defaults(func=cmd_matrix)
     ex = sub.add_parser("export", parents=[common], help="write a recording's (or a scene run's) garments and body "
                                                          "as npz, pc2 (+ obj rest mesh), obj, glb or usd files")
-    ex.add_argument("source", help="a .rrd recording, or a scene .yaml (run first, then exported with UVs)")
+    ex.add_argument("scene", metavar="RECORDING.rrd|SCENE.yaml", help="a .rrd recording, or a scene .yaml (run first, then exported with UVs)")
     ex.add_argument("--format", action="append", required=True,
                     help="npz | pc2 | obj | glb | usd (repeatable or comma-separated; usd needs the 'usd' extra)")
     ex.add_argument("-o", "--output", help="folder for the files (default: <recording stem>_export next to it)")

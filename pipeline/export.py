@@ -307,7 +307,7 @@ def write_glb(data: ExportData, path: Path) -> Path:
     nodes, meshes, anims = [], [], []
     f_ = len(data.times)
     t_in = add((data.times - data.times[0]).astype(np.float32), minmax=True)
-    weights = np.eye(f_, dtype=np.float32).reshape(-1)
+    w_out = add(np.eye(f_, dtype=np.float32).reshape(-1))   # frame k: weight 1 on target k (shared)
     for m in data.meshes:
         particle, uv, faces = split_for_uv(m)
         seq = m.vertices_seq[:, particle].astype(np.float32)
@@ -322,12 +322,11 @@ def write_glb(data: ExportData, path: Path) -> Path:
                                      "particle_of_vertex": particle.tolist() if len(particle) > m.vertices_seq.shape[1] else None,
                                      "morph_targets": "one per frame; positions = POSITION + target"}))
         nodes.append(g.Node(name=m.name, mesh=len(meshes) - 1))
-        w_out = add(weights)
-        anims.append((len(nodes) - 1, w_out))
-    animation = g.Animation(name="frames", samplers=[g.AnimationSampler(input=t_in, output=w, interpolation="STEP")
-                                                     for _, w in anims],
+        anims.append(len(nodes) - 1)
+    animation = g.Animation(name="frames", samplers=[g.AnimationSampler(input=t_in, output=w_out, interpolation="STEP")
+                                                     for _ in anims],
                             channels=[g.AnimationChannel(sampler=i, target=g.AnimationChannelTarget(node=n, path="weights"))
-                                      for i, (n, _) in enumerate(anims)])
+                                      for i, n in enumerate(anims)])
     gltf = g.GLTF2(asset=g.Asset(version="2.0", generator="garment-colliders pipeline.export",
                                  extras={"up_axis": "Y", "units": "metres", "fps": data.fps,
                                          "frame_start": int(data.frames[0]), "frames": f_, "source": data.source}),
@@ -343,37 +342,46 @@ def write_glb(data: ExportData, path: Path) -> Path:
 def write_usd(data: ExportData, path: Path) -> Path:
     """One USD stage (.usdc): /Root/<mesh> UsdGeom.Mesh with time-sampled points at frame numbers,
     faceVarying `st` UVs, upAxis Y, metersPerUnit 1, timeCodesPerSecond = framesPerSecond = fps."""
-    from pxr import Sdf, Usd, UsdGeom, Vt, Gf   # noqa: F401
     with _atomic(path) as tmp:
-        usd_tmp = tmp.with_suffix(".usdc")
-        stage = Usd.Stage.CreateNew(str(usd_tmp))
-        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
-        UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-        stage.SetTimeCodesPerSecond(data.fps)
-        stage.SetFramesPerSecond(data.fps)
-        stage.SetStartTimeCode(float(data.frames[0]))
-        stage.SetEndTimeCode(float(data.frames[-1]))
-        root = UsdGeom.Xform.Define(stage, "/Root")
-        stage.SetDefaultPrim(root.GetPrim())
-        stage.GetRootLayer().customLayerData = {"source": data.source, "up_axis": "Y", "units": "metres"}
-        for m in data.meshes:
-            name = "".join(c if c.isalnum() or c == "_" else "_" for c in m.name)
-            mesh = UsdGeom.Mesh.Define(stage, f"/Root/{name}")
-            mesh.CreateFaceVertexCountsAttr(Vt.IntArray([3] * len(m.faces)))
-            mesh.CreateFaceVertexIndicesAttr(Vt.IntArray(m.faces.reshape(-1).tolist()))
-            mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-            mesh.GetPrim().SetCustomDataByKey("kind", m.kind)
-            pts = mesh.CreatePointsAttr()
-            for k, fr in enumerate(data.frames):
-                pts.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(m.vertices_seq[k], np.float32)), float(fr))
-            if m.uv is not None:
-                st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
-                                                             UsdGeom.Tokens.faceVarying)
-                st.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(m.uv, np.float32)))
-                st.SetIndices(Vt.IntArray(m.uv_faces.reshape(-1).tolist()))
-        stage.GetRootLayer().Save()
-        os.replace(usd_tmp, tmp)
+        usd_tmp = tmp.with_suffix(".usdc")   # USD picks the file format from the suffix
+        try:
+            _usd_stage(data, usd_tmp)
+            os.replace(usd_tmp, tmp)
+        finally:
+            if usd_tmp.exists():
+                usd_tmp.unlink()
     return path
+
+
+def _usd_stage(data: ExportData, usd_tmp: Path) -> None:
+    from pxr import Sdf, Usd, UsdGeom, Vt
+    stage = Usd.Stage.CreateNew(str(usd_tmp))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    stage.SetTimeCodesPerSecond(data.fps)
+    stage.SetFramesPerSecond(data.fps)
+    stage.SetStartTimeCode(float(data.frames[0]))
+    stage.SetEndTimeCode(float(data.frames[-1]))
+    root = UsdGeom.Xform.Define(stage, "/Root")
+    stage.SetDefaultPrim(root.GetPrim())
+    stage.GetRootLayer().customLayerData = {"source": data.source, "up_axis": "Y", "units": "metres"}
+    for m in data.meshes:
+        name = "".join(c if c.isalnum() or c == "_" else "_" for c in m.name)
+        name = name if name[:1].isalpha() or name[:1] == "_" else "_" + name   # a valid prim name
+        mesh = UsdGeom.Mesh.Define(stage, f"/Root/{name}")
+        mesh.CreateFaceVertexCountsAttr(Vt.IntArray([3] * len(m.faces)))
+        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray(m.faces.reshape(-1).tolist()))
+        mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        mesh.GetPrim().SetCustomDataByKey("kind", m.kind)
+        pts = mesh.CreatePointsAttr()
+        for k, fr in enumerate(data.frames):
+            pts.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(m.vertices_seq[k], np.float32)), float(fr))
+        if m.uv is not None:
+            st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                         UsdGeom.Tokens.faceVarying)
+            st.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(m.uv, np.float32)))
+            st.SetIndices(Vt.IntArray(m.uv_faces.reshape(-1).tolist()))
+    stage.GetRootLayer().Save()
 
 
 def check_formats(formats, where: str = "--format") -> list[str]:
