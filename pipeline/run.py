@@ -592,6 +592,9 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     if formats:   # an unknown format or a missing extra fails before the run
         from pipeline.export import check_formats
         formats = check_formats(formats, where=f"{scene.path or scene.name}: output.export")
+        if not scene["garments"]:
+            raise SceneError(f"{scene.path or scene.name}: output.export: the scene has no garments to export "
+                             f"(expected at least one entry under 'garments:')")
     summary = RunSummary(scene=scene.name, output=None, frames=len(times))
     announce = on_stage or (lambda name: None)
 

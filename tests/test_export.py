@@ -342,6 +342,11 @@ def test_a_missing_extra_stops_a_run_before_it_starts(tmp_path, monkeypatch, cap
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "s.yaml" in err and ".[usd]" in err
     assert not (tmp_path / "r.rrd").exists()
+    monkeypatch.undo()
+    scene.write_text("output: {path: r.rrd, export: [npz]}\n")   # no garments: said before the run
+    assert main(["run", str(scene), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "s.yaml" in err and "no garments" in err and not (tmp_path / "r.rrd").exists()
 
 
 def test_walk_tshirt_skirt_every_format_reads_back_exactly(tmp_path, monkeypatch, capsys):
