@@ -86,6 +86,27 @@ def cmd_matrix(args) -> int:
                     for r in per.values()) else 1
 
 
+def cmd_export(args) -> int:
+    """A recording: read its garments and body back; a scene: run it (recording included), then export."""
+    from pipeline import export
+    formats = export.check_formats([f for arg in args.format for f in arg.split(",") if f])
+    src = Path(args.scene)
+    if src.suffix in (".yaml", ".yml"):
+        from pipeline.run import run_scene
+        from pipeline.scene import load_scene
+        summary = run_scene(load_scene(src), frames=args.frames, progress=not args.quiet,
+                            export=(formats, args.output))
+        paths = summary.exports
+    elif src.suffix == ".rrd" or not src.exists():
+        data = export.from_recording(src)
+        paths = export.write(data, formats, args.output or export.default_dir(src))
+    else:
+        raise export.ExportError(f"{src}: expected a recording (.rrd) or a scene (.yaml)")
+    for p in paths:
+        print(p)
+    return 0
+
+
 def cmd_snapshot(args) -> int:
     from pipeline.snapshot import main
     return main(args)
@@ -122,6 +143,15 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--json", help="also write the figures to this JSON file")
     m.add_argument("-q", "--quiet", action="store_true", help="only the table")
     m.set_defaults(func=cmd_matrix)
+    ex = sub.add_parser("export", parents=[common], help="write a recording's (or a scene run's) garments and body "
+                                                         "as npz, pc2 (+ obj rest mesh), obj, glb or usd files")
+    ex.add_argument("scene", metavar="RECORDING.rrd|SCENE.yaml", help="a .rrd recording, or a scene .yaml (run first, then exported with UVs)")
+    ex.add_argument("--format", action="append", required=True,
+                    help="npz | pc2 | obj | glb | usd (repeatable or comma-separated; usd needs the 'usd' extra)")
+    ex.add_argument("-o", "--output", help="folder for the files (default: <recording stem>_export next to it)")
+    ex.add_argument("--frames", type=int, help="a scene: override the number of frames")
+    ex.add_argument("-q", "--quiet", action="store_true", help="a scene: no progress line")
+    ex.set_defaults(func=cmd_export)
     sn = sub.add_parser("snapshot", help="PNGs of a recording's scene view at chosen frames, through the Rerun "
                                          "viewer (headless; software Vulkan without a GPU)")
     sn.add_argument("recording", help="the .rrd file")

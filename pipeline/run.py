@@ -33,6 +33,7 @@ class RunSummary:
     tables: dict = field(default_factory=dict)   # name -> markdown table (fit report, map stats)
     timings: dict = field(default_factory=dict)  # wall-clock seconds besides the stages' (sewing)
     speeds: dict = field(default_factory=dict)   # wall-clock rates, formatted (simulation steps/s)
+    exports: list = field(default_factory=list)  # files written by output.export (pipeline.export)
 
     def text(self) -> str:
         lines = [f"scene {self.scene}: {self.frames} frames"]
@@ -49,6 +50,7 @@ class RunSummary:
             lines += ["  garment fit:"] + [f"    {row}" for row in self.tables["garment fit"].splitlines()]
         if self.output:
             lines.append(f"recording: {self.output}  (view: rerun {self.output})")
+        lines += [f"exported: {p}" for p in self.exports]
         return "\n".join(lines)
 
     def markdown(self) -> str:
@@ -566,13 +568,17 @@ def blueprint_of(scene: Scene, character, motion, skinned, colliders, coverage_r
 
 
 def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = None,
-              progress: bool = True, on_stage=None, deterministic: bool = False) -> RunSummary:
+              progress: bool = True, on_stage=None, deterministic: bool = False,
+              export: tuple | None = None) -> RunSummary:
     """Check the inputs that need no character (`preflight`), run every stage the scene needs and
     write the recording atomically.
 
     Wall-clock timings (stage times, sewing time, step times) go to the `timings/` entities only;
     `deterministic` leaves them out, so the same scene and seed give recordings `rerun rrd compare`
     finds equal.
+
+    export: (formats, folder or None) written after the recording (default: the scene's
+    output.export, output.export_dir); see pipeline.export.
     """
     from pipeline import logs, style, where
     from pipeline.progress import Progress
@@ -582,6 +588,13 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     out = Path(output) if output is not None else scene.output
     times = frame_times(scene, frames)
     meshes = preflight(scene, output, create=True, output_flag=output is not None)
+    formats, export_dir = export if export is not None else (scene.export["formats"], scene.export["dir"])
+    if formats:   # an unknown format or a missing extra fails before the run
+        from pipeline.export import check_formats
+        formats = check_formats(formats, where=f"{scene.path or scene.name}: output.export")
+        if not scene["garments"]:
+            raise SceneError(f"{scene.path or scene.name}: output.export: the scene has no garments to export "
+                             f"(expected at least one entry under 'garments:')")
     summary = RunSummary(scene=scene.name, output=None, frames=len(times))
     announce = on_stage or (lambda name: None)
 
@@ -708,4 +721,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
         rec.send_blueprint(blueprint_of(scene, character, motion, skinned, colliders, coverage_ran,
                                         obstacles, garments, builds, result), make_active=True, make_default=True)
     summary.output = out
+    if formats:
+        where.stage("export")
+        from pipeline.export import export_run
+        summary.exports = export_run(scene, out, motion, skinned, character, result, builds, formats, export_dir)
     return summary

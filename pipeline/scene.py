@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import os
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
@@ -213,7 +213,16 @@ SCENE_SPEC = {
         "threads": Field("int", 1, "worker threads for the simulation kernels; results are identical for any "
                          "count; 2 pays on an idle 2-core machine, 1 is safer on a loaded one", lo=1, hi=256),
     }),
-    "output": Field("path", None, "recording path; default recordings/<name>.rrd in the working folder"),
+    "output": Field("path", None, "recording path; default recordings/<name>.rrd in the working folder; or a "
+                    "mapping {path, export, export_dir} (see OUTPUT_FIELDS)"),
+}
+
+# `output:` as a mapping: the recording path plus the files exported after the run (pipeline.export)
+OUTPUT_FIELDS = {
+    "path": Field("path", None, "recording path; default recordings/<name>.rrd in the working folder"),
+    "export": Field("list", [], "formats written after the run: npz, pc2 (+ obj rest mesh), obj, glb, usd (extra 'usd')",
+                    item=Field("str", choices=("npz", "pc2", "obj", "glb", "usd"))),
+    "export_dir": Field("path", None, "folder for the exports; default <recording folder>/<recording stem>_export"),
 }
 
 
@@ -225,6 +234,8 @@ class Scene:
     name: str
     text: str
     settings: dict
+    # output.export / output.export_dir: {'formats': [...], 'dir': path or None} (pipeline.export)
+    export: dict = field(default_factory=lambda: {"formats": [], "dir": None})
 
     def __getitem__(self, key):
         return self.settings[key]
@@ -280,6 +291,11 @@ def parse_scene_text(text: str, *, source: str = "<scene>", base_dir: Path | Non
     if data is None:   # nothing but blanks and comments: running the defaults would be a surprise
         raise SceneError(f"{source}: the scene file is empty (expected a mapping such as 'character:', "
                          f"'garments:'; write '{{}}' to run every default)")
+    export = {"path": None, "export": [], "export_dir": None}
+    if isinstance(data, dict) and isinstance(data.get("output"), dict):   # output: {path, export, export_dir}
+        export = validate({"output": Field("section", {}, fields=OUTPUT_FIELDS)}, {"output": data["output"]},
+                          source=source, marks=marks, base_dir=base_dir)["output"]
+        data = {**data, "output": export["path"]}
     settings = validate(SCENE_SPEC, data, source=source, marks=marks, base_dir=base_dir)
     for section in ("garments", "obstacles"):   # names are entity paths: sim/<name>, obstacles/<name>
         first: dict = {}
@@ -293,7 +309,8 @@ def parse_scene_text(text: str, *, source: str = "<scene>", base_dir: Path | Non
     name = settings["name"] or default_name
     if not re.fullmatch(r"[A-Za-z0-9_.-]+", name):
         raise SceneError(f"{source}: name: {name!r} must use only letters, digits, '_', '-' and '.'")
-    return Scene(path=None, name=name, text=text, settings=settings)
+    return Scene(path=None, name=name, text=text, settings=settings,
+                 export={"formats": list(export["export"]), "dir": export["export_dir"]})
 
 
 def load_scene(path: str | os.PathLike) -> Scene:
@@ -308,4 +325,4 @@ def load_scene(path: str | os.PathLike) -> Scene:
     except (OSError, UnicodeDecodeError) as e:
         raise SceneError(f"{p}: cannot read scene file ({e.__class__.__name__}: {e})") from None
     scene = parse_scene_text(text, source=str(p), base_dir=p.resolve().parent, default_name=p.stem)
-    return Scene(path=p, name=scene.name, text=text, settings=scene.settings)
+    return Scene(path=p, name=scene.name, text=text, settings=scene.settings, export=scene.export)
