@@ -89,7 +89,9 @@ def cmd_matrix(args) -> int:
 def cmd_inspect(args) -> int:
     import json
 
+    from pipeline import where
     from pipeline.inspect import describe, text
+    where.stage(f"inspect {args.asset}")
     facts = describe(args.asset)
     print(json.dumps(facts, indent=1) if args.json else text(facts))
     return 0

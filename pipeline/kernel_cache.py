@@ -20,18 +20,19 @@ from pathlib import Path
 
 STAGES_DIR = Path(__file__).resolve().parent.parent / "stages"
 
-# stage (as run_scene announces it) -> the packages whose kernels it calls
+# stage (as run_scene announces it) -> the packages whose kernels it calls ('pkg/module': that
+# module only; '-pkg/module': not that one)
 STAGE_PACKAGES = {
     "rig": ("rig",),
     "colliders": ("rig", "hulls", "coverage"),
     "collider coverage": ("coverage",),
     "obstacles": ("obstacles",),
-    "garments": ("sim",),
-    "simulation": ("sim",),
-    "cloth audit": ("sim",),
+    "garments": ("sim", "-sim/audit_kernels"),      # sewing runs the simulation, without the cloth audit
+    "simulation": ("sim", "-sim/audit_kernels"),
+    "cloth audit": ("sim/audit_kernels",),
 }
-ESTIMATE_S = {"rig": 1, "colliders": 25, "collider coverage": 20, "obstacles": 5, "garments": 70,
-              "simulation": 5, "cloth audit": 10}
+ESTIMATE_S = {"rig": 1, "colliders": 24, "collider coverage": 6, "obstacles": 5, "garments": 50,
+              "simulation": 5, "cloth audit": 7}
 
 _CACHED = re.compile(r"cache\s*=\s*True")
 
@@ -55,9 +56,19 @@ def is_compiled(module: Path) -> bool:
     return any(any(d.glob(f"{module.stem}.*.nbi")) for d in _cache_dirs(module) if d.is_dir())
 
 
+def stage_modules(stage: str) -> set:
+    """The modules with cached kernels that `stage` calls (STAGE_PACKAGES)."""
+    mods, drop = set(), set()
+    for entry in STAGE_PACKAGES.get(stage, ()):
+        pkg, _, stem = entry.lstrip("-").partition("/")
+        found = {m for m in kernel_modules(pkg) if not stem or m.stem == stem}
+        (drop if entry.startswith("-") else mods).update(found)
+    return mods - drop
+
+
 def uncompiled(stage: str) -> tuple[int, int]:
     """(modules of the stage's kernels without a numba cache, modules with kernels)."""
-    mods = {m for pkg in STAGE_PACKAGES.get(stage, ()) for m in kernel_modules(pkg)}
+    mods = stage_modules(stage)
     return sum(not is_compiled(m) for m in mods), len(mods)
 
 

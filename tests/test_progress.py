@@ -67,6 +67,7 @@ def test_compile_note_until_the_cache_index_exists(tmp_path, monkeypatch):
     pkg = _fake_stages(tmp_path, monkeypatch)
     try:
         assert kernel_cache.uncompiled("simulation") == (1, 1)   # plain.py defines no kernel
+        assert kernel_cache.uncompiled("cloth audit") == (0, 0)  # no audit_kernels.py here
         note = kernel_cache.compile_note("simulation")
         assert note is not None and note.startswith("compiling kernels, first run only: about ")
         assert kernel_cache.compile_note("no such stage") is None
@@ -93,9 +94,12 @@ def test_compile_note_follows_numba_cache_dir(tmp_path, monkeypatch):
 
 
 def test_every_announced_stage_knows_its_kernel_modules():
-    for stage, packages in kernel_cache.STAGE_PACKAGES.items():
+    for stage in kernel_cache.STAGE_PACKAGES:
         assert stage in kernel_cache.ESTIMATE_S
-        assert any(kernel_cache.kernel_modules(p) for p in packages), stage
+        assert kernel_cache.stage_modules(stage), stage
+    sim = {m.stem for m in kernel_cache.stage_modules("simulation")}
+    assert "integrate" in sim and "audit_kernels" not in sim
+    assert {m.stem for m in kernel_cache.stage_modules("cloth audit")} == {"audit_kernels"}
 
 
 def test_run_shows_a_line_per_stage_and_the_sewing_and_simulation_progress(tmp_path):
