@@ -24,7 +24,7 @@ STAGES_DIR = Path(__file__).resolve().parent.parent / "stages"
 # module only; '-pkg/module': not that one)
 STAGE_PACKAGES = {
     "rig": ("rig",),
-    "colliders": ("rig", "hulls", "coverage"),
+    "colliders": ("hulls", "coverage"),             # skinning (rig) is compiled by the rig stage
     "collider coverage": ("coverage",),
     "obstacles": ("obstacles",),
     "garments": ("sim", "-sim/audit_kernels"),      # sewing runs the simulation, without the cloth audit
