@@ -1,10 +1,12 @@
 """`python -m pipeline bench [hulls] [maps] [sim] [obstacles] [coverage]`: the stage benchmarks, with the machine.
 
-Benchmarks are separate from the tests (no timing is asserted anywhere); figures are printed as
-JSON and optionally written to a file.
+Benchmarks are separate from the tests (no timing is asserted anywhere). stdout gets a short table
+(what, figure, target: `pipeline.bench_table`); `--json FILE` also writes the full dict of figures to
+FILE, `--json -` prints that dict instead of the table. Progress ("== sim ...") goes to stderr.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import platform
@@ -57,12 +59,18 @@ def run_benchmarks(which, output: str | None = None) -> dict:
     for n in names:
         print(f"== {n} ...", file=sys.stderr, flush=True)
         t0 = time.perf_counter()
-        results[n] = _jsonable(importlib.import_module(BENCHES[n]).run_benchmark())
+        with contextlib.redirect_stdout(sys.stderr):   # what a bench prints itself is progress
+            results[n] = _jsonable(importlib.import_module(BENCHES[n]).run_benchmark())
         results[n]["bench_wall_s"] = round(time.perf_counter() - t0, 2)
-        print(json.dumps({n: results[n]}, indent=2), flush=True)
-        if "table" in results[n]:       # a bench's own summary table (markdown)
-            print(results[n]["table"], flush=True)
-    if output:
-        with open(output, "w") as f:
-            json.dump(results, f, indent=2)
+    if output == "-":
+        print(json.dumps(results, indent=2), flush=True)
+    else:
+        from pipeline.bench_table import table
+        print(table(results), flush=True)
+        for n in names:
+            if isinstance(results[n], dict) and "table" in results[n]:   # a bench's own table (markdown)
+                print(f"\n{n}:\n{results[n]['table']}", flush=True)
+        if output:
+            with open(output, "w") as f:
+                json.dump(results, f, indent=2)
     return results

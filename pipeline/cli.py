@@ -1,4 +1,4 @@
-"""Command line: `python -m pipeline run|validate|bench|matrix|snapshot ...` (also the `garment-sim` script).
+"""Command line: `python -m pipeline run|validate|bench|matrix|inspect|snapshot ...` (also the `garment-sim` script).
 
 User errors (bad scene, bad asset, bad output path, broken stage input) print one line
 `error: ...` naming the scene file and exit 2, without a traceback. Any other exception is a bug:
@@ -107,6 +107,17 @@ def cmd_export(args) -> int:
     return 0
 
 
+def cmd_inspect(args) -> int:
+    import json
+
+    from pipeline import where
+    from pipeline.inspect import describe, text
+    where.stage(f"inspect {args.asset}")
+    facts = describe(args.asset)
+    print(json.dumps(facts, indent=1) if args.json else text(facts))
+    return 0
+
+
 def cmd_snapshot(args) -> int:
     from pipeline.snapshot import main
     return main(args)
@@ -152,6 +163,11 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--frames", type=int, help="a scene: override the number of frames")
     ex.add_argument("-q", "--quiet", action="store_true", help="a scene: no progress line")
     ex.set_defaults(func=cmd_export)
+    ins = sub.add_parser("inspect", parents=[common], help="a character file as the pipeline reads it: joints, "
+                                                           "clips, mesh size, up axis, garment anchors")
+    ins.add_argument("asset", help="a .glb / .gltf / .bvh file, or 'builtin' (the procedural character)")
+    ins.add_argument("--json", action="store_true", help="print the facts as JSON")
+    ins.set_defaults(func=cmd_inspect)
     sn = sub.add_parser("snapshot", help="PNGs of a recording's scene view at chosen frames, through the Rerun "
                                          "viewer (headless; software Vulkan without a GPU)")
     sn.add_argument("recording", help="the .rrd file")

@@ -41,7 +41,13 @@ class Progress:
                 self.stream.write(f"{self.label}: {done}/{self.total} {self.unit} ({rate:.1f} {self.unit}/s)\n")
                 self.stream.flush()
 
+    def __call__(self, done: int, total: int | None = None) -> None:
+        """The stages' `progress(done, total)` callback (a total that grows is taken as it comes)."""
+        if total is not None:
+            self.total = max(int(total), 1)
+        self.update(done)
+
     def close(self) -> None:
-        if self.enabled and self.tty:
+        if self.enabled and self.tty and self._last_draw:   # a bar was drawn: end its line
             self.stream.write("\n")
             self.stream.flush()

@@ -200,7 +200,7 @@ def collider_poses(scene: Scene, character, motion) -> np.ndarray:
     return motion.joint_world
 
 
-def split_and_fit(scene: Scene, character, motion):
+def split_and_fit(scene: Scene, character, motion, progress=None):
     """The region split and the colliders of the scene's `colliders` settings: (split, colliders).
     Swept hulls are fitted over the frames the scene plays (a static scene: its one pose)."""
     from stages.hulls.fit import fit_character
@@ -209,7 +209,7 @@ def split_and_fit(scene: Scene, character, motion):
     return fit_character(character, poses, split=c["split"], flexible=c["flexible"], delta=c["delta"],
                          motion_tolerance=c["motion_tolerance"], rigid_threshold=c["rigid_threshold"],
                          min_triangles=c["min_triangles"], max_offset=c["max_offset"],
-                         sweep_poses=motion.joint_world)
+                         sweep_poses=motion.joint_world, progress=progress)
 
 
 def pattern_options(kind: str) -> tuple[str, ...]:
@@ -348,7 +348,7 @@ def place_scene_pattern(scene: Scene, index: int, character, motion, colliders):
         raise SceneError(f"{_garment_where(scene, index, character)}: cannot place the pattern: {err}") from None
 
 
-def build_pattern_garment(scene: Scene, index: int, character, motion, colliders, maps):
+def build_pattern_garment(scene: Scene, index: int, character, motion, colliders, maps, progress=None):
     """A sewn garment from a built-in pattern: (Garment, SewingLog, GarmentBuild). Seams that do
     not close within the tolerance are a SceneError naming the seam and the gap."""
     from stages.checks import ContractError
@@ -362,7 +362,8 @@ def build_pattern_garment(scene: Scene, index: int, character, motion, colliders
     sew = SewParams(tolerance=sw["tolerance"], max_iterations=sw["max_iterations"],
                     gravity_scale=sw["gravity_scale"], iterations=sw["iterations"])
     try:
-        garment, log, build = make_garment(pattern, character, motion, colliders, maps, sew_params=sew)
+        garment, log, build = make_garment(pattern, character, motion, colliders, maps, sew_params=sew,
+                                           progress=progress)
     except (ContractError, InputError) as err:
         raise SceneError(f"{where}: cannot place and sew the pattern: {err}") from None
     if not log.converged:
@@ -382,11 +383,13 @@ def placement_matrix(item: dict) -> np.ndarray:
     return m
 
 
-def build_scene_garments(scene: Scene, character, motion, colliders, maps, meshes: dict | None = None):
+def build_scene_garments(scene: Scene, character, motion, colliders, maps, meshes: dict | None = None,
+                         progress=None):
     """Garments of the scene, placed in the relative frame at frame 0.
 
     meshes: the files already read by `load_scene_meshes` (read here when not given).
     Returns (garments, builds): builds maps a pattern garment's name to (SewingLog, GarmentBuild).
+    progress: optional factory, garment name -> callback(iteration, max_iterations) of its sewing.
     """
     from pipeline import where
     from stages.checks import ContractError
@@ -396,7 +399,8 @@ def build_scene_garments(scene: Scene, character, motion, colliders, maps, meshe
     for i, g in enumerate(scene["garments"]):
         with where.item(f"{_item(scene, 'garments', i)}, type {g['type']}"):
             try:
-                garment, built = _build_scene_garment(scene, i, character, motion, colliders, maps, meshes)
+                garment, built = _build_scene_garment(scene, i, character, motion, colliders, maps, meshes,
+                                                      progress(g["name"]) if progress is not None else None)
             except (ContractError, InputError) as err:
                 raise _garment_build_error(scene, i, err) from None
         out.append(garment)
@@ -434,14 +438,14 @@ def check_scene_garments(scene: Scene, character, motion, colliders, meshes: dic
     return patterns
 
 
-def _build_scene_garment(scene: Scene, i: int, character, motion, colliders, maps, meshes):
+def _build_scene_garment(scene: Scene, i: int, character, motion, colliders, maps, meshes, progress=None):
     """One garment: (Garment, (SewingLog, GarmentBuild) of a pattern or None)."""
     from stages.garments.simple import rectangle_cloth, tube_skirt
     from stages.garments.types import (COMMON_BONE, attach_indices, attach_near, attach_top_loop, bind_pose,
                                        build_garment)
     g = scene["garments"][i]
     if g["type"] == "pattern":
-        garment, log, build = build_pattern_garment(scene, i, character, motion, colliders, maps)
+        garment, log, build = build_pattern_garment(scene, i, character, motion, colliders, maps, progress)
         return garment, (log, build)
     bind = bind_pose(character, motion, colliders)
     if g["type"] == "mesh":
@@ -581,6 +585,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     output.export, output.export_dir); see pipeline.export.
     """
     from pipeline import logs, style, where
+    from pipeline.kernel_cache import compile_note
     from pipeline.progress import Progress
     from pipeline.recording import atomic_recording
     from stages.rig.skinning import skin
@@ -600,7 +605,11 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
 
     def say(name: str) -> None:
         where.stage(name)
-        announce(name)
+        note = compile_note(name) if progress else None
+        announce(f"{name} ({note})" if note else name)
+
+    def bar(label: str, unit: str) -> Progress:   # a stage's progress(done, total) callback
+        return Progress(1, label, unit=unit, enabled=progress)
 
     s = scene.settings
     with atomic_recording(out, scene_name=scene.name, scene_text=scene.text, seed=s["seed"]) as rec:
@@ -621,7 +630,11 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
 
         say("colliders")
         with _Timer(summary, "colliders") as r:
-            split, colliders = split_and_fit(scene, character, motion)
+            hull_bar = bar("colliders", "hulls")
+            try:
+                split, colliders = split_and_fit(scene, character, motion, progress=hull_bar)
+            finally:
+                hull_bar.close()
             faces = [h.report.faces_simplified for h in colliders.hulls]
             r.sizes.update(split=split.method, rigid_hulls=len(split.hull_bones),
                            swept_hulls=sum(h.kind == "swept" for h in colliders.hulls),
@@ -635,12 +648,15 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             from stages.coverage import measure_coverage
             from stages.errors import InputError
             with _Timer(summary, "coverage") as r:
+                coverage_bar = bar("collider coverage", "frames")
                 try:
                     coverage = measure_coverage(character, motion, colliders, every=s["colliders"]["report_every"],
-                                                seed=s["seed"])
+                                                seed=s["seed"], progress=coverage_bar)
                 except InputError as err:   # an audit that cannot measure must not stop the run
                     warnings.warn(f"{err}; the run goes on without the coverage report", stacklevel=1)
                     coverage = None
+                finally:
+                    coverage_bar.close()
             if coverage is not None:
                 t = coverage.totals()
                 r.sizes.update(frames=t["frames"], coverage=f"{t['coverage_min'] * 100:.2f} %",
@@ -674,7 +690,19 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
         if s["garments"]:
             say("garments")
             with _Timer(summary, "garments") as r:
-                garments, builds = build_scene_garments(scene, character, motion, colliders, maps, meshes)
+                sewing_bars = []
+
+                def sewing_bar(name: str) -> Progress:
+                    if sewing_bars:
+                        sewing_bars[-1].close()
+                    sewing_bars.append(bar(f"sewing {name} (stops when the seams close)", "iterations"))
+                    return sewing_bars[-1]
+                try:
+                    garments, builds = build_scene_garments(scene, character, motion, colliders, maps, meshes,
+                                                            progress=sewing_bar)
+                finally:
+                    if sewing_bars:
+                        sewing_bars[-1].close()
                 r.sizes.update(particles=sum(g.n_particles for g in garments))
                 for name, (log, _) in builds.items():
                     r.sizes[f"{name} sewing"] = (f"{log.iterations} it, gap {log.gap_max[-1] * 1000:.1f} mm, "

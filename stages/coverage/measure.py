@@ -248,7 +248,7 @@ def _pct(a: np.ndarray, q: float) -> float:
 def measure_coverage(character: Character, motion: Motion, colliders: ColliderSet, *, frames=None,
                      every: int = 10, interior_samples: int = 20000, surface_spacing: float = 0.01,
                      vertex_collider: np.ndarray | None = None, seed: int = 0,
-                     keep_samples: bool = False) -> CoverageReport:
+                     keep_samples: bool = False, progress=None) -> CoverageReport:
     """Coverage, excess and shell of `colliders` on the skinned `character` at sampled frames.
 
     frames: motion frame indices (default every `every`-th frame and the last). interior_samples:
@@ -258,6 +258,7 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
     -1 for none: per-collider coverage (default: from the colliders' region vertex indices).
     seed: the jitter and surface samples (same seed, same figures). keep_samples: keep every
     frame's sample points in `CoverageReport.samples` (for tests against a reference).
+    progress: optional callback(done, total) after each measured frame.
     """
     if frames is None:
         frames = sorted(set(range(0, motion.n_frames, max(1, int(every)))) | {motion.n_frames - 1})
@@ -336,6 +337,8 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
         rows["p50"].append(_pct(d, 50))
         rows["p95"].append(_pct(d, 95))
         rows["max"].append(float(d.max()) if d.size else 0.0)
+        if progress is not None:
+            progress(k + 1, len(frames))
 
     figures = []
     for c in range(nc):

@@ -594,7 +594,8 @@ class GarmentBuild:
         return max(self.seam_gaps.items(), key=lambda kv: kv[1], default=("", 0.0))
 
 
-def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_params=None, attach: bool = True):
+def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_params=None, attach: bool = True,
+                 progress=None):
     """Pattern -> Garment on the character in the bind pose (frame 0 of `motion`).
 
     Returns (Garment, SewingLog, GarmentBuild). The Garment's positions are the sewn shape (merged
@@ -646,7 +647,8 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
             if idx.size:
                 pins.append(attach_indices(idx, joint))
     sewn, log = sew(pattern.name, placed, tri, tri_rest, flat.seam_pairs, character, motion, colliders, maps, sp,
-                    density=pattern.density, flat_positions=flat3, pair_stage=stage, pins=pins, bind=bind)
+                    density=pattern.density, flat_positions=flat3, pair_stage=stage, pins=pins, bind=bind,
+                    progress=progress)
     pos, mtri, remap = merged_mesh(sewn, tri, flat.seam_pairs)
     atts = []
     if attach and pattern.attachments:

@@ -92,7 +92,7 @@ def seam_gaps(x: np.ndarray, pairs: np.ndarray) -> np.ndarray:
 
 def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: np.ndarray, pairs: np.ndarray,
         character, motion, colliders, maps, params: SewParams = SewParams(), *, density: float = 0.2,
-        flat_positions=None, pair_stage=None, pins=(), bind=None):
+        flat_positions=None, pair_stage=None, pins=(), bind=None, progress=None):
     """Sew the placed panels. Returns (sewn positions of the UNSEWN mesh (N, 3), SewingLog).
 
     positions: (N, 3) placed panels; triangles (T, 3); triangle_rest (T, 3) flat edge lengths;
@@ -102,6 +102,7 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
     2 x tolerance, or after max_iterations / (2 x stages) iterations of the stage.
     pins: Attachment selectors (stages.garments.types) of vertices held in place while sewing,
     with `bind` (bind_pose of the character); the hold motion is still, so they stay where placed.
+    progress: optional callback(iteration, max_iterations) after each sewing iteration.
     """
     from stages.sim import SimParams, simulate
     from stages.sim.types import SimulationDiverged
@@ -159,6 +160,8 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
             active = stage_of <= stages[si]
             g = garment_for(x, active)
             notes.append(f"stage {int(stages[si])} from iteration {it}")
+        if progress is not None:
+            progress(it, params.max_iterations)
         if it % params.log_every == 0:
             logged.append(it)
             snaps.append(x.astype(np.float32))

@@ -80,7 +80,7 @@ def fit_hull(points_local: np.ndarray, delta: float, min_triangles: int, *, sour
 def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.01,
                   min_triangles: int = 40, priority: str = "qem", max_offset: float | None = None,
                   flexible: str = "sphere", poses: np.ndarray | None = None,
-                  deviation: np.ndarray | None = None, core: bool = True) -> ColliderSet:
+                  deviation: np.ndarray | None = None, core: bool = True, progress=None) -> ColliderSet:
     """Hull colliders for split.hull_bones; for split.sphere_joints spheres (flexible='sphere', the
     paper) or swept hulls (flexible='swept', stages/hulls/swept.py).
 
@@ -91,6 +91,7 @@ def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.
     deviation: (V, K) from stages.rig.motion_range.bone_deviation over those poses (computed if None).
     core: add to each hull the points of its bone inside the body near its region (swept.bone_core),
     so hulls of patches of skin meet inside the body.
+    progress: optional callback(done, total) after each hull (total grows once the swept parts are known).
     Bone-local points = inverse_bind[b] @ bind-pose vertices. Sphere centre = the joint origin in its
     own frame: inverse_bind[j] @ (translation of inv(inverse_bind[j])), ~0 up to rounding.
     """
@@ -126,10 +127,13 @@ def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.
         return np.ascontiguousarray(np.concatenate([pts, transform_points(character.inverse_bind[b], c)]))
 
     hulls = []
+    total = len(split.hull_bones)
+    tick = progress or (lambda done, total: None)
     for b in split.hull_bones:
         idx = split.rigid_vertices(b)
         pts = np.ascontiguousarray(transform_points(character.inverse_bind[b], character.vertices[idx]))
         hulls.append(hull(b, character.joint_names[b], idx, with_core(b, idx, pts)))
+        tick(len(hulls), total)
     sphere_joints, notes = list(split.sphere_joints), []
     if flexible == "swept" and sphere_joints:
         from stages.rig.motion_range import bone_deviation
@@ -139,7 +143,9 @@ def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.
             deviation = bone_deviation(character, poses, skinned)
         parts, notes = swept.swept_parts(character, split, deviation)
         sphere_joints = []
+        total += len(parts)
         for (j, b, idx), name in zip(parts, swept.part_names(character, parts)):
+            tick(len(hulls) + len(sphere_joints), total)
             ring, pts = swept.swept_points(character, poses, skinned, b, idx)
             if not is_hull_ready(pts):
                 sphere_joints.append(j)
@@ -147,6 +153,7 @@ def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.
                              "for a swept hull; a joint sphere instead")
                 continue
             hulls.append(hull(b, name, ring, with_core(b, idx, pts), kind="swept", joint=j))
+        tick(total, total)
         sphere_joints = sorted(set(sphere_joints))
     spheres = []
     for j in sphere_joints:
@@ -168,8 +175,8 @@ def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.
 def fit_character(character: Character, poses: np.ndarray | None, *, split: str = "motion",
                   flexible: str = "swept", delta: float = 0.01, motion_tolerance: float = 0.5,
                   rigid_threshold: float = 0.9, min_triangles: int = 40,
-                  max_offset: float | None = 0.005, sweep_poses: np.ndarray | None = None
-                  ) -> tuple[RegionSplit, ColliderSet]:
+                  max_offset: float | None = 0.005, sweep_poses: np.ndarray | None = None,
+                  progress=None) -> tuple[RegionSplit, ColliderSet]:
     """Region split and colliders in one call: (split, colliders).
 
     split 'motion' (rigid within motion_tolerance * delta of its bind position in its bone's frame
@@ -192,7 +199,7 @@ def fit_character(character: Character, poses: np.ndarray | None, *, split: str 
         raise ContractError(f"fit_character: split must be 'motion' or 'weights', got {split!r}")
     colliders = fit_colliders(character, regions, delta=delta, min_triangles=min_triangles, max_offset=max_offset,
                               flexible=flexible, poses=poses if sweep_poses is None else sweep_poses,
-                              deviation=deviation)
+                              deviation=deviation, progress=progress)
     return regions, colliders
 
 

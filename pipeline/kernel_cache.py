@@ -1,0 +1,83 @@
+"""Whether a stage's numba kernels still have to be compiled (the first run after an install or
+an edit), so the run can say "compiling kernels (first run only)" instead of going silent.
+
+numba writes one index file (`<module>.<function>-<line>.py311.nbi`) per cached kernel beside the
+module, in `__pycache__` (or under $NUMBA_CACHE_DIR). A module that defines `cache=True` kernels
+and has no index file at all has not been compiled yet. This is a module-level test: a module
+half compiled (a kernel a scene did not use before) is not seen; nor is a cache numba finds stale
+(an edited source), which it recompiles.
+
+ESTIMATE_S: seconds each stage spent compiling on the 2-core development machine (cold run of
+scenes/default.yaml minus the warm one, README "Start-up time"); the message scales it by the
+share of the stage's modules that are not compiled.
+"""
+from __future__ import annotations
+
+import os
+import re
+from functools import lru_cache
+from pathlib import Path
+
+STAGES_DIR = Path(__file__).resolve().parent.parent / "stages"
+
+# stage (as run_scene announces it) -> the packages whose kernels it calls ('pkg/module': that
+# module only; '-pkg/module': not that one)
+STAGE_PACKAGES = {
+    "rig": ("rig",),
+    "colliders": ("hulls", "coverage"),             # skinning (rig) is compiled by the rig stage
+    "collider coverage": ("coverage",),
+    "obstacles": ("obstacles",),
+    "garments": ("sim", "-sim/audit_kernels"),      # sewing runs the simulation, without the cloth audit
+    "simulation": ("sim", "-sim/audit_kernels"),
+    "cloth audit": ("sim/audit_kernels",),
+}
+ESTIMATE_S = {"rig": 1, "colliders": 24, "collider coverage": 6, "obstacles": 5, "garments": 50,
+              "simulation": 5, "cloth audit": 7}
+
+_CACHED = re.compile(r"cache\s*=\s*True")
+
+
+@lru_cache(maxsize=None)
+def kernel_modules(package: str) -> tuple[Path, ...]:
+    """The modules of stages/<package> that define cached numba kernels."""
+    return tuple(p for p in sorted((STAGES_DIR / package).glob("*.py")) if _CACHED.search(p.read_text()))
+
+
+def _cache_dirs(module: Path) -> list[Path]:
+    dirs = [module.parent / "__pycache__"]
+    user = os.environ.get("NUMBA_CACHE_DIR")
+    if user:   # numba mirrors the source folder under it
+        dirs.append(Path(user) / module.parent.resolve().relative_to(module.parent.resolve().anchor))
+    return dirs
+
+
+def is_compiled(module: Path) -> bool:
+    """Any numba index file for `module`'s kernels."""
+    return any(any(d.glob(f"{module.stem}.*.nbi")) for d in _cache_dirs(module) if d.is_dir())
+
+
+def stage_modules(stage: str) -> set:
+    """The modules with cached kernels that `stage` calls (STAGE_PACKAGES)."""
+    mods, drop = set(), set()
+    for entry in STAGE_PACKAGES.get(stage, ()):
+        pkg, _, stem = entry.lstrip("-").partition("/")
+        found = {m for m in kernel_modules(pkg) if not stem or m.stem == stem}
+        (drop if entry.startswith("-") else mods).update(found)
+    return mods - drop
+
+
+def uncompiled(stage: str) -> tuple[int, int]:
+    """(modules of the stage's kernels without a numba cache, modules with kernels)."""
+    mods = stage_modules(stage)
+    return sum(not is_compiled(m) for m in mods), len(mods)
+
+
+def compile_note(stage: str) -> str | None:
+    """'compiling kernels, first run only: about N s' when the stage's kernels are not cached."""
+    if os.environ.get("NUMBA_DISABLE_JIT") == "1":
+        return None
+    missing, total = uncompiled(stage)
+    if not missing:
+        return None
+    est = ESTIMATE_S.get(stage, 5) * missing / total
+    return f"compiling kernels, first run only: about {max(1, round(est))} s on 2 cores"
