@@ -46,7 +46,7 @@ def characters() -> dict:
     }
 
 
-def _needs(yaml_text: str) -> Path | None:
+def needed_asset(yaml_text: str) -> Path | None:
     for name in ("CesiumMan.glb", "cmu_131_01_walk.bvh"):
         if name in yaml_text:
             return _assets() / name
@@ -68,14 +68,12 @@ class Prepared:
         m = scene["colliders"]["map"]
         self.maps = build_maps(self.colliders, kind=m["type"], n_theta=m["n_theta"], n_phi=m["n_phi"],
                                n_axial=m["n_axial"])
-        world_y = self.skinned[..., 1] + self.motion.root_translation[:, None, 1]
-        self.floor_y = float(world_y.min())
 
 
 def run_pair(prepared: Prepared, scene) -> dict:
     """Dress, sew and simulate the scene's one garment on a prepared character; the pair's figures."""
-    from pipeline.run import build_scene_garments, sim_params
-    from stages.garments.fit import BODY_SHARE_MAX, FIT_GAP_MAX, garment_fit
+    from pipeline.run import build_scene_garments, garment_fits, sim_params
+    from stages.garments.fit import BODY_SHARE_MAX, FIT_GAP_MAX
     from stages.sim import simulate
     from pipeline.schema import SceneError
     from stages.checks import ContractError
@@ -94,7 +92,7 @@ def run_pair(prepared: Prepared, scene) -> dict:
                     "seconds": time.perf_counter() - t0}
     g = garments[0]
     log, build = builds[g.name]
-    fit = garment_fit(p.character, p.skinned[0], g.positions, build.fit_vertices, result.garments[0], p.floor_y)
+    fit = garment_fits(p.character, p.motion, p.skinned, garments, builds, result)[0]
     tol = scene["garments"][0]["sewing"]["tolerance"]
     r = {"status": "ok", "seam_gap_mm": float(log.gap_max[-1] * 1000), "sewn": bool(log.gap_max[-1] <= tol),
          "in_colliders": int(result.penetrations_colliders[1:].max(initial=0)),
@@ -127,7 +125,7 @@ def run_matrix(frames: int = 30, characters_: list[str] | None = None, kinds: li
         if characters_ and name not in characters_:
             continue
         out[name] = {}
-        need = _needs(text)
+        need = needed_asset(text)
         if need is not None and not need.is_file():
             out[name] = {k: {"status": f"skipped: {need} not found"} for k in (kinds or KINDS)}
             continue
@@ -140,11 +138,11 @@ def run_matrix(frames: int = 30, characters_: list[str] | None = None, kinds: li
                                      source=f"matrix:{name}:{kind}")
             r = run_pair(prepared, scene)
             out[name][kind] = r
-            echo(f"  {kind:<12} {_row_figures(r)}")
+            echo(f"  {kind:<12} {row_figures(r)}")
     return out
 
 
-def _row_figures(r: dict) -> str:
+def row_figures(r: dict) -> str:
     if "seam_gap_mm" not in r:
         return r["status"]
     return (f"{r['status']:<8} seam {r['seam_gap_mm']:.1f} mm, colliders {r['in_colliders']}, body {r['in_body_pct']:.2f} %, "

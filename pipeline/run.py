@@ -520,26 +520,32 @@ def _build_scene_obstacle(o: dict, file_mesh, duration: float):
                          restitution=o["restitution"], motion=motion)
 
 
-def garment_fit_report(character, motion, skinned, garments, builds, result) -> str:
-    """The fit figures of every garment (stages.garments.fit) as a table; warns about any figure out
-    of range and about garments that start inside the body or a collider."""
-    import warnings
-
+def garment_fits(character, motion, skinned, garments, builds, result) -> list:
+    """stages.garments.fit.GarmentFit of every simulated garment; the floor is the lowest skin point
+    over the frames (world), the fit edges those of the pattern garments' builds."""
     from stages.coverage import SkinDistance
-    from stages.garments.fit import fit_table, garment_fit, start_warnings
+    from stages.garments.fit import garment_fit
     floor_y = float((skinned[..., 1] + motion.root_translation[:, None, 1]).min())
     body = SkinDistance(character)
-    fits, gaps = [], {}
+    out = []
     for g, track in zip(garments, result.garments):
         build = builds.get(g.name, (None, None))[1]
         fit_vertices = build.fit_vertices if build is not None else np.zeros(0, np.int64)
-        if build is not None:
-            gaps[g.name] = build.worst_seam()[1]
-        f = garment_fit(character, skinned[0], g.positions, fit_vertices, track, floor_y, skin_distance=body)
-        fits.append(f)
+        out.append(garment_fit(character, skinned[0], g.positions, fit_vertices, track, floor_y, skin_distance=body))
+    return out
+
+
+def garment_fit_report(character, motion, skinned, garments, builds, result) -> str:
+    """The fit figures of every garment (garment_fits) as a table; warns about any figure out of range
+    and about garments that start inside the body or a collider."""
+    import warnings
+
+    from stages.garments.fit import fit_table, start_warnings
+    fits = garment_fits(character, motion, skinned, garments, builds, result)
+    for f, track in zip(fits, result.garments):
         for w in start_warnings(track) + f.warnings():
             warnings.warn(w, stacklevel=1)
-    return fit_table(fits, gaps)
+    return fit_table(fits, {name: build.worst_seam()[1] for name, (_, build) in builds.items()})
 
 
 def blueprint_of(scene: Scene, character, motion, skinned, colliders, coverage_ran: bool, obstacles, garments,

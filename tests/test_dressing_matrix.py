@@ -56,10 +56,10 @@ def _params():
 @pytest.mark.parametrize("character,kind", _params())
 def test_garment_dresses_the_character(character, kind, request):
     from pipeline.scene import parse_scene_text
-    if matrix._needs(matrix.characters()[character]) is not None:
+    if matrix.needed_asset(matrix.characters()[character]) is not None:
         request.getfixturevalue("assets_dir")    # skips (or fails under GARMENT_REQUIRE_ASSETS=1) without
     base, scene = _pair_scene(character, kind)
     if character not in _prepared:
         _prepared[character] = matrix.Prepared(parse_scene_text(base, source=f"matrix:{character}"))
     r = matrix.run_pair(_prepared[character], scene)
-    assert r["status"] == "ok", f"{character} x {kind}: {r['status']} ({matrix._row_figures(r)})"
+    assert r["status"] == "ok", f"{character} x {kind}: {r['status']} ({matrix.row_figures(r)})"

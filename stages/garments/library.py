@@ -602,7 +602,7 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
     seam vertices), its rest lengths and masses come from the flat panels, and the pattern's
     attachments pin the chosen vertices to their bones.
     """
-    from stages.garments.sewing import SewParams, merged_mesh, sew
+    from stages.garments.sewing import SewParams, merged_mesh, seam_gaps, sew
     from stages.garments.triangulate import run_vertices, triangulate_pattern
     from stages.garments.placement import bind_geometry, hug, place_pattern
     from stages.garments.types import attach_indices, bind_pose, build_garment
@@ -617,7 +617,8 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
     flat3 = np.concatenate([np.c_[p.uv[:, 0] - p.uv[:, 0].min() + s, p.uv[:, 1], np.zeros(len(p.uv))]
                             for p, s in zip(flat.panels, shift)])
     stage = np.array([pattern.seams[k].stage for k in flat.seam_index], np.int64)
-    bind = bind_pose(character, motion, colliders) if pattern.attachments else None
+    pose = bind_pose(character, motion, colliders)
+    bind = pose if pattern.attachments else None
 
     def chosen(a):
         idx = run_vertices(pattern, flat, SeamSide(a.panel, a.edges))
@@ -634,7 +635,7 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
         for side in pattern.fit_edges:
             idx = run_vertices(pattern, flat, side)
             placed[idx] = hug(placed[idx], hug_targets(character, origins, placed[idx], pattern.fit_hug), character,
-                              skinned0, bind if bind is not None else bind_pose(character, motion, colliders))
+                              skinned0, pose)
     pins = []
     for a in pattern.attachments:
         if a.sewing:
@@ -659,8 +660,7 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
                       bind=bind)
     fit = [run_vertices(pattern, flat, side) for side in pattern.fit_edges]
     fit = np.unique(remap[np.concatenate(fit)]).astype(np.int64) if fit else np.zeros(0, np.int64)
-    gaps = np.linalg.norm(sewn[flat.seam_pairs[:, 0]] - sewn[flat.seam_pairs[:, 1]], axis=1) if flat.seam_pairs.size \
-        else np.zeros(0)
+    gaps = seam_gaps(sewn, flat.seam_pairs)
     by_seam = {}
     for k, seam in enumerate(pattern.seams):
         m = flat.seam_index == k

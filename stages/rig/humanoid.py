@@ -175,8 +175,7 @@ def humanoid_joints(character) -> HumanoidJoints:
     arms = {s: limb_chain(character, "arm", s) for s in ("l", "r")}
     legs = {s: limb_chain(character, "leg", s) for s in ("l", "r")}
     w = _rest_positions(character)
-    leg_set = set().union(*[subtree(parents, c) for c in _leg_roots(character, w)]) if _leg_roots(character, w) \
-        else set()
+    leg_set = set().union(set(), *[subtree(parents, c) for c in _leg_roots(character, w)])
     for ch in legs.values():
         if ch is not None:
             leg_set |= subtree(parents, ch[0])

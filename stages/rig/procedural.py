@@ -761,13 +761,6 @@ def procedural_character(params: BodyParams = BodyParams(),
 # ---------------------------------------------------------------------------------------------
 # Measurements
 
-# arm: shoulder to wrist; leg: hip to ankle (procedural names first, then common rig names)
-_ARM_CHAINS = (("upperarm_l", "forearm_l", "hand_l"), ("LeftArm", "LeftForeArm", "LeftHand"),
-               ("LeftShoulder", "LeftElbow", "LeftWrist"))
-_LEG_CHAINS = (("thigh_l", "shin_l", "foot_l"), ("LeftUpLeg", "LeftLeg", "LeftFoot"),
-               ("LeftHip", "LeftKnee", "LeftAnkle"))
-
-
 def body_measurements(character: Character) -> dict:
     """Tape-measure sizes of a character in its bind pose, metres.
 
