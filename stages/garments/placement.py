@@ -412,8 +412,8 @@ def push_out(points: np.ndarray, character, skinned: np.ndarray, clearance: floa
     return skinned[i] + clearance * n[i]
 
 
-HUG_GAP = 0.002    # m: a hugged band stays this far outside the colliders
-HUG_STEP = 0.001   # m: radial search step
+HUG_GAP = 0.004    # m: a hugged band stays this far outside the colliders
+HUG_STEP = 0.002   # m: radial search step
 
 
 def hug(points: np.ndarray, targets: np.ndarray, character, skinned: np.ndarray, bind, gap: float = HUG_GAP
