@@ -1,0 +1,866 @@
+"""Cloth x cloth collision kernels (garment-garment and self): k-DOP tree over the cloth's triangles
+(paper B), continuous point-triangle and edge-edge tests with a thickness, position response.
+
+Everything is numba over flat arrays, world frame, metres; the arrays are built once per scene by
+`stages.sim.cloth_contact.build_cloth_contact` (their shapes and dtypes are documented there).
+The entry is `collide_cloth`: see its docstring for the contract.
+
+Exact tests (the same functions serve the tree traversal and the brute-force references)
+- Features: a vertex-face pair (particle p, triangle abc) and an edge-edge pair (ab, cd). Over the
+  step every particle moves on the straight line x_prev -> x, so f(t) = det(b-a, c-a, p-a) (VF) or
+  det(b-a, d-c, c-a) (EE) is a cubic in t; its sign is the side p (or cd) is on.
+- Side s (+-1): the side at the start (sign f(0)); for a pair between garments of different layers
+  the side the layers prescribe (outer garment outward of the inner one's outward normal), as long
+  as the pair starts no deeper than `layer_depth` on the wrong side (deeper: the far side of the body,
+  not an interpenetration; the start side then holds).
+- CROSS: s f(0) >= 0 > s f(1) and f has a root in [0, 1] at which the features touch (p inside the
+  triangle, or both edge parameters in [0, 1], tolerance CROSS_TOL): the pair passed through.
+- NEAR: at the end the pair is closer than the thickness h on side s, -gate <= s d1 < h, with p's
+  projection inside the triangle (VF) or the closest points inside both edges (EE); gate = h, or
+  `layer_depth` for a layered pair (an outer particle up to that deep inside is pushed out).
+Every contact is the constraint C = dir . sum_k w_k x_k - h >= 0 over its 4 particles (dir = s times
+the unit normal at the end of the step; w the barycentric / edge weights), projected by inverse
+mass (PBD); pinned particles (inv_mass 0) never move.
+
+Which pairs are tested: the traversal pairs triangles whose swept, inflated k-DOPs overlap and that
+share no vertex (adjacent primitives are skipped). Each vertex and each edge is owned by one
+incident triangle (`tri_owns`), and a triangle pair tests only the features it owns, so each
+feature pair is tested once: a feature pair is tested iff its two owner triangles share no vertex.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.obstacles.kdop import refit_range, triangle_bounds
+
+NUMBA_CACHE_DEPENDS = ("stages.obstacles.kdop",)
+
+BARY_TOL = 1e-9      # NEAR: projection inside the triangle / closest points inside the edges
+CROSS_TOL = 1e-6     # CROSS: generous, so a path through a shared edge is caught by both sides
+PARALLEL_TOL = 1e-8  # |e1 x e2|^2 <= tol |e1|^2 |e2|^2: parallel edges, left to the VF tests
+PUSH_OVER = 1.02     # responses push to 1.02 h so a contact just resolved is not found again at h
+
+VF_NEAR = 0
+VF_CROSS = 1
+EE_NEAR = 2
+EE_CROSS = 3
+
+# counters (int64, accumulated with +=; the caller zeroes them)
+N_CONTACTS = 0     # contacts found over all rounds
+N_CORRECTED = 1    # particles moved by a response or the fail-safe (once per call each)
+N_UNRESOLVED = 2   # CROSS contacts left after the response rounds (handed to the fail-safe)
+N_REVERTED = 3     # particles the fail-safe put back to x_prev
+N_LEFT = 4         # CROSS contacts left after the fail-safe (0 unless pinned particles force them)
+N_ROUNDS = 5       # response rounds run
+N_NODE_PAIRS = 6   # tree node pairs visited
+N_TESTS = 7        # exact feature-pair tests
+N_OVERFLOW = 8     # contacts dropped because the contact buffer was full
+N_COUNTERS = 9
+
+
+# ---------------------------------------------------------------------------------------------
+# geometry helpers
+
+@njit(cache=True, inline="always")
+def _det(ax, ay, az, bx, by, bz, cx, cy, cz):
+    """det[a, b, c] = (a x b) . c"""
+    return (ay * bz - az * by) * cx + (az * bx - ax * bz) * cy + (ax * by - ay * bx) * cz
+
+
+@njit(cache=True, inline="always")
+def _at(xs, xe, i, t):
+    """Particle i at time t of the step (straight line xs -> xe)."""
+    return (xs[i, 0] + t * (xe[i, 0] - xs[i, 0]), xs[i, 1] + t * (xe[i, 1] - xs[i, 1]),
+            xs[i, 2] + t * (xe[i, 2] - xs[i, 2]))
+
+
+@njit(cache=True)
+def triple_cubic(xs, xe, ua, ub, va, vb, wa, wb):
+    """Coefficients (c0, c1, c2, c3) of f(t) = det(U, V, W) with U = x[ua] - x[ub], V = x[va] - x[vb],
+    W = x[wa] - x[wb] and x(t) = xs + t (xe - xs)."""
+    u0x = xs[ua, 0] - xs[ub, 0]
+    u0y = xs[ua, 1] - xs[ub, 1]
+    u0z = xs[ua, 2] - xs[ub, 2]
+    v0x = xs[va, 0] - xs[vb, 0]
+    v0y = xs[va, 1] - xs[vb, 1]
+    v0z = xs[va, 2] - xs[vb, 2]
+    w0x = xs[wa, 0] - xs[wb, 0]
+    w0y = xs[wa, 1] - xs[wb, 1]
+    w0z = xs[wa, 2] - xs[wb, 2]
+    dux = xe[ua, 0] - xe[ub, 0] - u0x
+    duy = xe[ua, 1] - xe[ub, 1] - u0y
+    duz = xe[ua, 2] - xe[ub, 2] - u0z
+    dvx = xe[va, 0] - xe[vb, 0] - v0x
+    dvy = xe[va, 1] - xe[vb, 1] - v0y
+    dvz = xe[va, 2] - xe[vb, 2] - v0z
+    dwx = xe[wa, 0] - xe[wb, 0] - w0x
+    dwy = xe[wa, 1] - xe[wb, 1] - w0y
+    dwz = xe[wa, 2] - xe[wb, 2] - w0z
+    c0 = _det(u0x, u0y, u0z, v0x, v0y, v0z, w0x, w0y, w0z)
+    c1 = (_det(dux, duy, duz, v0x, v0y, v0z, w0x, w0y, w0z) + _det(u0x, u0y, u0z, dvx, dvy, dvz, w0x, w0y, w0z)
+          + _det(u0x, u0y, u0z, v0x, v0y, v0z, dwx, dwy, dwz))
+    c2 = (_det(dux, duy, duz, dvx, dvy, dvz, w0x, w0y, w0z) + _det(dux, duy, duz, v0x, v0y, v0z, dwx, dwy, dwz)
+          + _det(u0x, u0y, u0z, dvx, dvy, dvz, dwx, dwy, dwz))
+    c3 = _det(dux, duy, duz, dvx, dvy, dvz, dwx, dwy, dwz)
+    return c0, c1, c2, c3
+
+
+@njit(cache=True, inline="always")
+def _poly(c0, c1, c2, c3, t):
+    return ((c3 * t + c2) * t + c1) * t + c0
+
+
+@njit(cache=True, inline="always")
+def _root_in(c0, c1, c2, c3, lo, hi, flo, fhi):
+    """A root of the cubic in [lo, hi] given a sign change (or a zero) at its ends: bisection."""
+    if flo == 0.0:
+        return lo
+    if fhi == 0.0:
+        return hi
+    for _ in range(64):
+        mid = 0.5 * (lo + hi)
+        if mid <= lo or mid >= hi:
+            break
+        fm = _poly(c0, c1, c2, c3, mid)
+        if fm == 0.0:
+            return mid
+        if (fm < 0.0) == (flo < 0.0):
+            lo = mid
+            flo = fm
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+@njit(cache=True)
+def cubic_roots01(c0, c1, c2, c3, f0, f1):
+    """Up to 3 roots of c0 + c1 t + c2 t^2 + c3 t^3 in [0, 1], ascending: (r0, r1, r2, count).
+
+    The cubic is cut at its critical points into monotone pieces; a piece whose ends differ in sign
+    (or touch zero) holds exactly one root, found by bisection. f0, f1: the values at 0 and 1 (passed
+    in so the end signs agree with the caller's direct evaluations). A double root that does not
+    change sign (a touch) is not reported: it is no crossing.
+    """
+    a = 3.0 * c3
+    b = 2.0 * c2
+    c = c1
+    t1 = 2.0
+    t2 = 2.0
+    if a != 0.0:
+        disc = b * b - 4.0 * a * c
+        if disc >= 0.0:
+            sq = np.sqrt(disc)
+            q = -0.5 * (b + (sq if b >= 0.0 else -sq))
+            if q != 0.0:
+                t1 = q / a
+                t2 = c / q
+            else:
+                t1 = 0.0
+                t2 = 0.0
+    elif b != 0.0:
+        t1 = -c / b
+    if t1 > t2:
+        t1, t2 = t2, t1
+    if not (0.0 < t1 < 1.0):
+        t1 = 2.0
+    if not (0.0 < t2 < 1.0):
+        t2 = 2.0
+    if t1 > t2:
+        t1, t2 = t2, t1
+    r = (2.0, 2.0, 2.0)
+    n = 0
+    lo = 0.0
+    flo = f0
+    for piece in range(3):
+        if piece == 0:
+            hi = t1
+        elif piece == 1:
+            hi = t2
+        else:
+            hi = 1.0
+        if hi > 1.0:
+            hi = 1.0
+        if hi < lo or (hi == lo and piece < 2):
+            continue
+        fhi = f1 if hi == 1.0 else _poly(c0, c1, c2, c3, hi)
+        if flo == 0.0 or fhi == 0.0 or (flo < 0.0) != (fhi < 0.0):
+            root = _root_in(c0, c1, c2, c3, lo, hi, flo, fhi)
+            if n == 0 or root > (r[0] if n == 1 else r[1]):
+                if n == 0:
+                    r = (root, 2.0, 2.0)
+                elif n == 1:
+                    r = (r[0], root, 2.0)
+                else:
+                    r = (r[0], r[1], root)
+                n += 1
+        lo = hi
+        flo = fhi
+        if hi == 1.0:
+            break
+    return r[0], r[1], r[2], n
+
+
+@njit(cache=True, inline="always")
+def _bary(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
+    """Barycentric (wa, wb, wc) of p's projection on the plane of abc; ok False if degenerate."""
+    e1x = bx - ax
+    e1y = by - ay
+    e1z = bz - az
+    e2x = cx - ax
+    e2y = cy - ay
+    e2z = cz - az
+    wx = px - ax
+    wy = py - ay
+    wz = pz - az
+    d11 = e1x * e1x + e1y * e1y + e1z * e1z
+    d12 = e1x * e2x + e1y * e2y + e1z * e2z
+    d22 = e2x * e2x + e2y * e2y + e2z * e2z
+    dw1 = wx * e1x + wy * e1y + wz * e1z
+    dw2 = wx * e2x + wy * e2y + wz * e2z
+    den = d11 * d22 - d12 * d12
+    if not (den > 1e-30 * d11 * d22) or den == 0.0:
+        return False, 0.0, 0.0, 0.0
+    v = (d22 * dw1 - d12 * dw2) / den
+    w = (d11 * dw2 - d12 * dw1) / den
+    return True, 1.0 - v - w, v, w
+
+
+@njit(cache=True, inline="always")
+def _edge_params(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
+    """Closest points of the lines ab and cd: (ok, v on ab, u on cd); ok False if parallel."""
+    e1x = bx - ax
+    e1y = by - ay
+    e1z = bz - az
+    e2x = dx - cx
+    e2y = dy - cy
+    e2z = dz - cz
+    rx = ax - cx
+    ry = ay - cy
+    rz = az - cz
+    aa = e1x * e1x + e1y * e1y + e1z * e1z
+    bb = e1x * e2x + e1y * e2y + e1z * e2z
+    cc = e2x * e2x + e2y * e2y + e2z * e2z
+    dd = e1x * rx + e1y * ry + e1z * rz
+    ee = e2x * rx + e2y * ry + e2z * rz
+    den = aa * cc - bb * bb
+    if not (den > PARALLEL_TOL * aa * cc):
+        return False, 0.0, 0.0
+    return True, (bb * ee - cc * dd) / den, (aa * ee - bb * dd) / den
+
+
+@njit(cache=True, inline="always")
+def _inside(w0, w1, w2, tol):
+    return w0 >= -tol and w1 >= -tol and w2 >= -tol
+
+
+@njit(cache=True, inline="always")
+def _side(f0, f1):
+    """The start side: sign f(0); a pair starting exactly on the plane came from the side opposite
+    to where it ends (or +1 if it stays there)."""
+    if f0 > 0.0:
+        return 1.0
+    if f0 < 0.0:
+        return -1.0
+    return -1.0 if f1 > 0.0 else 1.0
+
+
+# ---------------------------------------------------------------------------------------------
+# exact pair tests. Return (kind or -1, w1, w2, w3, dx, dy, dz) with the constraint weights of the
+# 2nd..4th particle (the 1st: 1 for VF; EE weights below) and dir = s * unit normal at the end.
+
+@njit(cache=True)
+def test_vertex_face(xs, xe, p, a, b, c, forced, h, layer_depth):
+    """Particle p against triangle abc. forced: 0, or the side (+-1) the layers prescribe for p
+    relative to the triangle's normal (b-a) x (c-a). Weights returned: (wa, wb, wc) barycentric;
+    the constraint is dir . (p - wa a - wb b - wc c) >= h."""
+    # end normal and distance
+    e1x = xe[b, 0] - xe[a, 0]
+    e1y = xe[b, 1] - xe[a, 1]
+    e1z = xe[b, 2] - xe[a, 2]
+    e2x = xe[c, 0] - xe[a, 0]
+    e2y = xe[c, 1] - xe[a, 1]
+    e2z = xe[c, 2] - xe[a, 2]
+    n1x = e1y * e2z - e1z * e2y
+    n1y = e1z * e2x - e1x * e2z
+    n1z = e1x * e2y - e1y * e2x
+    l1 = np.sqrt(n1x * n1x + n1y * n1y + n1z * n1z)
+    if l1 == 0.0:
+        return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    f1 = n1x * (xe[p, 0] - xe[a, 0]) + n1y * (xe[p, 1] - xe[a, 1]) + n1z * (xe[p, 2] - xe[a, 2])
+    # start normal and distance
+    s1x = xs[b, 0] - xs[a, 0]
+    s1y = xs[b, 1] - xs[a, 1]
+    s1z = xs[b, 2] - xs[a, 2]
+    s2x = xs[c, 0] - xs[a, 0]
+    s2y = xs[c, 1] - xs[a, 1]
+    s2z = xs[c, 2] - xs[a, 2]
+    n0x = s1y * s2z - s1z * s2y
+    n0y = s1z * s2x - s1x * s2z
+    n0z = s1x * s2y - s1y * s2x
+    f0 = n0x * (xs[p, 0] - xs[a, 0]) + n0y * (xs[p, 1] - xs[a, 1]) + n0z * (xs[p, 2] - xs[a, 2])
+    d1 = f1 / l1
+    s = _side(f0, f1)
+    gate = h
+    if forced != 0:
+        l0 = np.sqrt(n0x * n0x + n0y * n0y + n0z * n0z)
+        if l0 > 0.0 and forced * f0 / l0 >= -layer_depth:
+            s = float(forced)
+            gate = layer_depth
+    sd1 = s * d1
+    if s * f1 >= 0.0 and sd1 >= h:
+        return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    dx = s * n1x / l1
+    dy = s * n1y / l1
+    dz = s * n1z / l1
+    if s * f0 >= 0.0 and s * f1 < 0.0:
+        c0, c1, c2, c3 = triple_cubic(xs, xe, b, a, c, a, p, a)
+        r0, r1, r2, nr = cubic_roots01(c0, c1, c2, c3, f0, f1)
+        for k in range(nr):
+            t = r0 if k == 0 else (r1 if k == 1 else r2)
+            px, py, pz = _at(xs, xe, p, t)
+            ax, ay, az = _at(xs, xe, a, t)
+            bx, by, bz = _at(xs, xe, b, t)
+            cx, cy, cz = _at(xs, xe, c, t)
+            ok, wa, wb, wc = _bary(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz)
+            if ok and _inside(wa, wb, wc, CROSS_TOL):
+                return VF_CROSS, wa, wb, wc, dx, dy, dz
+    if -gate <= sd1 < h:
+        ok, wa, wb, wc = _bary(xe[p, 0], xe[p, 1], xe[p, 2], xe[a, 0], xe[a, 1], xe[a, 2],
+                               xe[b, 0], xe[b, 1], xe[b, 2], xe[c, 0], xe[c, 1], xe[c, 2])
+        if ok and _inside(wa, wb, wc, BARY_TOL):
+            return VF_NEAR, wa, wb, wc, dx, dy, dz
+    return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+
+
+@njit(cache=True)
+def test_edge_edge(xs, xe, a, b, c, d, forced, ox, oy, oz, h, layer_depth):
+    """Edge ab against edge cd. forced: 0; +1 if cd is the outer garment's edge and ab the inner's,
+    -1 the other way round; (ox, oy, oz): the inner edge's outward normal at the end of the step.
+    Weights returned: (v, u, 0) with v on ab, u on cd; the constraint is
+    dir . ((c + u (d - c)) - (a + v (b - a))) >= h."""
+    e1x = xe[b, 0] - xe[a, 0]
+    e1y = xe[b, 1] - xe[a, 1]
+    e1z = xe[b, 2] - xe[a, 2]
+    e2x = xe[d, 0] - xe[c, 0]
+    e2y = xe[d, 1] - xe[c, 1]
+    e2z = xe[d, 2] - xe[c, 2]
+    n1x = e1y * e2z - e1z * e2y
+    n1y = e1z * e2x - e1x * e2z
+    n1z = e1x * e2y - e1y * e2x
+    l1sq = n1x * n1x + n1y * n1y + n1z * n1z
+    parallel1 = not (l1sq > PARALLEL_TOL * (e1x * e1x + e1y * e1y + e1z * e1z) * (e2x * e2x + e2y * e2y + e2z * e2z))
+    l1 = np.sqrt(l1sq)
+    f1 = n1x * (xe[c, 0] - xe[a, 0]) + n1y * (xe[c, 1] - xe[a, 1]) + n1z * (xe[c, 2] - xe[a, 2])
+    g1x = xs[b, 0] - xs[a, 0]
+    g1y = xs[b, 1] - xs[a, 1]
+    g1z = xs[b, 2] - xs[a, 2]
+    g2x = xs[d, 0] - xs[c, 0]
+    g2y = xs[d, 1] - xs[c, 1]
+    g2z = xs[d, 2] - xs[c, 2]
+    n0x = g1y * g2z - g1z * g2y
+    n0y = g1z * g2x - g1x * g2z
+    n0z = g1x * g2y - g1y * g2x
+    l0sq = n0x * n0x + n0y * n0y + n0z * n0z
+    parallel0 = not (l0sq > PARALLEL_TOL * (g1x * g1x + g1y * g1y + g1z * g1z) * (g2x * g2x + g2y * g2y + g2z * g2z))
+    f0 = n0x * (xs[c, 0] - xs[a, 0]) + n0y * (xs[c, 1] - xs[a, 1]) + n0z * (xs[c, 2] - xs[a, 2])
+    if parallel1 and parallel0:
+        return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    # start side; edges parallel at the start have no side there: take the end's (no crossing)
+    s = _side(f1, 0.0) if parallel0 else _side(f0, f1)
+    gate = h
+    if forced != 0 and not parallel1:
+        # the outer edge must lie along the inner edge's outward normal o: dir = s n1 with s = sign(n1 . o)
+        on = n1x * ox + n1y * oy + n1z * oz
+        lo = np.sqrt(ox * ox + oy * oy + oz * oz)
+        if abs(on) > 0.1 * l1 * lo:
+            sf = forced * (1.0 if on > 0.0 else -1.0)
+            if parallel0 or sf * f0 / np.sqrt(l0sq) >= -layer_depth:
+                s = sf
+                gate = layer_depth
+    if parallel1:
+        if s * f0 >= 0.0 and s * f1 < 0.0:
+            pass  # may still have crossed mid-step: the cubic below decides
+        else:
+            return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    sd1 = s * f1 / l1 if l1 > 0.0 else 0.0
+    if s * f1 >= 0.0 and sd1 >= h:
+        return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    dx = 0.0
+    dy = 0.0
+    dz = 0.0
+    if not parallel1:
+        dx = s * n1x / l1
+        dy = s * n1y / l1
+        dz = s * n1z / l1
+    if s * f0 >= 0.0 and s * f1 < 0.0:
+        c0, c1, c2, c3 = triple_cubic(xs, xe, b, a, d, c, c, a)
+        r0, r1, r2, nr = cubic_roots01(c0, c1, c2, c3, f0, f1)
+        for k in range(nr):
+            t = r0 if k == 0 else (r1 if k == 1 else r2)
+            ax, ay, az = _at(xs, xe, a, t)
+            bx, by, bz = _at(xs, xe, b, t)
+            cx, cy, cz = _at(xs, xe, c, t)
+            qx, qy, qz = _at(xs, xe, d, t)
+            ok, v, u = _edge_params(ax, ay, az, bx, by, bz, cx, cy, cz, qx, qy, qz)
+            if ok and -CROSS_TOL <= v <= 1.0 + CROSS_TOL and -CROSS_TOL <= u <= 1.0 + CROSS_TOL:
+                if parallel1:
+                    # no end normal: push along the direction the pair came from (start normal)
+                    l0 = np.sqrt(l0sq)
+                    dx = s * n0x / l0
+                    dy = s * n0y / l0
+                    dz = s * n0z / l0
+                return EE_CROSS, min(max(v, 0.0), 1.0), min(max(u, 0.0), 1.0), 0.0, dx, dy, dz
+    if not parallel1 and -gate <= sd1 < h:
+        ok, v, u = _edge_params(xe[a, 0], xe[a, 1], xe[a, 2], xe[b, 0], xe[b, 1], xe[b, 2],
+                                xe[c, 0], xe[c, 1], xe[c, 2], xe[d, 0], xe[d, 1], xe[d, 2])
+        if ok and -BARY_TOL <= v <= 1.0 + BARY_TOL and -BARY_TOL <= u <= 1.0 + BARY_TOL:
+            return EE_NEAR, v, u, 0.0, dx, dy, dz
+    return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+
+
+# ---------------------------------------------------------------------------------------------
+# feature pairs of two triangles, the contact buffer
+
+@njit(cache=True, inline="always")
+def _vf_forced(p, t, particle_garment, tri_garment, garment_layer, garment_outward):
+    """The side the layers prescribe for particle p against triangle t (0: none)."""
+    gp = particle_garment[p]
+    gt = tri_garment[t]
+    if garment_layer[gp] > garment_layer[gt]:
+        return int(garment_outward[gt])   # p is outer: along t's outward normal
+    if garment_layer[gp] < garment_layer[gt]:
+        return -int(garment_outward[gt])  # p is inner: against the outer triangle's outward normal
+    return 0
+
+
+@njit(cache=True, inline="always")
+def _edge_outward(xe, e, edge_tris, triangles, tri_garment, garment_outward):
+    """Outward normal of edge e at the end of the step: the sum of its triangles' outward normals."""
+    ox = 0.0
+    oy = 0.0
+    oz = 0.0
+    for j in range(2):
+        t = edge_tris[e, j]
+        if t < 0:
+            continue
+        a = triangles[t, 0]
+        b = triangles[t, 1]
+        c = triangles[t, 2]
+        e1x = xe[b, 0] - xe[a, 0]
+        e1y = xe[b, 1] - xe[a, 1]
+        e1z = xe[b, 2] - xe[a, 2]
+        e2x = xe[c, 0] - xe[a, 0]
+        e2y = xe[c, 1] - xe[a, 1]
+        e2z = xe[c, 2] - xe[a, 2]
+        nx = e1y * e2z - e1z * e2y
+        ny = e1z * e2x - e1x * e2z
+        nz = e1x * e2y - e1y * e2x
+        ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if ln > 0.0:
+            sg = garment_outward[tri_garment[t]] / ln
+            ox += sg * nx
+            oy += sg * ny
+            oz += sg * nz
+    return ox, oy, oz
+
+
+@njit(cache=True, inline="always")
+def _store(work, n, kind, f0, f1, i0, i1, i2, i3, w0, w1, w2, w3, dx, dy, dz, counters):
+    moved, corrected, c_kind, c_feat, c_idx, c_w, c_dir = work
+    if n >= c_kind.shape[0]:
+        counters[N_OVERFLOW] += 1
+        return n
+    c_kind[n] = kind
+    c_feat[n, 0] = f0
+    c_feat[n, 1] = f1
+    c_idx[n, 0] = i0
+    c_idx[n, 1] = i1
+    c_idx[n, 2] = i2
+    c_idx[n, 3] = i3
+    c_w[n, 0] = w0
+    c_w[n, 1] = w1
+    c_w[n, 2] = w2
+    c_w[n, 3] = w3
+    c_dir[n, 0] = dx
+    c_dir[n, 1] = dy
+    c_dir[n, 2] = dz
+    return n + 1
+
+
+@njit(cache=True)
+def test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters):
+    """Exact test of particle p against triangle t; stores a contact in the buffer. Returns n."""
+    (triangles, edges, tri_edges, tri_owns, edge_tris, particle_garment, tri_garment, edge_garment,
+     garment_layer, garment_outward) = topo
+    a = triangles[t, 0]
+    b = triangles[t, 1]
+    c = triangles[t, 2]
+    forced = _vf_forced(p, t, particle_garment, tri_garment, garment_layer, garment_outward)
+    counters[N_TESTS] += 1
+    kind, wa, wb, wc, dx, dy, dz = test_vertex_face(xs, xe, p, a, b, c, forced, h, layer_depth)
+    if kind < 0 or (only_cross and kind != VF_CROSS):
+        return n
+    return _store(work, n, kind, p, t, p, a, b, c, 1.0, -wa, -wb, -wc, dx, dy, dz, counters)
+
+
+@njit(cache=True)
+def test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters):
+    """Exact test of edge e against edge f (e < f); stores a contact in the buffer. Returns n."""
+    (triangles, edges, tri_edges, tri_owns, edge_tris, particle_garment, tri_garment, edge_garment,
+     garment_layer, garment_outward) = topo
+    a = edges[e, 0]
+    b = edges[e, 1]
+    c = edges[f, 0]
+    d = edges[f, 1]
+    forced = 0
+    ox = 0.0
+    oy = 0.0
+    oz = 0.0
+    le = garment_layer[edge_garment[e]]
+    lf = garment_layer[edge_garment[f]]
+    if le != lf:
+        inner = e if le < lf else f
+        forced = 1 if le < lf else -1
+        ox, oy, oz = _edge_outward(xe, inner, edge_tris, triangles, tri_garment, garment_outward)
+    counters[N_TESTS] += 1
+    kind, v, u, _, dx, dy, dz = test_edge_edge(xs, xe, a, b, c, d, forced, ox, oy, oz, h, layer_depth)
+    if kind < 0 or (only_cross and kind != EE_CROSS):
+        return n
+    return _store(work, n, kind, e, f, a, b, c, d, v - 1.0, -v, 1.0 - u, u, dx, dy, dz, counters)
+
+
+@njit(cache=True, inline="always")
+def _share_vertex(triangles, t1, t2):
+    for i in range(3):
+        for j in range(3):
+            if triangles[t1, i] == triangles[t2, j]:
+                return True
+    return False
+
+
+@njit(cache=True)
+def test_triangle_pair(xs, xe, t1, t2, topo, h, layer_depth, only_cross, work, n, counters):
+    """Every feature pair owned by two triangles that share no vertex (see the module doc)."""
+    triangles = topo[0]
+    tri_edges = topo[2]
+    tri_owns = topo[3]
+    if _share_vertex(triangles, t1, t2):
+        return n
+    o1 = tri_owns[t1]
+    o2 = tri_owns[t2]
+    for k in range(3):
+        if o1 & (1 << k):
+            n = test_vf_pair(xs, xe, triangles[t1, k], t2, topo, h, layer_depth, only_cross, work, n, counters)
+        if o2 & (1 << k):
+            n = test_vf_pair(xs, xe, triangles[t2, k], t1, topo, h, layer_depth, only_cross, work, n, counters)
+    for i in range(3):
+        if not (o1 & (8 << i)):
+            continue
+        for j in range(3):
+            if not (o2 & (8 << j)):
+                continue
+            e = tri_edges[t1, i]
+            f = tri_edges[t2, j]
+            if e < f:
+                n = test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
+            else:
+                n = test_ee_pair(xs, xe, f, e, topo, h, layer_depth, only_cross, work, n, counters)
+    return n
+
+
+# ---------------------------------------------------------------------------------------------
+# tree: refit and self-traversal
+
+@njit(cache=True, _nrt=False)
+def refit_cloth_tree(xs, xe, topo, tree, moved, margin):
+    """Leaves bound each triangle over the step (xs and xe) inflated by `margin`; a node is dirty
+    when a particle of its triangles moved since the last detection (moved[p] != 0)."""
+    triangles = topo[0]
+    directions, axis_order, node_min, node_max, children, leaf_prim, node_dirty, tri_min, tri_max, stack = tree
+    triangle_bounds(directions, xs, xe, triangles, margin, tri_min, tri_max)
+    refit_range(node_min, node_max, children, leaf_prim, tri_min, tri_max, 0, node_min.shape[0])
+    for node in range(node_min.shape[0] - 1, -1, -1):
+        t = leaf_prim[node]
+        if t >= 0:
+            node_dirty[node] = moved[triangles[t, 0]] | moved[triangles[t, 1]] | moved[triangles[t, 2]]
+        else:
+            node_dirty[node] = node_dirty[children[node, 0]] | node_dirty[children[node, 1]]
+
+
+@njit(cache=True, inline="always")
+def _disjoint(node_min, node_max, a, b, axis_order):
+    for j in range(axis_order.shape[0]):
+        i = axis_order[j]
+        if node_max[a, i] < node_min[b, i] or node_max[b, i] < node_min[a, i]:
+            return True
+    return False
+
+
+@njit(cache=True, _nrt=False)
+def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, counters):
+    """Self-traversal of the (refit) cloth tree: every pair of overlapping leaves with at least one
+    dirty side is tested exactly (`test_triangle_pair`). Returns the number of contacts stored."""
+    directions, axis_order, node_min, node_max, children, leaf_prim, node_dirty, tri_min, tri_max, stack = tree
+    n = 0
+    stack[0, 0] = 0
+    stack[0, 1] = 0
+    top = 1
+    visited = 0
+    cap = stack.shape[0]
+    while top > 0:
+        top -= 1
+        a = stack[top, 0]
+        b = stack[top, 1]
+        visited += 1
+        if a == b:
+            # a subtree against itself: its two halves against themselves and each other
+            if leaf_prim[a] >= 0 or not node_dirty[a]:
+                continue
+            if top + 3 > cap:
+                counters[N_OVERFLOW] += 1
+                continue
+            l = children[a, 0]
+            r = children[a, 1]
+            stack[top, 0] = l
+            stack[top, 1] = r
+            stack[top + 1, 0] = r
+            stack[top + 1, 1] = r
+            stack[top + 2, 0] = l
+            stack[top + 2, 1] = l
+            top += 3
+            continue
+        if not (node_dirty[a] or node_dirty[b]):
+            continue
+        if _disjoint(node_min, node_max, a, b, axis_order):
+            continue
+        la = leaf_prim[a] >= 0
+        lb = leaf_prim[b] >= 0
+        if la and lb:
+            n = test_triangle_pair(xs, xe, leaf_prim[a], leaf_prim[b], topo, h, layer_depth, only_cross,
+                                   work, n, counters)
+            continue
+        if top + 2 > cap:
+            counters[N_OVERFLOW] += 1
+            continue
+        descend_a = not la
+        if not la and not lb:
+            # both inner: descend the larger
+            ea = 0.0
+            eb = 0.0
+            for i in range(node_min.shape[1]):
+                ea = max(ea, node_max[a, i] - node_min[a, i])
+                eb = max(eb, node_max[b, i] - node_min[b, i])
+            descend_a = ea >= eb
+        if descend_a:
+            stack[top, 0] = children[a, 1]
+            stack[top, 1] = b
+            stack[top + 1, 0] = children[a, 0]
+            stack[top + 1, 1] = b
+        else:
+            stack[top, 0] = a
+            stack[top, 1] = children[b, 1]
+            stack[top + 1, 0] = a
+            stack[top + 1, 1] = children[b, 0]
+        top += 2
+    counters[N_NODE_PAIRS] += visited
+    return n
+
+
+# ---------------------------------------------------------------------------------------------
+# response, fail-safe, entry
+
+@njit(cache=True, _nrt=False)
+def respond(x, inv_mass, work, n, target):
+    """Project contacts 0..n-1 in buffer order (Gauss-Seidel): C = dir . sum_k w_k x_k - target;
+    if C < 0 each particle moves by -C w_k inv_mass_k / sum_j w_j^2 inv_mass_j along dir."""
+    moved, corrected, c_kind, c_feat, c_idx, c_w, c_dir = work
+    for k in range(min(n, c_kind.shape[0])):
+        dx = c_dir[k, 0]
+        dy = c_dir[k, 1]
+        dz = c_dir[k, 2]
+        cval = -target
+        den = 0.0
+        for j in range(4):
+            i = c_idx[k, j]
+            w = c_w[k, j]
+            cval += w * (dx * x[i, 0] + dy * x[i, 1] + dz * x[i, 2])
+            den += w * w * inv_mass[i]
+        if cval >= 0.0 or den == 0.0:
+            continue
+        lam = -cval / den
+        for j in range(4):
+            i = c_idx[k, j]
+            sc = lam * c_w[k, j] * inv_mass[i]
+            if sc == 0.0:
+                continue
+            x[i, 0] += sc * dx
+            x[i, 1] += sc * dy
+            x[i, 2] += sc * dz
+            moved[i] = 1
+            corrected[i] = 1
+
+
+@njit(cache=True, _nrt=False)
+def revert(x_prev, x, inv_mass, work, n):
+    """Fail-safe: every movable particle of contacts 0..n-1 goes back to x_prev. Returns how many
+    particles changed."""
+    moved, corrected, c_kind, c_feat, c_idx, c_w, c_dir = work
+    changed = 0
+    for k in range(min(n, c_kind.shape[0])):
+        for j in range(4):
+            i = c_idx[k, j]
+            if inv_mass[i] == 0.0:
+                continue
+            if x[i, 0] != x_prev[i, 0] or x[i, 1] != x_prev[i, 1] or x[i, 2] != x_prev[i, 2]:
+                x[i, 0] = x_prev[i, 0]
+                x[i, 1] = x_prev[i, 1]
+                x[i, 2] = x_prev[i, 2]
+                moved[i] = 1
+                corrected[i] = 1
+                changed += 1
+    return changed
+
+
+@njit(cache=True, _nrt=False)
+def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
+    """Cloth x cloth collision over one step (self and between garments); corrects x in place.
+
+    x_prev (N, 3) f8: positions at the start of the step (read only; must be free of crossings).
+    x      (N, 3) f8: predicted positions at its end; corrected so no particle passes through a
+           cloth triangle and no cloth edge through a cloth edge on the way x_prev -> x.
+    inv_mass (N,) f8: 0 = pinned, never moved here.
+    topo, tree, work: tuples of arrays from `ClothContact.kernel_args()` (stages.sim.cloth_contact).
+    prm: (thickness m, layer_depth m, rounds, failsafe_rounds).
+    counters (N_COUNTERS,) i8: accumulated (+=), see N_* above.
+
+    Rounds: refit the tree over x_prev -> x, find contacts (all pairs in round 1, then only pairs
+    with a particle the previous round moved), project them; stop when a round finds none. If the
+    rounds run out, the fail-safe finds the pairs that still pass through (CROSS) and puts their
+    movable particles back at x_prev, repeated until none is left: as x_prev has no crossing, the
+    worst case is the whole cloth at rest, which has none.
+    """
+    thickness, layer_depth, rounds, failsafe_rounds = prm
+    moved = work[0]
+    corrected = work[1]
+    cap = work[2].shape[0]
+    margin = 0.5 * max(thickness, layer_depth)
+    target = PUSH_OVER * thickness
+    moved[:] = 1
+    corrected[:] = 0
+    clean = False
+    for _ in range(rounds):
+        refit_cloth_tree(x_prev, x, topo, tree, moved, margin)
+        n = detect(x_prev, x, topo, tree, work, thickness, layer_depth, False, counters)
+        counters[N_ROUNDS] += 1
+        counters[N_CONTACTS] += n
+        if n == 0:
+            clean = True
+            break
+        moved[:] = 0
+        respond(x, inv_mass, work, n, target)
+        if n > cap:
+            moved[:] = 1  # dropped contacts: look everywhere again
+    if not clean:
+        for it in range(failsafe_rounds + 1):
+            refit_cloth_tree(x_prev, x, topo, tree, moved, margin)
+            n = detect(x_prev, x, topo, tree, work, thickness, layer_depth, True, counters)
+            if it == 0:
+                counters[N_UNRESOLVED] += n
+            if n == 0:
+                break
+            if it == failsafe_rounds:
+                counters[N_LEFT] += n
+                break
+            moved[:] = 0
+            changed = revert(x_prev, x, inv_mass, work, n)
+            counters[N_REVERTED] += changed
+            if n > cap:
+                moved[:] = 1
+            if changed == 0:
+                counters[N_LEFT] += n  # only pinned particles left to move
+                break
+    nc = 0
+    for i in range(corrected.shape[0]):
+        nc += corrected[i]
+    counters[N_CORRECTED] += nc
+
+
+# ---------------------------------------------------------------------------------------------
+# brute force (references for the tests and a static audit)
+
+@njit(cache=True)
+def brute_force_contacts(xs, xe, topo, h, layer_depth, only_cross, work, counters):
+    """Every feature pair whose owner triangles share no vertex, tested exactly: O(P T + E E).
+    Same buffer as `detect` (order differs). Returns the number of contacts stored."""
+    (triangles, edges, tri_edges, tri_owns, edge_tris, particle_garment, tri_garment, edge_garment,
+     garment_layer, garment_outward) = topo
+    vertex_owner = np.full(xs.shape[0], -1, dtype=np.int64)
+    edge_owner = np.full(edges.shape[0], -1, dtype=np.int64)
+    for t in range(triangles.shape[0]):
+        for k in range(3):
+            if tri_owns[t] & (1 << k):
+                vertex_owner[triangles[t, k]] = t
+            if tri_owns[t] & (8 << k):
+                edge_owner[tri_edges[t, k]] = t
+    n = 0
+    for p in range(xs.shape[0]):
+        if vertex_owner[p] < 0:
+            continue
+        for t in range(triangles.shape[0]):
+            if not _share_vertex(triangles, vertex_owner[p], t):
+                n = test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters)
+    for e in range(edges.shape[0]):
+        for f in range(e + 1, edges.shape[0]):
+            if not _share_vertex(triangles, edge_owner[e], edge_owner[f]):
+                n = test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
+    return n
+
+
+@njit(cache=True)
+def segment_crosses_triangle(x, i, j, a, b, c):
+    """Static exact test: segment x[i] x[j] crosses triangle abc (orientation signs; touching
+    counts as no crossing)."""
+    oi = _det(x[a, 0] - x[i, 0], x[a, 1] - x[i, 1], x[a, 2] - x[i, 2],
+              x[b, 0] - x[i, 0], x[b, 1] - x[i, 1], x[b, 2] - x[i, 2],
+              x[c, 0] - x[i, 0], x[c, 1] - x[i, 1], x[c, 2] - x[i, 2])
+    oj = _det(x[a, 0] - x[j, 0], x[a, 1] - x[j, 1], x[a, 2] - x[j, 2],
+              x[b, 0] - x[j, 0], x[b, 1] - x[j, 1], x[b, 2] - x[j, 2],
+              x[c, 0] - x[j, 0], x[c, 1] - x[j, 1], x[c, 2] - x[j, 2])
+    if not ((oi > 0.0 and oj < 0.0) or (oi < 0.0 and oj > 0.0)):
+        return False
+    # the line ij passes inside abc iff the three edge orientations about it agree in sign
+    s0 = _det(x[a, 0] - x[i, 0], x[a, 1] - x[i, 1], x[a, 2] - x[i, 2],
+              x[b, 0] - x[i, 0], x[b, 1] - x[i, 1], x[b, 2] - x[i, 2],
+              x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2])
+    s1 = _det(x[b, 0] - x[i, 0], x[b, 1] - x[i, 1], x[b, 2] - x[i, 2],
+              x[c, 0] - x[i, 0], x[c, 1] - x[i, 1], x[c, 2] - x[i, 2],
+              x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2])
+    s2 = _det(x[c, 0] - x[i, 0], x[c, 1] - x[i, 1], x[c, 2] - x[i, 2],
+              x[a, 0] - x[i, 0], x[a, 1] - x[i, 1], x[a, 2] - x[i, 2],
+              x[j, 0] - x[i, 0], x[j, 1] - x[i, 1], x[j, 2] - x[i, 2])
+    return (s0 > 0.0 and s1 > 0.0 and s2 > 0.0) or (s0 < 0.0 and s1 < 0.0 and s2 < 0.0)
+
+
+@njit(cache=True)
+def count_edge_triangle_crossings(x, edges, triangles, edge_mask, tri_mask):
+    """Cloth edges crossing a cloth triangle they share no vertex with (brute force, O(E T)),
+    counting only edges with edge_mask and triangles with tri_mask set."""
+    count = 0
+    for e in range(edges.shape[0]):
+        if not edge_mask[e]:
+            continue
+        i = edges[e, 0]
+        j = edges[e, 1]
+        for t in range(triangles.shape[0]):
+            if not tri_mask[t]:
+                continue
+            a = triangles[t, 0]
+            b = triangles[t, 1]
+            c = triangles[t, 2]
+            if i == a or i == b or i == c or j == a or j == b or j == c:
+                continue
+            if segment_crosses_triangle(x, i, j, a, b, c):
+                count += 1
+    return count
