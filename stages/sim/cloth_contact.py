@@ -44,7 +44,8 @@ class ClothContact:
       from the body, -1 if they point towards it.
     tree: KdopTree over the triangles (leaf_prim = triangle id), topology from the setup positions;
       its node_min/node_max are refit in place on every call.
-    node_dirty (n,) uint8, tri_min / tri_max (T, h) float64, axis_order (h,) int32 (the order the
+    node_dirty (n,) uint8, tri_min / tri_max (T, h) float64 (triangle k-DOPs over the step),
+      pt_min / pt_max (N, h) float64 (each particle's swept k-DOP, inflated alike), axis_order (h,) int32 (the order the
       directions are tested in), stack (S, 2) int32: traversal work arrays.
     moved, corrected: (N,) uint8 work flags.
     c_kind (C,) int8, c_feat (C, 2) int32, c_idx (C, 4) int32, c_w (C, 4) float64, c_dir (C, 3)
@@ -69,6 +70,8 @@ class ClothContact:
     node_dirty: np.ndarray
     tri_min: np.ndarray
     tri_max: np.ndarray
+    pt_min: np.ndarray
+    pt_max: np.ndarray
     axis_order: np.ndarray
     stack: np.ndarray
     moved: np.ndarray
@@ -120,6 +123,8 @@ class ClothContact:
         check_array(o, "node_dirty", self.node_dirty, (nn,), np.uint8)
         check_array(o, "tri_min", self.tri_min, (t, h), np.float64)
         check_array(o, "tri_max", self.tri_max, (t, h), np.float64)
+        check_array(o, "pt_min", self.pt_min, (n, h), np.float64, finite=False)
+        check_array(o, "pt_max", self.pt_max, (n, h), np.float64, finite=False)
         ao = check_array(o, "axis_order", self.axis_order, (h,), np.int32)
         if sorted(ao.tolist()) != list(range(h)):
             raise ContractError(f"{o}.axis_order: expected a permutation of 0..{h - 1}")
@@ -149,7 +154,7 @@ class ClothContact:
         topo = (self.triangles, self.edges, self.tri_edges, self.tri_owns, self.edge_tris, self.particle_garment,
                 self.tri_garment, self.edge_garment, self.garment_layer, self.garment_outward)
         tree = (tr.directions, self.axis_order, tr.node_min, tr.node_max, tr.children, tr.leaf_prim,
-                self.node_dirty, self.tri_min, self.tri_max, self.stack)
+                self.node_dirty, self.tri_min, self.tri_max, self.pt_min, self.pt_max, self.stack)
         work = (self.moved, self.corrected, self.c_kind, self.c_feat, self.c_idx, self.c_w, self.c_dir)
         prm = (float(self.thickness), float(self.layer_depth), int(self.rounds), int(self.failsafe_rounds))
         return topo, tree, work, prm
@@ -277,7 +282,7 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
         particle_garment=particle_garment, tri_garment=tri_garment.astype(np.int32),
         edge_garment=particle_garment[edges[:, 0]].astype(np.int32), garment_layer=layers,
         garment_outward=outward, tree=tree, node_dirty=np.ones(tree.node_min.shape[0], np.uint8),
-        tri_min=tmin, tri_max=tmax, axis_order=np.arange(h, dtype=np.int32),
+        tri_min=tmin, tri_max=tmax, pt_min=np.zeros((n, h)), pt_max=np.zeros((n, h)), axis_order=np.arange(h, dtype=np.int32),
         stack=np.zeros((8 * tree.max_depth + 32, 2), np.int32),
         moved=np.ones(n, np.uint8), corrected=np.zeros(n, np.uint8),
         c_kind=np.zeros(cap, np.int8), c_feat=np.zeros((cap, 2), np.int32), c_idx=np.zeros((cap, 4), np.int32),

@@ -489,7 +489,7 @@ def _store(work, n, kind, f0, f1, i0, i1, i2, i3, w0, w1, w2, w3, dx, dy, dz, co
     return n + 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters):
     """Exact test of particle p against triangle t; stores a contact in the buffer. Returns n."""
     (triangles, edges, tri_edges, tri_owns, edge_tris, particle_garment, tri_garment, edge_garment,
@@ -505,7 +505,7 @@ def test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counte
     return _store(work, n, kind, p, t, p, a, b, c, 1.0, -wa, -wb, -wc, dx, dy, dz, counters)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters):
     """Exact test of edge e against edge f (e < f); stores a contact in the buffer. Returns n."""
     (triangles, edges, tri_edges, tri_owns, edge_tris, particle_garment, tri_garment, edge_garment,
@@ -540,21 +540,51 @@ def _share_vertex(triangles, t1, t2):
     return False
 
 
-@njit(cache=True)
-def test_triangle_pair(xs, xe, t1, t2, topo, h, layer_depth, only_cross, work, n, counters):
-    """Every feature pair owned by two triangles that share no vertex (see the module doc)."""
+@njit(cache=True, inline="always")
+def _point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t):
+    """The particle's and the triangle's inflated swept k-DOPs are disjoint."""
+    for i in range(pt_min.shape[1]):
+        if pt_max[p, i] < tri_min[t, i] or tri_max[t, i] < pt_min[p, i]:
+            return True
+    return False
+
+
+@njit(cache=True, inline="always")
+def _edges_apart(pt_min, pt_max, a, b, c, d):
+    """The two edges' inflated swept k-DOPs (unions of their particles') are disjoint."""
+    for i in range(pt_min.shape[1]):
+        if max(pt_max[a, i], pt_max[b, i]) < min(pt_min[c, i], pt_min[d, i]):
+            return True
+        if max(pt_max[c, i], pt_max[d, i]) < min(pt_min[a, i], pt_min[b, i]):
+            return True
+    return False
+
+
+@njit(cache=True, inline="always")
+def test_triangle_pair(xs, xe, t1, t2, topo, tree, h, layer_depth, only_cross, work, n, counters):
+    """Every feature pair owned by two triangles that share no vertex (see the module doc), after a
+    k-DOP check of the two features' own bounds (refit_cloth_tree)."""
     triangles = topo[0]
+    edges = topo[1]
     tri_edges = topo[2]
     tri_owns = topo[3]
+    tri_min = tree[7]
+    tri_max = tree[8]
+    pt_min = tree[9]
+    pt_max = tree[10]
     if _share_vertex(triangles, t1, t2):
         return n
     o1 = tri_owns[t1]
     o2 = tri_owns[t2]
     for k in range(3):
         if o1 & (1 << k):
-            n = test_vf_pair(xs, xe, triangles[t1, k], t2, topo, h, layer_depth, only_cross, work, n, counters)
+            p = triangles[t1, k]
+            if not _point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t2):
+                n = test_vf_pair(xs, xe, p, t2, topo, h, layer_depth, only_cross, work, n, counters)
         if o2 & (1 << k):
-            n = test_vf_pair(xs, xe, triangles[t2, k], t1, topo, h, layer_depth, only_cross, work, n, counters)
+            p = triangles[t2, k]
+            if not _point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t1):
+                n = test_vf_pair(xs, xe, p, t1, topo, h, layer_depth, only_cross, work, n, counters)
     for i in range(3):
         if not (o1 & (8 << i)):
             continue
@@ -563,6 +593,8 @@ def test_triangle_pair(xs, xe, t1, t2, topo, h, layer_depth, only_cross, work, n
                 continue
             e = tri_edges[t1, i]
             f = tri_edges[t2, j]
+            if _edges_apart(pt_min, pt_max, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1]):
+                continue
             if e < f:
                 n = test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
             else:
@@ -578,8 +610,16 @@ def refit_cloth_tree(xs, xe, topo, tree, moved, margin):
     """Leaves bound each triangle over the step (xs and xe) inflated by `margin`; a node is dirty
     when a particle of its triangles moved since the last detection (moved[p] != 0)."""
     triangles = topo[0]
-    directions, axis_order, node_min, node_max, children, leaf_prim, node_dirty, tri_min, tri_max, stack = tree
+    (directions, axis_order, node_min, node_max, children, leaf_prim, node_dirty, tri_min, tri_max, pt_min, pt_max,
+     stack) = tree
     triangle_bounds(directions, xs, xe, triangles, margin, tri_min, tri_max)
+    h = directions.shape[0]
+    for p in range(xs.shape[0]):
+        for i in range(h):
+            a = xs[p, 0] * directions[i, 0] + xs[p, 1] * directions[i, 1] + xs[p, 2] * directions[i, 2]
+            b = xe[p, 0] * directions[i, 0] + xe[p, 1] * directions[i, 1] + xe[p, 2] * directions[i, 2]
+            pt_min[p, i] = min(a, b) - margin
+            pt_max[p, i] = max(a, b) + margin
     refit_range(node_min, node_max, children, leaf_prim, tri_min, tri_max, 0, node_min.shape[0])
     for node in range(node_min.shape[0] - 1, -1, -1):
         t = leaf_prim[node]
@@ -602,7 +642,8 @@ def _disjoint(node_min, node_max, a, b, axis_order):
 def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, counters):
     """Self-traversal of the (refit) cloth tree: every pair of overlapping leaves with at least one
     dirty side is tested exactly (`test_triangle_pair`). Returns the number of contacts stored."""
-    directions, axis_order, node_min, node_max, children, leaf_prim, node_dirty, tri_min, tri_max, stack = tree
+    (directions, axis_order, node_min, node_max, children, leaf_prim, node_dirty, tri_min, tri_max, pt_min, pt_max,
+     stack) = tree
     n = 0
     stack[0, 0] = 0
     stack[0, 1] = 0
@@ -638,7 +679,7 @@ def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, counters):
         la = leaf_prim[a] >= 0
         lb = leaf_prim[b] >= 0
         if la and lb:
-            n = test_triangle_pair(xs, xe, leaf_prim[a], leaf_prim[b], topo, h, layer_depth, only_cross,
+            n = test_triangle_pair(xs, xe, leaf_prim[a], leaf_prim[b], topo, tree, h, layer_depth, only_cross,
                                    work, n, counters)
             continue
         if top + 2 > cap:
