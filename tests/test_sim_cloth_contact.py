@@ -107,7 +107,7 @@ def two_sheets(n=5, gap=0.006, layers=(0, 1)):
 def test_tree_search_equals_brute_force_on_random_motions(seed, jitter, move, layered):
     rng = np.random.default_rng(seed)
     x, t, off, layers = two_sheets(layers=(0, 1) if layered else (0, 0))
-    cc = build_cloth_contact(x, t, off, layers, thickness=H)
+    cc = build_cloth_contact(x, t, off, layers, thickness=H, layer_depth=3 * H, cull=False)
     xs = x + rng.normal(0.0, jitter, x.shape)
     xe = xs + rng.normal(0.0, move, x.shape)
     kind, feat = cc.contacts(xs, xe)
@@ -128,7 +128,7 @@ def test_tree_search_equals_brute_force_on_triangle_soup(seed):
     x = (rng.uniform(-0.05, 0.05, (nt, 1, 3)) + rng.normal(0, 0.02, (nt, 3, 3))).reshape(-1, 3)
     t = np.arange(3 * nt, dtype=np.int32).reshape(-1, 3)
     off = [0, 45, 3 * nt]  # two garments
-    cc = build_cloth_contact(x, t, off, [1, 0], outward=[1.0, -1.0], thickness=H)
+    cc = build_cloth_contact(x, t, off, [1, 0], outward=[1.0, -1.0], thickness=H, layer_depth=3 * H, cull=False)
     xe = x + rng.normal(0.0, 0.02, x.shape)
     for only_cross in (False, True):
         kind, feat = cc.contacts(x, xe, only_cross=only_cross)

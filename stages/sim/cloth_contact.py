@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stages.checks import ContractError, check_array, check_index, check_positive
-from stages.obstacles.kdop import DEFAULT_K, build_tree, kdop_directions, triangle_bounds
+from stages.obstacles.kdop import DEFAULT_K, build_tree, kdop_directions, merge_forest, triangle_bounds
 from stages.obstacles.types import KdopTree
 from stages.sim import cloth_contact_kernels as CK
 
@@ -42,10 +42,12 @@ class ClothContact:
     garment_layer: (G,) int32, 0 = innermost; garments of different layers keep their order.
     garment_outward: (G,) float64, +1 if the garment's triangle normals (b-a) x (c-a) point away
       from the body, -1 if they point towards it.
-    tree: KdopTree over the triangles (leaf_prim = triangle id), topology from the setup positions;
-      its node_min/node_max are refit in place on every call.
+    tree: KdopTree forest, one tree per garment over its triangles (leaf_prim = global triangle id),
+      topology from the setup positions; node_min/node_max are refit in place on every call.
     node_dirty (n,) uint8, tri_min / tri_max (T, h) float64 (triangle k-DOPs over the step),
-      pt_min / pt_max (N, h) float64 (each particle's swept k-DOP, inflated alike), axis_order (h,) int32 (the order the
+      pt_min / pt_max (N, h) float64 (each particle's swept k-DOP, inflated alike), nrm_min / nrm_max
+      (n, h) float64 (bounds of each node's unit normals projected on the directions), node_patch (n,)
+      uint8 (1: the node's triangles are one patch, connected through shared vertices, of one garment), axis_order (h,) int32 (the order the
       directions are tested in), stack (S, 2) int32: traversal work arrays.
     moved, corrected: (N,) uint8 work flags.
     c_kind (C,) int8, c_feat (C, 2) int32, c_idx (C, 4) int32, c_w (C, 4) float64, c_dir (C, 3)
@@ -54,6 +56,8 @@ class ClothContact:
     layer_depth: m >= thickness, how deep an outer-layer feature may start inside an inner garment and
       still be pushed out (deeper pairs keep their side: the far side of the body is not "inside").
     rounds: >= 1 response rounds; failsafe_rounds: >= 1 revert rounds.
+    cull: normal-cone culling of flat patches in the self test (off: every pair is tested, as the
+      brute-force reference does).
     """
 
     triangles: np.ndarray
@@ -72,6 +76,9 @@ class ClothContact:
     tri_max: np.ndarray
     pt_min: np.ndarray
     pt_max: np.ndarray
+    nrm_min: np.ndarray
+    nrm_max: np.ndarray
+    node_patch: np.ndarray
     axis_order: np.ndarray
     stack: np.ndarray
     moved: np.ndarray
@@ -85,6 +92,7 @@ class ClothContact:
     layer_depth: float = 0.01
     rounds: int = 4
     failsafe_rounds: int = 8
+    cull: bool = True
 
     def __post_init__(self):
         o = "ClothContact"
@@ -118,19 +126,26 @@ class ClothContact:
             raise ContractError(f"{o}.tri_owns: every vertex and edge needs exactly one owner triangle")
         nn = self.tree.node_min.shape[0]
         h = self.tree.directions.shape[0]
-        if nn != 2 * t - 1 or self.tree.n_trees != 1:
-            raise ContractError(f"{o}.tree: expected one tree of {2 * t - 1} nodes over the triangles")
+        if sorted(self.tree.leaf_prim[self.tree.leaf_prim >= 0].tolist()) != list(range(t)):
+            raise ContractError(f"{o}.tree: expected one leaf per triangle")
+        roots = self.tree.tree_offsets[:-1]
+        if not all(len(set(self.tri_garment[self._leaves(r)].tolist())) == 1 for r in roots):
+            raise ContractError(f"{o}.tree: expected one tree per garment (a forest)")
         check_array(o, "node_dirty", self.node_dirty, (nn,), np.uint8)
         check_array(o, "tri_min", self.tri_min, (t, h), np.float64)
         check_array(o, "tri_max", self.tri_max, (t, h), np.float64)
         check_array(o, "pt_min", self.pt_min, (n, h), np.float64, finite=False)
         check_array(o, "pt_max", self.pt_max, (n, h), np.float64, finite=False)
+        check_array(o, "nrm_min", self.nrm_min, (nn, h), np.float64, finite=False)
+        check_array(o, "nrm_max", self.nrm_max, (nn, h), np.float64, finite=False)
+        check_array(o, "node_patch", self.node_patch, (nn,), np.uint8)
         ao = check_array(o, "axis_order", self.axis_order, (h,), np.int32)
         if sorted(ao.tolist()) != list(range(h)):
             raise ContractError(f"{o}.axis_order: expected a permutation of 0..{h - 1}")
         st = check_array(o, "stack", self.stack, (None, 2), np.int32)
-        if st.shape[0] < 4 * self.tree.max_depth + 8:
-            raise ContractError(f"{o}.stack: needs >= 4 * max_depth + 8 rows, got {st.shape[0]}")
+        need = 8 * self.tree.max_depth + 32 + self.tree.n_trees ** 2
+        if st.shape[0] < need:
+            raise ContractError(f"{o}.stack: needs >= 8 * max_depth + 32 + trees^2 = {need} rows, got {st.shape[0]}")
         check_array(o, "moved", self.moved, (n,), np.uint8)
         check_array(o, "corrected", self.corrected, (n,), np.uint8)
         c = check_array(o, "c_kind", self.c_kind, (None,), np.int8).shape[0]
@@ -144,6 +159,12 @@ class ClothContact:
         if int(self.rounds) < 1 or int(self.failsafe_rounds) < 1:
             raise ContractError(f"{o}: rounds and failsafe_rounds must be >= 1")
 
+    def _leaves(self, root: int) -> np.ndarray:
+        lo = int(root)
+        hi = int(self.tree.tree_offsets[np.searchsorted(self.tree.tree_offsets, lo, side="right")])
+        lp = self.tree.leaf_prim[lo:hi]
+        return lp[lp >= 0]
+
     @property
     def n_particles(self) -> int:
         return self.particle_garment.shape[0]
@@ -153,10 +174,12 @@ class ClothContact:
         tr = self.tree
         topo = (self.triangles, self.edges, self.tri_edges, self.tri_owns, self.edge_tris, self.particle_garment,
                 self.tri_garment, self.edge_garment, self.garment_layer, self.garment_outward)
-        tree = (tr.directions, self.axis_order, tr.node_min, tr.node_max, tr.children, tr.leaf_prim,
-                self.node_dirty, self.tri_min, self.tri_max, self.pt_min, self.pt_max, self.stack)
+        tree = (tr.directions, self.axis_order, tr.tree_offsets, tr.node_min, tr.node_max, tr.children, tr.leaf_prim,
+                self.node_dirty, self.tri_min, self.tri_max, self.pt_min, self.pt_max, self.nrm_min, self.nrm_max,
+                self.node_patch, self.stack)
         work = (self.moved, self.corrected, self.c_kind, self.c_feat, self.c_idx, self.c_w, self.c_dir)
-        prm = (float(self.thickness), float(self.layer_depth), int(self.rounds), int(self.failsafe_rounds))
+        prm = (float(self.thickness), float(self.layer_depth), int(self.rounds), int(self.failsafe_rounds),
+               bool(self.cull))
         return topo, tree, work, prm
 
     def collide(self, x_prev: np.ndarray, x: np.ndarray, inv_mass: np.ndarray,
@@ -169,8 +192,9 @@ class ClothContact:
 
     def contacts(self, x_prev: np.ndarray, x: np.ndarray, only_cross: bool = False,
                  brute_force: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """Detection only (no response): (kind (m,) int8, feature pair (m, 2) int32) of every contact
-        between x_prev and x, sorted; by the tree (default) or by brute force over all pairs."""
+        """Detection only (no response): (kind (m,) int8, feature pair (m, 2) int32: VF (particle,
+        triangle), EE (edge, edge) lower id first) of every contact between x_prev and x, sorted; by
+        the tree (default, with this object's `cull`) or by brute force over all pairs."""
         topo, tree, work, prm = self.kernel_args()
         counters = np.zeros(CK.N_COUNTERS, np.int64)
         if brute_force:
@@ -178,7 +202,7 @@ class ClothContact:
         else:
             self.moved[:] = 1
             CK.refit_cloth_tree(x_prev, x, topo, tree, self.moved, 0.5 * max(prm[0], prm[1]))
-            n = CK.detect(x_prev, x, topo, tree, work, prm[0], prm[1], only_cross, counters)
+            n = CK.detect(x_prev, x, topo, tree, work, prm[0], prm[1], only_cross, prm[4], counters)
         if counters[CK.N_OVERFLOW]:
             raise ContractError(f"ClothContact.contacts: contact buffer of {self.c_kind.shape[0]} overflowed")
         kind = self.c_kind[:n].copy()
@@ -243,14 +267,14 @@ def outward_signs(x: np.ndarray, triangles: np.ndarray, tri_garment: np.ndarray,
 
 def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, layers=None, outward=None,
                         thickness: float = DEFAULT_THICKNESS, layer_depth: float | None = None,
-                        k: int = DEFAULT_K, rounds: int = 4, failsafe_rounds: int = 8,
+                        k: int = DEFAULT_K, rounds: int = 4, failsafe_rounds: int = 8, cull: bool = True,
                         contact_capacity: int | None = None) -> ClothContact:
     """The cloth contact phase for garments concatenated as in the simulation.
 
     x: (N, 3) float64 positions (world, m) the tree topology is built from (the setup pose).
     triangles: (T, 3) int global particle ids. garment_offsets: (G + 1,) garment g owns particles
     [off[g], off[g+1]). layers: (G,) int, 0 innermost (default all 0: no layer order). outward: (G,)
-    +-1 (default +1, see `outward_signs`). layer_depth: default 3 * thickness.
+    +-1 (default +1, see `outward_signs`). layer_depth: default 2 * thickness.
     """
     x = np.ascontiguousarray(x, np.float64)
     tris = np.ascontiguousarray(triangles, np.int32)
@@ -271,9 +295,21 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
     h = d.shape[0]
     tmin = np.empty((tris.shape[0], h))
     tmax = np.empty_like(tmin)
-    margin = 0.5 * max(thickness, layer_depth if layer_depth is not None else 3.0 * thickness)
+    margin = 0.5 * max(thickness, layer_depth if layer_depth is not None else 2.0 * thickness)
     triangle_bounds(d, x, x, tris, margin, tmin, tmax)
-    tree = build_tree(tmin, tmax, x[tris].mean(axis=1), d, margin)
+    # one tree per garment (a forest): a node's triangles then belong to one garment, so a node
+    # can be a connected patch (normal-cone culling)
+    trees = []
+    cen = x[tris].mean(axis=1)
+    for gi in range(g):
+        rows = np.nonzero(tri_garment == gi)[0]
+        if rows.size == 0:
+            continue
+        tg = build_tree(tmin[rows], tmax[rows], cen[rows], d, margin)
+        leaf = np.where(tg.leaf_prim >= 0, rows[np.maximum(tg.leaf_prim, 0)], -1).astype(np.int32)
+        trees.append(KdopTree(directions=d, node_min=tg.node_min, node_max=tg.node_max, children=tg.children,
+                              leaf_prim=leaf, depth=tg.depth, tree_offsets=tg.tree_offsets, margin=tg.margin))
+    tree = merge_forest(trees)
     cap = contact_capacity if contact_capacity is not None else max(1024, 8 * n)
     layers = np.zeros(g, np.int32) if layers is None else np.asarray(layers, np.int32)
     outward = np.ones(g) if outward is None else np.asarray(outward, np.float64)
@@ -282,10 +318,13 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
         particle_garment=particle_garment, tri_garment=tri_garment.astype(np.int32),
         edge_garment=particle_garment[edges[:, 0]].astype(np.int32), garment_layer=layers,
         garment_outward=outward, tree=tree, node_dirty=np.ones(tree.node_min.shape[0], np.uint8),
-        tri_min=tmin, tri_max=tmax, pt_min=np.zeros((n, h)), pt_max=np.zeros((n, h)), axis_order=np.arange(h, dtype=np.int32),
-        stack=np.zeros((8 * tree.max_depth + 32, 2), np.int32),
+        tri_min=tmin, tri_max=tmax, pt_min=np.zeros((n, h)), pt_max=np.zeros((n, h)),
+        nrm_min=np.zeros((tree.node_min.shape[0], h)), nrm_max=np.zeros((tree.node_min.shape[0], h)),
+        node_patch=CK.patch_nodes(tree.children, tree.leaf_prim, tris, tri_garment.astype(np.int32), n),
+        axis_order=np.arange(h, dtype=np.int32),
+        stack=np.zeros((8 * tree.max_depth + 32 + tree.n_trees ** 2, 2), np.int32),
         moved=np.ones(n, np.uint8), corrected=np.zeros(n, np.uint8),
         c_kind=np.zeros(cap, np.int8), c_feat=np.zeros((cap, 2), np.int32), c_idx=np.zeros((cap, 4), np.int32),
         c_w=np.zeros((cap, 4)), c_dir=np.zeros((cap, 3)),
-        thickness=float(thickness), layer_depth=float(layer_depth if layer_depth is not None else 3.0 * thickness),
-        rounds=int(rounds), failsafe_rounds=int(failsafe_rounds))
+        thickness=float(thickness), layer_depth=float(layer_depth if layer_depth is not None else 2.0 * thickness),
+        rounds=int(rounds), failsafe_rounds=int(failsafe_rounds), cull=bool(cull))

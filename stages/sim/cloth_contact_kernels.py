@@ -41,6 +41,7 @@ BARY_TOL = 1e-9      # NEAR: projection inside the triangle / closest points ins
 CROSS_TOL = 1e-6     # CROSS: generous, so a path through a shared edge is caught by both sides
 PARALLEL_TOL = 1e-8  # |e1 x e2|^2 <= tol |e1|^2 |e2|^2: parallel edges, left to the VF tests
 PUSH_OVER = 1.02     # responses push to 1.02 h so a contact just resolved is not found again at h
+FLAT_COS = 0.05      # a patch is flat when its unit normals project beyond this on one direction
 
 VF_NEAR = 0
 VF_CROSS = 1
@@ -568,10 +569,10 @@ def test_triangle_pair(xs, xe, t1, t2, topo, tree, h, layer_depth, only_cross, w
     edges = topo[1]
     tri_edges = topo[2]
     tri_owns = topo[3]
-    tri_min = tree[7]
-    tri_max = tree[8]
-    pt_min = tree[9]
-    pt_max = tree[10]
+    tri_min = tree[8]
+    tri_max = tree[9]
+    pt_min = tree[10]
+    pt_max = tree[11]
     if _share_vertex(triangles, t1, t2):
         return n
     o1 = tri_owns[t1]
@@ -608,10 +609,11 @@ def test_triangle_pair(xs, xe, t1, t2, topo, tree, h, layer_depth, only_cross, w
 @njit(cache=True, _nrt=False)
 def refit_cloth_tree(xs, xe, topo, tree, moved, margin):
     """Leaves bound each triangle over the step (xs and xe) inflated by `margin`; a node is dirty
-    when a particle of its triangles moved since the last detection (moved[p] != 0)."""
+    when a particle of its triangles moved since the last detection (moved[p] != 0); nrm_min/max
+    bound the projections of its triangles' unit normals (at xs and at xe) on the directions."""
     triangles = topo[0]
-    (directions, axis_order, node_min, node_max, children, leaf_prim, node_dirty, tri_min, tri_max, pt_min, pt_max,
-     stack) = tree
+    (directions, axis_order, roots, node_min, node_max, children, leaf_prim, node_dirty, tri_min, tri_max, pt_min,
+     pt_max, nrm_min, nrm_max, node_patch, stack) = tree
     triangle_bounds(directions, xs, xe, triangles, margin, tri_min, tri_max)
     h = directions.shape[0]
     for p in range(xs.shape[0]):
@@ -625,8 +627,34 @@ def refit_cloth_tree(xs, xe, topo, tree, moved, margin):
         t = leaf_prim[node]
         if t >= 0:
             node_dirty[node] = moved[triangles[t, 0]] | moved[triangles[t, 1]] | moved[triangles[t, 2]]
+            for i in range(h):
+                nrm_min[node, i] = np.inf
+                nrm_max[node, i] = -np.inf
+            for xx in (xs, xe):
+                a = triangles[t, 0]
+                e1x = xx[triangles[t, 1], 0] - xx[a, 0]
+                e1y = xx[triangles[t, 1], 1] - xx[a, 1]
+                e1z = xx[triangles[t, 1], 2] - xx[a, 2]
+                e2x = xx[triangles[t, 2], 0] - xx[a, 0]
+                e2y = xx[triangles[t, 2], 1] - xx[a, 1]
+                e2z = xx[triangles[t, 2], 2] - xx[a, 2]
+                nx = e1y * e2z - e1z * e2y
+                ny = e1z * e2x - e1x * e2z
+                nz = e1x * e2y - e1y * e2x
+                ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+                if ln == 0.0:
+                    ln = 1.0  # a degenerate triangle: normal 0 makes no cone flat
+                for i in range(h):
+                    q = (nx * directions[i, 0] + ny * directions[i, 1] + nz * directions[i, 2]) / ln
+                    nrm_min[node, i] = min(nrm_min[node, i], q)
+                    nrm_max[node, i] = max(nrm_max[node, i], q)
         else:
-            node_dirty[node] = node_dirty[children[node, 0]] | node_dirty[children[node, 1]]
+            l = children[node, 0]
+            r = children[node, 1]
+            node_dirty[node] = node_dirty[l] | node_dirty[r]
+            for i in range(h):
+                nrm_min[node, i] = min(nrm_min[l, i], nrm_min[r, i])
+                nrm_max[node, i] = max(nrm_max[l, i], nrm_max[r, i])
 
 
 @njit(cache=True, inline="always")
@@ -638,16 +666,35 @@ def _disjoint(node_min, node_max, a, b, axis_order):
     return False
 
 
+@njit(cache=True, inline="always")
+def _flat_patch(nrm_min, nrm_max, node_patch, a):
+    """Normal-cone culling (Volino & Magnenat-Thalmann 1994): one edge-connected patch whose
+    normals all lie strictly on one side of a plane through the origin cannot fold onto itself.
+    (Their contour test, that the patch's outline does not overlap itself in projection, is left
+    out: a median-split patch of a cloth mesh is compact.)"""
+    if not node_patch[a]:
+        return False
+    for i in range(nrm_min.shape[1]):
+        if nrm_min[a, i] > FLAT_COS or nrm_max[a, i] < -FLAT_COS:
+            return True
+    return False
+
+
 @njit(cache=True, _nrt=False)
-def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, counters):
+def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters):
     """Self-traversal of the (refit) cloth tree: every pair of overlapping leaves with at least one
-    dirty side is tested exactly (`test_triangle_pair`). Returns the number of contacts stored."""
-    (directions, axis_order, node_min, node_max, children, leaf_prim, node_dirty, tri_min, tri_max, pt_min, pt_max,
-     stack) = tree
+    dirty side is tested exactly (`test_triangle_pair`); with `cull`, a subtree that is a flat
+    patch (`_flat_patch`) is not tested against itself. Returns the number of contacts stored."""
+    (directions, axis_order, roots, node_min, node_max, children, leaf_prim, node_dirty, tri_min, tri_max, pt_min,
+     pt_max, nrm_min, nrm_max, node_patch, stack) = tree
     n = 0
-    stack[0, 0] = 0
-    stack[0, 1] = 0
-    top = 1
+    # every garment's tree against itself and against every later one (roots: tree offsets)
+    top = 0
+    for g in range(roots.shape[0] - 1):
+        for q in range(g, roots.shape[0] - 1):
+            stack[top, 0] = roots[g]
+            stack[top, 1] = roots[q]
+            top += 1
     visited = 0
     cap = stack.shape[0]
     while top > 0:
@@ -658,6 +705,8 @@ def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, counters):
         if a == b:
             # a subtree against itself: its two halves against themselves and each other
             if leaf_prim[a] >= 0 or not node_dirty[a]:
+                continue
+            if cull and _flat_patch(nrm_min, nrm_max, node_patch, a):
                 continue
             if top + 3 > cap:
                 counters[N_OVERFLOW] += 1
@@ -773,7 +822,8 @@ def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
            cloth triangle and no cloth edge through a cloth edge on the way x_prev -> x.
     inv_mass (N,) f8: 0 = pinned, never moved here.
     topo, tree, work: tuples of arrays from `ClothContact.kernel_args()` (stages.sim.cloth_contact).
-    prm: (thickness m, layer_depth m, rounds, failsafe_rounds).
+    prm: (thickness m, layer_depth m, rounds, failsafe_rounds, cull): cull = normal-cone culling of
+           flat patches in the self test (`_flat_patch`).
     counters (N_COUNTERS,) i8: accumulated (+=), see N_* above.
 
     Rounds: refit the tree over x_prev -> x, find contacts (all pairs in round 1, then only pairs
@@ -782,7 +832,7 @@ def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
     movable particles back at x_prev, repeated until none is left: as x_prev has no crossing, the
     worst case is the whole cloth at rest, which has none.
     """
-    thickness, layer_depth, rounds, failsafe_rounds = prm
+    thickness, layer_depth, rounds, failsafe_rounds, cull = prm
     moved = work[0]
     corrected = work[1]
     cap = work[2].shape[0]
@@ -793,7 +843,7 @@ def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
     clean = False
     for _ in range(rounds):
         refit_cloth_tree(x_prev, x, topo, tree, moved, margin)
-        n = detect(x_prev, x, topo, tree, work, thickness, layer_depth, False, counters)
+        n = detect(x_prev, x, topo, tree, work, thickness, layer_depth, False, cull, counters)
         counters[N_ROUNDS] += 1
         counters[N_CONTACTS] += n
         if n == 0:
@@ -806,7 +856,7 @@ def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
     if not clean:
         for it in range(failsafe_rounds + 1):
             refit_cloth_tree(x_prev, x, topo, tree, moved, margin)
-            n = detect(x_prev, x, topo, tree, work, thickness, layer_depth, True, counters)
+            n = detect(x_prev, x, topo, tree, work, thickness, layer_depth, True, cull, counters)
             if it == 0:
                 counters[N_UNRESOLVED] += n
             if n == 0:
@@ -905,3 +955,55 @@ def count_edge_triangle_crossings(x, edges, triangles, edge_mask, tri_mask):
             if segment_crosses_triangle(x, i, j, a, b, c):
                 count += 1
     return count
+
+
+@njit(cache=True)
+def _find(parent, v):
+    while parent[v] != v:
+        parent[v] = parent[parent[v]]
+        v = parent[v]
+    return v
+
+
+@njit(cache=True)
+def patch_nodes(children, leaf_prim, triangles, tri_garment, n_particles):
+    """(n,) uint8: 1 where a node's triangles form one connected patch (through shared vertices) of
+    one garment. Setup only."""
+    n = children.shape[0]
+    out = np.zeros(n, dtype=np.uint8)
+    parent = np.arange(n_particles)
+    tris = np.empty(triangles.shape[0], dtype=np.int64)
+    stack = np.empty(n, dtype=np.int64)
+    for node in range(n):
+        m = 0
+        stack[0] = node
+        top = 1
+        while top > 0:
+            top -= 1
+            q = stack[top]
+            if leaf_prim[q] >= 0:
+                tris[m] = leaf_prim[q]
+                m += 1
+            else:
+                stack[top] = children[q, 0]
+                stack[top + 1] = children[q, 1]
+                top += 2
+        ok = True
+        for j in range(m):
+            t = tris[j]
+            if tri_garment[t] != tri_garment[tris[0]]:
+                ok = False
+            for k in range(1, 3):
+                ra = _find(parent, triangles[t, 0])
+                rb = _find(parent, triangles[t, k])
+                if ra != rb:
+                    parent[max(ra, rb)] = min(ra, rb)
+        root = _find(parent, triangles[tris[0], 0])
+        for j in range(m):
+            if _find(parent, triangles[tris[j], 0]) != root:
+                ok = False
+        out[node] = 1 if ok else 0
+        for j in range(m):  # reset the touched vertices
+            for k in range(3):
+                parent[triangles[tris[j], k]] = triangles[tris[j], k]
+    return out
