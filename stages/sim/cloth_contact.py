@@ -89,7 +89,7 @@ class ClothContact:
     c_w: np.ndarray
     c_dir: np.ndarray
     thickness: float = DEFAULT_THICKNESS
-    layer_depth: float = 0.01
+    layer_depth: float = DEFAULT_THICKNESS
     rounds: int = 4
     failsafe_rounds: int = 8
     cull: bool = True
@@ -274,7 +274,8 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
     x: (N, 3) float64 positions (world, m) the tree topology is built from (the setup pose).
     triangles: (T, 3) int global particle ids. garment_offsets: (G + 1,) garment g owns particles
     [off[g], off[g+1]). layers: (G,) int, 0 innermost (default all 0: no layer order). outward: (G,)
-    +-1 (default +1, see `outward_signs`). layer_depth: default 2 * thickness.
+    +-1 (default +1, see `outward_signs`). layer_depth: default = thickness (raise it
+    for the first frames of a scene whose garments start interpenetrating deeper).
     """
     x = np.ascontiguousarray(x, np.float64)
     tris = np.ascontiguousarray(triangles, np.int32)
@@ -295,7 +296,7 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
     h = d.shape[0]
     tmin = np.empty((tris.shape[0], h))
     tmax = np.empty_like(tmin)
-    margin = 0.5 * max(thickness, layer_depth if layer_depth is not None else 2.0 * thickness)
+    margin = 0.5 * max(thickness, layer_depth if layer_depth is not None else thickness)
     triangle_bounds(d, x, x, tris, margin, tmin, tmax)
     # one tree per garment (a forest): a node's triangles then belong to one garment, so a node
     # can be a connected patch (normal-cone culling)
@@ -326,5 +327,5 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
         moved=np.ones(n, np.uint8), corrected=np.zeros(n, np.uint8),
         c_kind=np.zeros(cap, np.int8), c_feat=np.zeros((cap, 2), np.int32), c_idx=np.zeros((cap, 4), np.int32),
         c_w=np.zeros((cap, 4)), c_dir=np.zeros((cap, 3)),
-        thickness=float(thickness), layer_depth=float(layer_depth if layer_depth is not None else 2.0 * thickness),
+        thickness=float(thickness), layer_depth=float(layer_depth if layer_depth is not None else thickness),
         rounds=int(rounds), failsafe_rounds=int(failsafe_rounds), cull=bool(cull))

@@ -41,6 +41,7 @@ BARY_TOL = 1e-9      # NEAR: projection inside the triangle / closest points ins
 CROSS_TOL = 1e-6     # CROSS: generous, so a path through a shared edge is caught by both sides
 PARALLEL_TOL = 1e-8  # |e1 x e2|^2 <= tol |e1|^2 |e2|^2: parallel edges, left to the VF tests
 PUSH_OVER = 1.02     # responses push to 1.02 h so a contact just resolved is not found again at h
+SWEEPS = 3           # Gauss-Seidel sweeps over a round's contacts before the next detection
 FLAT_COS = 0.05      # a patch is flat when its unit normals project beyond this on one direction
 
 VF_NEAR = 0
@@ -286,8 +287,8 @@ def test_vertex_face(xs, xe, p, a, b, c, forced, h, layer_depth):
     n1x = e1y * e2z - e1z * e2y
     n1y = e1z * e2x - e1x * e2z
     n1z = e1x * e2y - e1y * e2x
-    l1 = np.sqrt(n1x * n1x + n1y * n1y + n1z * n1z)
-    if l1 == 0.0:
+    l1sq = n1x * n1x + n1y * n1y + n1z * n1z
+    if l1sq == 0.0:
         return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     f1 = n1x * (xe[p, 0] - xe[a, 0]) + n1y * (xe[p, 1] - xe[a, 1]) + n1z * (xe[p, 2] - xe[a, 2])
     # start normal and distance
@@ -301,17 +302,19 @@ def test_vertex_face(xs, xe, p, a, b, c, forced, h, layer_depth):
     n0y = s1z * s2x - s1x * s2z
     n0z = s1x * s2y - s1y * s2x
     f0 = n0x * (xs[p, 0] - xs[a, 0]) + n0y * (xs[p, 1] - xs[a, 1]) + n0z * (xs[p, 2] - xs[a, 2])
-    d1 = f1 / l1
     s = _side(f0, f1)
     gate = h
     if forced != 0:
-        l0 = np.sqrt(n0x * n0x + n0y * n0y + n0z * n0z)
-        if l0 > 0.0 and forced * f0 / l0 >= -layer_depth:
+        l0sq = n0x * n0x + n0y * n0y + n0z * n0z
+        # the layers' side holds unless the pair starts deeper than layer_depth on the wrong side
+        if l0sq > 0.0 and (forced * f0 >= 0.0 or f0 * f0 <= layer_depth * layer_depth * l0sq):
             s = float(forced)
             gate = layer_depth
-    sd1 = s * d1
-    if s * f1 >= 0.0 and sd1 >= h:
+    # common case first, without a square root: on its side and beyond the thickness at the end
+    if s * f1 >= 0.0 and f1 * f1 >= h * h * l1sq:
         return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    l1 = np.sqrt(l1sq)
+    sd1 = s * f1 / l1
     dx = s * n1x / l1
     dy = s * n1y / l1
     dz = s * n1z / l1
@@ -352,7 +355,6 @@ def test_edge_edge(xs, xe, a, b, c, d, forced, ox, oy, oz, h, layer_depth):
     n1z = e1x * e2y - e1y * e2x
     l1sq = n1x * n1x + n1y * n1y + n1z * n1z
     parallel1 = not (l1sq > PARALLEL_TOL * (e1x * e1x + e1y * e1y + e1z * e1z) * (e2x * e2x + e2y * e2y + e2z * e2z))
-    l1 = np.sqrt(l1sq)
     f1 = n1x * (xe[c, 0] - xe[a, 0]) + n1y * (xe[c, 1] - xe[a, 1]) + n1z * (xe[c, 2] - xe[a, 2])
     g1x = xs[b, 0] - xs[a, 0]
     g1y = xs[b, 1] - xs[a, 1]
@@ -374,8 +376,7 @@ def test_edge_edge(xs, xe, a, b, c, d, forced, ox, oy, oz, h, layer_depth):
     if forced != 0 and not parallel1:
         # the outer edge must lie along the inner edge's outward normal o: dir = s n1 with s = sign(n1 . o)
         on = n1x * ox + n1y * oy + n1z * oz
-        lo = np.sqrt(ox * ox + oy * oy + oz * oz)
-        if abs(on) > 0.1 * l1 * lo:
+        if on * on > 0.01 * l1sq * (ox * ox + oy * oy + oz * oz):
             sf = forced * (1.0 if on > 0.0 else -1.0)
             if parallel0 or sf * f0 / np.sqrt(l0sq) >= -layer_depth:
                 s = sf
@@ -385,9 +386,10 @@ def test_edge_edge(xs, xe, a, b, c, d, forced, ox, oy, oz, h, layer_depth):
             pass  # may still have crossed mid-step: the cubic below decides
         else:
             return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    sd1 = s * f1 / l1 if l1 > 0.0 else 0.0
-    if s * f1 >= 0.0 and sd1 >= h:
+    if s * f1 >= 0.0 and f1 * f1 >= h * h * l1sq:
         return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    l1 = np.sqrt(l1sq)
+    sd1 = s * f1 / l1 if l1 > 0.0 else 0.0
     dx = 0.0
     dy = 0.0
     dz = 0.0
@@ -736,12 +738,9 @@ def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters)
             continue
         descend_a = not la
         if not la and not lb:
-            # both inner: descend the larger
-            ea = 0.0
-            eb = 0.0
-            for i in range(node_min.shape[1]):
-                ea = max(ea, node_max[a, i] - node_min[a, i])
-                eb = max(eb, node_max[b, i] - node_min[b, i])
+            # both inner: descend the larger (sum of the axis extents: directions 0-2 are the axes)
+            ea = node_max[a, 0] - node_min[a, 0] + node_max[a, 1] - node_min[a, 1] + node_max[a, 2] - node_min[a, 2]
+            eb = node_max[b, 0] - node_min[b, 0] + node_max[b, 1] - node_min[b, 1] + node_max[b, 2] - node_min[b, 2]
             descend_a = ea >= eb
         if descend_a:
             stack[top, 0] = children[a, 1]
@@ -850,7 +849,8 @@ def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
             clean = True
             break
         moved[:] = 0
-        respond(x, inv_mass, work, n, target)
+        for _sweep in range(SWEEPS):  # coupled contacts (a particle in several) need a few sweeps
+            respond(x, inv_mass, work, n, target)
         if n > cap:
             moved[:] = 1  # dropped contacts: look everywhere again
     if not clean:
