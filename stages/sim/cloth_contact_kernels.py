@@ -257,27 +257,24 @@ def _inside(w0, w1, w2, tol):
     return w0 >= -tol and w1 >= -tol and w2 >= -tol
 
 
-@njit(cache=True, inline="always")
-def _side(f0, f1):
-    """The start side: sign f(0); a pair starting exactly on the plane came from the side opposite
-    to where it ends (or +1 if it stays there)."""
-    if f0 > 0.0:
-        return 1.0
-    if f0 < 0.0:
-        return -1.0
-    return -1.0 if f1 > 0.0 else 1.0
-
-
 # ---------------------------------------------------------------------------------------------
 # exact pair tests. Return (kind or -1, w1, w2, w3, dx, dy, dz) with the constraint weights of the
 # 2nd..4th particle (the 1st: 1 for VF; EE weights below) and dir = s * unit normal at the end.
+
+@njit(cache=True, inline="always")
+def _sign(v, fallback):
+    if v > 0.0:
+        return 1.0
+    if v < 0.0:
+        return -1.0
+    return fallback
+
 
 @njit(cache=True)
 def test_vertex_face(xs, xe, p, a, b, c, forced, h, layer_depth):
     """Particle p against triangle abc. forced: 0, or the side (+-1) the layers prescribe for p
     relative to the triangle's normal (b-a) x (c-a). Weights returned: (wa, wb, wc) barycentric;
     the constraint is dir . (p - wa a - wb b - wc c) >= h."""
-    # end normal and distance
     e1x = xe[b, 0] - xe[a, 0]
     e1y = xe[b, 1] - xe[a, 1]
     e1z = xe[b, 2] - xe[a, 2]
@@ -291,34 +288,22 @@ def test_vertex_face(xs, xe, p, a, b, c, forced, h, layer_depth):
     if l1sq == 0.0:
         return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     f1 = n1x * (xe[p, 0] - xe[a, 0]) + n1y * (xe[p, 1] - xe[a, 1]) + n1z * (xe[p, 2] - xe[a, 2])
-    # start normal and distance
     s1x = xs[b, 0] - xs[a, 0]
     s1y = xs[b, 1] - xs[a, 1]
     s1z = xs[b, 2] - xs[a, 2]
     s2x = xs[c, 0] - xs[a, 0]
     s2y = xs[c, 1] - xs[a, 1]
     s2z = xs[c, 2] - xs[a, 2]
-    n0x = s1y * s2z - s1z * s2y
-    n0y = s1z * s2x - s1x * s2z
-    n0z = s1x * s2y - s1y * s2x
-    f0 = n0x * (xs[p, 0] - xs[a, 0]) + n0y * (xs[p, 1] - xs[a, 1]) + n0z * (xs[p, 2] - xs[a, 2])
-    s = _side(f0, f1)
-    gate = h
-    if forced != 0:
-        l0sq = n0x * n0x + n0y * n0y + n0z * n0z
-        # the layers' side holds unless the pair starts deeper than layer_depth on the wrong side
-        if l0sq > 0.0 and (forced * f0 >= 0.0 or f0 * f0 <= layer_depth * layer_depth * l0sq):
-            s = float(forced)
-            gate = layer_depth
-    # common case first, without a square root: on its side and beyond the thickness at the end
-    if s * f1 >= 0.0 and f1 * f1 >= h * h * l1sq:
-        return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    l1 = np.sqrt(l1sq)
-    sd1 = s * f1 / l1
-    dx = s * n1x / l1
-    dy = s * n1y / l1
-    dz = s * n1z / l1
-    if s * f0 >= 0.0 and s * f1 < 0.0:
+    f0 = ((s1y * s2z - s1z * s2y) * (xs[p, 0] - xs[a, 0]) + (s1z * s2x - s1x * s2z) * (xs[p, 1] - xs[a, 1])
+          + (s1x * s2y - s1y * s2x) * (xs[p, 2] - xs[a, 2]))
+    sg1 = _sign(f1, -_sign(f0, 1.0))
+    # crossings: roots of the coplanarity cubic with p inside the triangle. Searched only when the
+    # side changes (a point passing through and back within one step ends where it started).
+    crossings = 0
+    wa = 0.0
+    wb = 0.0
+    wc = 0.0
+    if _sign(f0, -sg1) != sg1:
         c0, c1, c2, c3 = triple_cubic(xs, xe, b, a, c, a, p, a)
         r0, r1, r2, nr = cubic_roots01(c0, c1, c2, c3, f0, f1)
         for k in range(nr):
@@ -327,14 +312,31 @@ def test_vertex_face(xs, xe, p, a, b, c, forced, h, layer_depth):
             ax, ay, az = _at(xs, xe, a, t)
             bx, by, bz = _at(xs, xe, b, t)
             cx, cy, cz = _at(xs, xe, c, t)
-            ok, wa, wb, wc = _bary(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz)
-            if ok and _inside(wa, wb, wc, CROSS_TOL):
-                return VF_CROSS, wa, wb, wc, dx, dy, dz
+            ok, ua, ub, uc = _bary(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz)
+            if ok and _inside(ua, ub, uc, CROSS_TOL):
+                if crossings == 0:
+                    wa, wb, wc = ua, ub, uc
+                crossings += 1
+    # the side p belongs on: where it ends, flipped by each crossing; or the layers' side, unless
+    # p ends deeper than layer_depth on the wrong side of it (the far side of the body)
+    s = sg1 if crossings % 2 == 0 else -sg1
+    gate = h
+    if forced != 0 and (forced * f1 >= 0.0 or f1 * f1 <= layer_depth * layer_depth * l1sq):
+        s = float(forced)
+        gate = layer_depth
+    if crossings > 0 and s * f1 < 0.0:
+        l1 = np.sqrt(l1sq)
+        return VF_CROSS, wa, wb, wc, s * n1x / l1, s * n1y / l1, s * n1z / l1
+    # common case, without a square root: on its side and beyond the thickness
+    if s * f1 >= 0.0 and f1 * f1 >= h * h * l1sq:
+        return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    l1 = np.sqrt(l1sq)
+    sd1 = s * f1 / l1
     if -gate <= sd1 < h:
         ok, wa, wb, wc = _bary(xe[p, 0], xe[p, 1], xe[p, 2], xe[a, 0], xe[a, 1], xe[a, 2],
                                xe[b, 0], xe[b, 1], xe[b, 2], xe[c, 0], xe[c, 1], xe[c, 2])
         if ok and _inside(wa, wb, wc, BARY_TOL):
-            return VF_NEAR, wa, wb, wc, dx, dy, dz
+            return VF_NEAR, wa, wb, wc, s * n1x / l1, s * n1y / l1, s * n1z / l1
     return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
 
 
@@ -343,7 +345,12 @@ def test_edge_edge(xs, xe, a, b, c, d, forced, ox, oy, oz, h, layer_depth):
     """Edge ab against edge cd. forced: 0; +1 if cd is the outer garment's edge and ab the inner's,
     -1 the other way round; (ox, oy, oz): the inner edge's outward normal at the end of the step.
     Weights returned: (v, u, 0) with v on ab, u on cd; the constraint is
-    dir . ((c + u (d - c)) - (a + v (b - a))) >= h."""
+    dir . ((c + u (d - c)) - (a + v (b - a))) >= h.
+
+    Unlike a triangle's normal, n = (b-a) x (d-c) flips whenever the edges turn through parallel, and
+    f = n . (c - a) also changes sign where the lines meet outside the segments: the sign of f is no
+    side. So the cubic's roots are always searched, and the side is the end's sign of f flipped by
+    each real crossing (segments meeting, edges not parallel)."""
     e1x = xe[b, 0] - xe[a, 0]
     e1y = xe[b, 1] - xe[a, 1]
     e1z = xe[b, 2] - xe[a, 2]
@@ -356,70 +363,61 @@ def test_edge_edge(xs, xe, a, b, c, d, forced, ox, oy, oz, h, layer_depth):
     l1sq = n1x * n1x + n1y * n1y + n1z * n1z
     parallel1 = not (l1sq > PARALLEL_TOL * (e1x * e1x + e1y * e1y + e1z * e1z) * (e2x * e2x + e2y * e2y + e2z * e2z))
     f1 = n1x * (xe[c, 0] - xe[a, 0]) + n1y * (xe[c, 1] - xe[a, 1]) + n1z * (xe[c, 2] - xe[a, 2])
-    g1x = xs[b, 0] - xs[a, 0]
-    g1y = xs[b, 1] - xs[a, 1]
-    g1z = xs[b, 2] - xs[a, 2]
-    g2x = xs[d, 0] - xs[c, 0]
-    g2y = xs[d, 1] - xs[c, 1]
-    g2z = xs[d, 2] - xs[c, 2]
-    n0x = g1y * g2z - g1z * g2y
-    n0y = g1z * g2x - g1x * g2z
-    n0z = g1x * g2y - g1y * g2x
-    l0sq = n0x * n0x + n0y * n0y + n0z * n0z
-    parallel0 = not (l0sq > PARALLEL_TOL * (g1x * g1x + g1y * g1y + g1z * g1z) * (g2x * g2x + g2y * g2y + g2z * g2z))
-    f0 = n0x * (xs[c, 0] - xs[a, 0]) + n0y * (xs[c, 1] - xs[a, 1]) + n0z * (xs[c, 2] - xs[a, 2])
-    if parallel1 and parallel0:
-        return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    # start side; edges parallel at the start have no side there: take the end's (no crossing)
-    s = _side(f1, 0.0) if parallel0 else _side(f0, f1)
+    c0, c1, c2, c3 = triple_cubic(xs, xe, b, a, d, c, c, a)
+    r0, r1, r2, nr = cubic_roots01(c0, c1, c2, c3, c0, f1)
+    crossings = 0
+    v = 0.0
+    u = 0.0
+    cross_dir = 0.0
+    cnx = 0.0
+    cny = 0.0
+    cnz = 0.0
+    for k in range(nr):
+        t = r0 if k == 0 else (r1 if k == 1 else r2)
+        ax, ay, az = _at(xs, xe, a, t)
+        bx, by, bz = _at(xs, xe, b, t)
+        cx, cy, cz = _at(xs, xe, c, t)
+        qx, qy, qz = _at(xs, xe, d, t)
+        ok, vk, uk = _edge_params(ax, ay, az, bx, by, bz, cx, cy, cz, qx, qy, qz)
+        if ok and -CROSS_TOL <= vk <= 1.0 + CROSS_TOL and -CROSS_TOL <= uk <= 1.0 + CROSS_TOL:
+            if crossings == 0:
+                v = min(max(vk, 0.0), 1.0)
+                u = min(max(uk, 0.0), 1.0)
+                # the normal at the crossing, towards the side the pair came from (f' < 0: from +)
+                cnx = (by - ay) * (qz - cz) - (bz - az) * (qy - cy)
+                cny = (bz - az) * (qx - cx) - (bx - ax) * (qz - cz)
+                cnz = (bx - ax) * (qy - cy) - (by - ay) * (qx - cx)
+                cross_dir = -_sign(c1 + t * (2.0 * c2 + 3.0 * c3 * t), 1.0)
+            crossings += 1
+    if parallel1:
+        # no end normal: only a crossing is answered, along the normal where it happened
+        if crossings % 2 == 0:
+            return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        ln = np.sqrt(cnx * cnx + cny * cny + cnz * cnz)
+        return EE_CROSS, v, u, 0.0, cross_dir * cnx / ln, cross_dir * cny / ln, cross_dir * cnz / ln
+    sg1 = _sign(f1, 1.0)
+    s = sg1 if crossings % 2 == 0 else -sg1
     gate = h
-    if forced != 0 and not parallel1:
-        # the outer edge must lie along the inner edge's outward normal o: dir = s n1 with s = sign(n1 . o)
+    if forced != 0:
+        # the outer edge must lie along the inner edge's outward normal o: s = forced * sign(n1 . o)
         on = n1x * ox + n1y * oy + n1z * oz
         if on * on > 0.01 * l1sq * (ox * ox + oy * oy + oz * oz):
             sf = forced * (1.0 if on > 0.0 else -1.0)
-            if parallel0 or sf * f0 / np.sqrt(l0sq) >= -layer_depth:
+            if sf * f1 >= 0.0 or f1 * f1 <= layer_depth * layer_depth * l1sq:
                 s = sf
                 gate = layer_depth
-    if parallel1:
-        if s * f0 >= 0.0 and s * f1 < 0.0:
-            pass  # may still have crossed mid-step: the cubic below decides
-        else:
-            return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    if crossings > 0 and s * f1 < 0.0:
+        l1 = np.sqrt(l1sq)
+        return EE_CROSS, v, u, 0.0, s * n1x / l1, s * n1y / l1, s * n1z / l1
     if s * f1 >= 0.0 and f1 * f1 >= h * h * l1sq:
         return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     l1 = np.sqrt(l1sq)
-    sd1 = s * f1 / l1 if l1 > 0.0 else 0.0
-    dx = 0.0
-    dy = 0.0
-    dz = 0.0
-    if not parallel1:
-        dx = s * n1x / l1
-        dy = s * n1y / l1
-        dz = s * n1z / l1
-    if s * f0 >= 0.0 and s * f1 < 0.0:
-        c0, c1, c2, c3 = triple_cubic(xs, xe, b, a, d, c, c, a)
-        r0, r1, r2, nr = cubic_roots01(c0, c1, c2, c3, f0, f1)
-        for k in range(nr):
-            t = r0 if k == 0 else (r1 if k == 1 else r2)
-            ax, ay, az = _at(xs, xe, a, t)
-            bx, by, bz = _at(xs, xe, b, t)
-            cx, cy, cz = _at(xs, xe, c, t)
-            qx, qy, qz = _at(xs, xe, d, t)
-            ok, v, u = _edge_params(ax, ay, az, bx, by, bz, cx, cy, cz, qx, qy, qz)
-            if ok and -CROSS_TOL <= v <= 1.0 + CROSS_TOL and -CROSS_TOL <= u <= 1.0 + CROSS_TOL:
-                if parallel1:
-                    # no end normal: push along the direction the pair came from (start normal)
-                    l0 = np.sqrt(l0sq)
-                    dx = s * n0x / l0
-                    dy = s * n0y / l0
-                    dz = s * n0z / l0
-                return EE_CROSS, min(max(v, 0.0), 1.0), min(max(u, 0.0), 1.0), 0.0, dx, dy, dz
-    if not parallel1 and -gate <= sd1 < h:
+    sd1 = s * f1 / l1
+    if -gate <= sd1 < h:
         ok, v, u = _edge_params(xe[a, 0], xe[a, 1], xe[a, 2], xe[b, 0], xe[b, 1], xe[b, 2],
                                 xe[c, 0], xe[c, 1], xe[c, 2], xe[d, 0], xe[d, 1], xe[d, 2])
         if ok and -BARY_TOL <= v <= 1.0 + BARY_TOL and -BARY_TOL <= u <= 1.0 + BARY_TOL:
-            return EE_NEAR, v, u, 0.0, dx, dy, dz
+            return EE_NEAR, v, u, 0.0, s * n1x / l1, s * n1y / l1, s * n1z / l1
     return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
 
 
