@@ -39,13 +39,13 @@ EE_CROSS = 3
 # ---------------------------------------------------------------------------------------------
 # geometry helpers
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _det(ax, ay, az, bx, by, bz, cx, cy, cz):
     """det[a, b, c] = (a x b) . c"""
     return (ay * bz - az * by) * cx + (az * bx - ax * bz) * cy + (ax * by - ay * bx) * cz
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _at(xs, xe, i, t):
     """Particle i at time t of the step (straight line xs -> xe)."""
     return (xs[i, 0] + t * (xe[i, 0] - xs[i, 0]), xs[i, 1] + t * (xe[i, 1] - xs[i, 1]),
@@ -83,12 +83,12 @@ def triple_cubic(xs, xe, ua, ub, va, vb, wa, wb):
     return c0, c1, c2, c3
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _poly(c0, c1, c2, c3, t):
     return ((c3 * t + c2) * t + c1) * t + c0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _root_in(c0, c1, c2, c3, lo, hi, flo, fhi):
     """A root of the cubic in [lo, hi] given a sign change (or a zero) at its ends: bisection."""
     if flo == 0.0:
@@ -178,7 +178,7 @@ def cubic_roots01(c0, c1, c2, c3, f0, f1):
     return r[0], r[1], r[2], n
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _bary(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     """Barycentric (wa, wb, wc) of p's projection on the plane of abc; ok False if degenerate."""
     e1x = bx - ax
@@ -203,7 +203,7 @@ def _bary(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     return True, 1.0 - v - w, v, w
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _edge_params(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
     """Closest points of the lines ab and cd: (ok, v on ab, u on cd); ok False if parallel."""
     e1x = bx - ax
@@ -226,7 +226,7 @@ def _edge_params(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
     return True, (bb * ee - cc * dd) / den, (aa * ee - bb * dd) / den
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _inside(w0, w1, w2, tol):
     return w0 >= -tol and w1 >= -tol and w2 >= -tol
 
@@ -235,7 +235,7 @@ def _inside(w0, w1, w2, tol):
 # exact pair tests. Return (kind or -1, w1, w2, w3, dx, dy, dz) with the constraint weights of the
 # 2nd..4th particle (the 1st: 1 for VF; EE weights below) and dir = s * unit normal at the end.
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _sign(v, fallback):
     if v > 0.0:
         return 1.0

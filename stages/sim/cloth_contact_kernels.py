@@ -52,7 +52,7 @@ N_COUNTERS = 9
 # ---------------------------------------------------------------------------------------------
 # feature pairs of two triangles, the contact buffer
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _vf_forced(p, t, particle_garment, tri_garment, garment_layer, garment_outward):
     """The side the layers prescribe for particle p against triangle t (0: none)."""
     gp = particle_garment[p]
@@ -64,7 +64,7 @@ def _vf_forced(p, t, particle_garment, tri_garment, garment_layer, garment_outwa
     return 0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _edge_outward(xe, e, edge_tris, triangles, tri_garment, garment_outward):
     """Outward normal of edge e at the end of the step: the sum of its triangles' outward normals."""
     ox = 0.0
@@ -95,7 +95,7 @@ def _edge_outward(xe, e, edge_tris, triangles, tri_garment, garment_outward):
     return ox, oy, oz
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _store(work, n, kind, f0, f1, i0, i1, i2, i3, w0, w1, w2, w3, dx, dy, dz, counters):
     moved, corrected, c_kind, c_feat, c_idx, c_w, c_dir = work
     if n >= c_kind.shape[0]:
@@ -118,7 +118,7 @@ def _store(work, n, kind, f0, f1, i0, i1, i2, i3, w0, w1, w2, w3, dx, dy, dz, co
     return n + 1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters):
     """Exact test of particle p against triangle t; stores a contact in the buffer. Returns n."""
     (triangles, edges, tri_edges, tri_owns, edge_tris, particle_garment, tri_garment, edge_garment,
@@ -134,7 +134,7 @@ def test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counte
     return _store(work, n, kind, p, t, p, a, b, c, 1.0, -wa, -wb, -wc, dx, dy, dz, counters)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters):
     """Exact test of edge e against edge f (e < f); stores a contact in the buffer. Returns n."""
     (triangles, edges, tri_edges, tri_owns, edge_tris, particle_garment, tri_garment, edge_garment,
@@ -160,7 +160,7 @@ def test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counte
     return _store(work, n, kind, e, f, a, b, c, d, v - 1.0, -v, 1.0 - u, u, dx, dy, dz, counters)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _share_vertex(triangles, t1, t2):
     for i in range(3):
         for j in range(3):
@@ -169,7 +169,7 @@ def _share_vertex(triangles, t1, t2):
     return False
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t):
     """The particle's and the triangle's inflated swept k-DOPs are disjoint."""
     for i in range(pt_min.shape[1]):
@@ -178,7 +178,7 @@ def _point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t):
     return False
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _edges_apart(pt_min, pt_max, a, b, c, d):
     """The two edges' inflated swept k-DOPs (unions of their particles') are disjoint."""
     for i in range(pt_min.shape[1]):
@@ -189,7 +189,7 @@ def _edges_apart(pt_min, pt_max, a, b, c, d):
     return False
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def test_triangle_pair(xs, xe, t1, t2, topo, tree, h, layer_depth, only_cross, work, n, counters):
     """Every feature pair owned by two triangles that share no vertex (see the module doc), after a
     k-DOP check of the two features' own bounds (refit_cloth_tree)."""
@@ -285,7 +285,7 @@ def refit_cloth_tree(xs, xe, topo, tree, moved, margin):
                 nrm_max[node, i] = max(nrm_max[l, i], nrm_max[r, i])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _disjoint(node_min, node_max, a, b, axis_order):
     for j in range(axis_order.shape[0]):
         i = axis_order[j]
@@ -294,7 +294,7 @@ def _disjoint(node_min, node_max, a, b, axis_order):
     return False
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _flat_patch(nrm_min, nrm_max, node_patch, a):
     """Normal-cone culling (Volino & Magnenat-Thalmann 1994): one edge-connected patch whose
     normals all lie strictly on one side of a plane through the origin cannot fold onto itself.
@@ -391,7 +391,7 @@ def respond(x, inv_mass, work, n, target):
     """Project contacts 0..n-1 in buffer order (Gauss-Seidel): C = dir . sum_k w_k x_k - target;
     if C < 0 each particle moves by -C w_k inv_mass_k / sum_j w_j^2 inv_mass_j along dir."""
     moved, corrected, c_kind, c_feat, c_idx, c_w, c_dir = work
-    for k in range(min(n, c_kind.shape[0])):
+    for k in range(n):
         dx = c_dir[k, 0]
         dy = c_dir[k, 1]
         dz = c_dir[k, 2]
@@ -423,7 +423,7 @@ def revert(x_prev, x, inv_mass, work, n):
     particles changed."""
     moved, corrected, c_kind, c_feat, c_idx, c_w, c_dir = work
     changed = 0
-    for k in range(min(n, c_kind.shape[0])):
+    for k in range(n):
         for j in range(4):
             i = c_idx[k, j]
             if inv_mass[i] == 0.0:
@@ -460,32 +460,33 @@ def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
     thickness, layer_depth, rounds, failsafe_rounds, cull = prm
     moved = work[0]
     corrected = work[1]
-    cap = work[2].shape[0]
     margin = 0.5 * max(thickness, layer_depth)
     target = PUSH_OVER * thickness
     moved[:] = 1
     corrected[:] = 0
     clean = False
     for _ in range(rounds):
+        dropped = counters[N_OVERFLOW]
         refit_cloth_tree(x_prev, x, topo, tree, moved, margin)
         n = detect(x_prev, x, topo, tree, work, thickness, layer_depth, False, cull, counters)
         counters[N_ROUNDS] += 1
         counters[N_CONTACTS] += n
-        if n == 0:
+        if n == 0 and counters[N_OVERFLOW] == dropped:
             clean = True
             break
         moved[:] = 0
         for _sweep in range(SWEEPS):  # coupled contacts (a particle in several) need a few sweeps
             respond(x, inv_mass, work, n, target)
-        if n > cap:
+        if counters[N_OVERFLOW] != dropped:
             moved[:] = 1  # dropped contacts: look everywhere again
     if not clean:
         for it in range(failsafe_rounds + 1):
+            dropped = counters[N_OVERFLOW]
             refit_cloth_tree(x_prev, x, topo, tree, moved, margin)
             n = detect(x_prev, x, topo, tree, work, thickness, layer_depth, True, cull, counters)
             if it == 0:
                 counters[N_UNRESOLVED] += n
-            if n == 0:
+            if n == 0 and counters[N_OVERFLOW] == dropped:
                 break
             if it == failsafe_rounds:
                 counters[N_LEFT] += n
@@ -493,9 +494,9 @@ def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
             moved[:] = 0
             changed = revert(x_prev, x, inv_mass, work, n)
             counters[N_REVERTED] += changed
-            if n > cap:
-                moved[:] = 1
-            if changed == 0:
+            if counters[N_OVERFLOW] != dropped:
+                moved[:] = 1  # dropped crossings: look everywhere again
+            if changed == 0 and counters[N_OVERFLOW] == dropped:
                 counters[N_LEFT] += n  # only pinned particles left to move
                 break
     nc = 0
