@@ -359,3 +359,30 @@ def test_layered_sheet_starting_inside_ends_outside():
     assert np.all(layered > 0.0), layered.min()
     # without the layer order the start side is kept: the outer sheet stays under
     assert np.all(results[(0, 0)] < 0.0)
+
+
+def test_once_per_frame_keeps_layers_apart_and_spreads_the_correction():
+    # the recommended integration: sub-steps without the phase, one swept call per frame
+    x, t, off, _ = two_sheets(n=8, gap=0.008, layers=(0, 0))
+    sim = SheetSim(x + [0.0, 0.1, 0.0], t, off, layers=[0, 0], dt=1 / 300, thickness=H, ground_y=0.0)
+    sim.inv_mass[: off[1]] = 0.0  # the lower sheet is pinned 10 cm up; the upper one falls on it
+    cc, args = sim.cc, sim.args
+    upper = np.arange(off[1], off[2])
+    over = (sim.x[upper, 0] < 0.1) & (sim.x[upper, 2] < 0.1)
+    counters = np.zeros(CK.N_COUNTERS, np.int64)
+    for _ in range(30):
+        x0 = sim.x.copy()
+        sim.cc = None
+        for _ in range(10):
+            sim.step()
+        sim.cc = cc
+        CK.collide_cloth(x0, sim.x, sim.inv_mass, *args, counters)
+        xp_before = sim.xp.copy()
+        CK.frame_velocity(x0, sim.x, sim.xp, cc.corrected, 10)
+        moved = cc.corrected.astype(bool)
+        np.testing.assert_allclose(sim.x[moved] - sim.xp[moved], (sim.x[moved] - x0[moved]) / 10, atol=1e-15)
+        np.testing.assert_array_equal(sim.xp[~moved], xp_before[~moved])
+        assert np.all(sim.x[upper][over, 1] > 0.1)  # above the pinned sheet over its whole area
+    assert counters[CK.N_CONTACTS] > 0 and counters[CK.N_LEFT] == 0
+    # resting, not bouncing: the spread correction leaves no large velocity
+    assert np.abs(sim.x[upper] - sim.xp[upper]).max() < 0.003

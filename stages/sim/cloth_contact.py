@@ -1,14 +1,34 @@
 """Cloth x cloth collision (garment-garment and self) as a self-contained phase of the step loop.
 
-Setup (Python, once per scene): `build_cloth_contact(x, triangles, garment_offsets, layers)` makes a
-`ClothContact` (topology, a k-DOP tree over every cloth triangle, work buffers). Per step or per frame
-(numba, inside the step loop):
+Setup (Python, once per scene) builds a `ClothContact`: topology (edges, feature ownership), one k-DOP
+tree per garment over its triangles (paper B; stages.obstacles.kdop builds and refits it), work
+buffers. The phase itself is one numba call over flat arrays, `collide_cloth` in
+stages.sim.cloth_contact_kernels (exact tests in stages.sim.cloth_contact_ccd).
 
-    topo, tree, work, prm = cc.kernel_args()          # once, outside the loop
-    collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters)
+How the step loop uses it (stages.sim.kernels.run_steps / run_frames)
+--------------------------------------------------------------------
+Once per scene, with the simulation's concatenated garments (System.x, System.tris, System.offsets):
 
-with x_prev the positions at the start of the step (or frame) and x the positions after the other
-phases; see `stages.sim.cloth_contact_kernels` for the tests and the contract.
+    cc = build_cloth_contact(x, tris, offsets, layers=[layer of each garment], thickness=0.003,
+                             outward=outward_signs(x, tris, tri_garment, G, body_vertices))
+    topo, tree, work, prm = cc.kernel_args()      # tuples of arrays + (thickness, layer_depth,
+                                                  #  rounds, failsafe_rounds, cull): pass them into
+                                                  #  run_frames next to `cloth` / `cols`
+    x_start = np.empty_like(x); counters = np.zeros(N_COUNTERS, np.int64)
+
+Phase order: forces, Verlet, springs and tethers, body colliders, obstacles, then cloth-cloth LAST,
+so the positions a frame records are the ones this phase checked (a later phase could push cloth
+back through cloth). Either
+
+- once per frame (recommended): at the frame's start `x_start[:] = x`; after the frame's last
+  sub-step `collide_cloth(x_start, x, inv_mass, topo, tree, work, prm, counters)` then
+  `frame_velocity(x_start, x, xp, work[1], substeps)`; the tree's bounds sweep the whole frame; or
+- once per sub-step: `x_start[:] = x` before integrate, `collide_cloth(...)` after the obstacles;
+  the correction becomes Verlet velocity like every other position correction (no extra call).
+
+x_start must be free of cloth crossings (the fail-safe reverts to it): true from the first frame on
+if the garments start apart; garments that start interpenetrating are sorted by the layer rule up
+to `layer_depth` deep (prm[1] may be raised for the first frames only).
 """
 from __future__ import annotations
 

@@ -586,3 +586,16 @@ def patch_nodes(children, leaf_prim, triangles, tri_garment, n_particles):
             for k in range(3):
                 parent[triangles[tris[j], k]] = triangles[tris[j], k]
     return out
+
+
+@njit(cache=True, _nrt=False)
+def frame_velocity(x_start, x, xp, corrected, substeps):
+    """After a once-per-frame `collide_cloth` (x_start: positions at the frame's start): give each
+    corrected particle the frame's mean velocity, xp = x - (x - x_start) / substeps, so the
+    correction is spread over the frame instead of entering the next sub-step as a velocity of
+    correction / dt_sub (a resting layer would otherwise be flung off). corrected: work[1]."""
+    inv = 1.0 / substeps
+    for i in range(x.shape[0]):
+        if corrected[i]:
+            for k in range(3):
+                xp[i, k] = x[i, k] - (x[i, k] - x_start[i, k]) * inv
