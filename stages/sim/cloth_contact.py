@@ -49,7 +49,8 @@ class ClothContact:
     """Everything `collide_cloth` needs, as flat arrays (world frame, metres).
 
     N particles (all garments concatenated, garment g = particles garment_offsets[g]..[g+1]),
-    T triangles, E edges, G garments, h = k/2 k-DOP directions, n = 2T - 1 tree nodes.
+    T triangles, E edges, G garments, h = k/2 k-DOP directions, n = 2T - G tree nodes (one tree
+    per garment with triangles). Bounds are world frame, metres, over the current call's step.
 
     triangles: (T, 3) int32, global particle ids, each within one garment.
     edges: (E, 2) int32, the unique triangle edges, i < j, sorted.
@@ -64,11 +65,15 @@ class ClothContact:
       from the body, -1 if they point towards it.
     tree: KdopTree forest, one tree per garment over its triangles (leaf_prim = global triangle id),
       topology from the setup positions; node_min/node_max are refit in place on every call.
-    node_dirty (n,) uint8, tri_min / tri_max (T, h) float64 (triangle k-DOPs over the step),
-      pt_min / pt_max (N, h) float64 (each particle's swept k-DOP, inflated alike), nrm_min / nrm_max
-      (n, h) float64 (bounds of each node's unit normals projected on the directions), node_patch (n,)
-      uint8 (1: the node's triangles are one patch, connected through shared vertices, of one garment), axis_order (h,) int32 (the order the
-      directions are tested in), stack (S, 2) int32: traversal work arrays.
+    Traversal work arrays:
+      node_dirty (n,) uint8: a particle of the node moved since the last detection;
+      tri_min / tri_max (T, h) float64: each triangle's k-DOP over the step, inflated;
+      pt_min / pt_max (N, h) float64: each particle's swept k-DOP, inflated alike;
+      nrm_min / nrm_max (n, h) float64: bounds of the node's unit normals projected on the directions;
+      node_patch (n,) uint8: 1 if the node's triangles are one patch of one garment (connected
+        through shared vertices); fixed at setup;
+      axis_order (h,) int32: the order the directions are tested in;
+      stack (S, 2) int32: node pairs still to visit.
     moved, corrected: (N,) uint8 work flags.
     c_kind (C,) int8, c_feat (C, 2) int32, c_idx (C, 4) int32, c_w (C, 4) float64, c_dir (C, 3)
       float64: the contact buffer (capacity C); after a call it holds the last detection's contacts.
