@@ -386,3 +386,19 @@ def test_once_per_frame_keeps_layers_apart_and_spreads_the_correction():
     assert counters[CK.N_CONTACTS] > 0 and counters[CK.N_LEFT] == 0
     # resting, not bouncing: the spread correction leaves no large velocity
     assert np.abs(sim.x[upper] - sim.xp[upper]).max() < 0.003
+
+
+def test_same_input_same_output():
+    rng = np.random.default_rng(11)
+    x, t, off, layers = two_sheets(n=6)
+    xs = x + rng.normal(0.0, 0.002, x.shape)
+    xe = xs + rng.normal(0.0, 0.006, x.shape)
+    outs = []
+    for _ in range(2):
+        cc = build_cloth_contact(x, t, off, layers, thickness=H)
+        xx = xe.copy()
+        c = cc.collide(xs, xx, np.ones(x.shape[0]))
+        outs.append((xx, c))
+    assert outs[0][1][CK.N_CONTACTS] > 0
+    np.testing.assert_array_equal(outs[0][0], outs[1][0])
+    np.testing.assert_array_equal(outs[0][1], outs[1][1])
