@@ -402,3 +402,19 @@ def test_same_input_same_output():
     assert outs[0][1][CK.N_CONTACTS] > 0
     np.testing.assert_array_equal(outs[0][0], outs[1][0])
     np.testing.assert_array_equal(outs[0][1], outs[1][1])
+
+
+def test_outward_signs_from_the_body():
+    # a tube around the y axis (body points on the axis), once as built and once with flipped triangles
+    from stages.sim.cloth_contact import outward_signs
+    x, t = grid_sheet(12, 5, 1.0, 0.3)
+    ang = x[:, 0] * 2 * np.pi * 11 / 12
+    tube = np.stack([0.2 * np.cos(ang), x[:, 2], 0.2 * np.sin(ang)], axis=1)
+    both = np.concatenate([tube, tube * [1.2, 1.0, 1.2]])
+    tris = np.concatenate([t, t[:, ::-1] + tube.shape[0]]).astype(np.int32)
+    tri_garment = np.repeat([0, 1], t.shape[0])
+    body = np.stack([np.zeros(20), np.linspace(0, 0.3, 20), np.zeros(20)], axis=1)
+    s = outward_signs(both, tris, tri_garment, 2, body)
+    n = np.cross(tube[t[0, 1]] - tube[t[0, 0]], tube[t[0, 2]] - tube[t[0, 0]])
+    built_outward = np.dot(n, tube[t[0]].mean(0) * [1, 0, 1]) > 0
+    assert s.tolist() == ([1.0, -1.0] if built_outward else [-1.0, 1.0])
