@@ -361,8 +361,8 @@ def test_layered_sheet_starting_inside_ends_outside():
     assert np.all(results[(0, 0)] < 0.0)
 
 
-def test_once_per_frame_keeps_layers_apart_and_spreads_the_correction():
-    # the recommended integration: sub-steps without the phase, one swept call per frame
+def test_once_per_frame_keeps_layers_apart_and_drops_the_approach_velocity():
+    # the per-frame integration: sub-steps without the phase, one swept call per frame
     x, t, off, _ = two_sheets(n=8, gap=0.008, layers=(0, 0))
     sim = SheetSim(x + [0.0, 0.1, 0.0], t, off, layers=[0, 0], dt=1 / 300, thickness=H, ground_y=0.0)
     sim.inv_mass[: off[1]] = 0.0  # the lower sheet is pinned 10 cm up; the upper one falls on it
@@ -376,15 +376,23 @@ def test_once_per_frame_keeps_layers_apart_and_spreads_the_correction():
         for _ in range(10):
             sim.step()
         sim.cc = cc
+        x_before = sim.x.copy()
         CK.collide_cloth(x0, sim.x, sim.inv_mass, *args, counters)
         xp_before = sim.xp.copy()
-        CK.frame_velocity(x0, sim.x, sim.xp, cc.corrected, 10)
+        CK.contact_velocity(x_before, sim.x, sim.xp, cc.corrected)
         moved = cc.corrected.astype(bool)
-        np.testing.assert_allclose(sim.x[moved] - sim.xp[moved], (sim.x[moved] - x0[moved]) / 10, atol=1e-15)
+        d = sim.x[moved] - x_before[moved]
+        v_old = x_before[moved] - xp_before[moved]
+        v_new = sim.x[moved] - sim.xp[moved]
+        # no velocity against the correction; the part across it unchanged
+        assert np.all(np.einsum("ij,ij->i", v_new, d) >= -1e-15)
+        dn = d / np.linalg.norm(d, axis=1, keepdims=True)
+        across = lambda v: v - np.einsum("ij,ij->i", v, dn)[:, None] * dn  # noqa: E731
+        np.testing.assert_allclose(across(v_new), across(v_old), atol=1e-12)
         np.testing.assert_array_equal(sim.xp[~moved], xp_before[~moved])
         assert np.all(sim.x[upper][over, 1] > 0.1)  # above the pinned sheet over its whole area
     assert counters[CK.N_CONTACTS] > 0 and counters[CK.N_LEFT] == 0
-    # resting, not bouncing: the spread correction leaves no large velocity
+    # resting, not bouncing
     assert np.abs(sim.x[upper] - sim.xp[upper]).max() < 0.003
 
 

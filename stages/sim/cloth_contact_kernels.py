@@ -589,13 +589,28 @@ def patch_nodes(children, leaf_prim, triangles, tri_garment, n_particles):
 
 
 @njit(cache=True, _nrt=False)
-def frame_velocity(x_start, x, xp, corrected, substeps):
-    """After a once-per-frame `collide_cloth` (x_start: positions at the frame's start): give each
-    corrected particle the frame's mean velocity, xp = x - (x - x_start) / substeps, so the
-    correction is spread over the frame instead of entering the next sub-step as a velocity of
-    correction / dt_sub (a resting layer would otherwise be flung off). corrected: work[1]."""
-    inv = 1.0 / substeps
+def contact_velocity(x_before, x, xp, corrected):
+    """Verlet velocity after a `collide_cloth` called once per frame (or whenever the correction should
+    not become velocity): for each corrected particle, with d = x - x_before its correction and
+    v = x_before - xp its velocity (times dt) before it, drop the part of v that approaches along d
+    (inelastic along the contact normal, tangential kept) and set xp = x - v. Uncorrected particles
+    keep xp. corrected: work[1] of the call."""
     for i in range(x.shape[0]):
-        if corrected[i]:
-            for k in range(3):
-                xp[i, k] = x[i, k] - (x[i, k] - x_start[i, k]) * inv
+        if not corrected[i]:
+            continue
+        dx = x[i, 0] - x_before[i, 0]
+        dy = x[i, 1] - x_before[i, 1]
+        dz = x[i, 2] - x_before[i, 2]
+        vx = x_before[i, 0] - xp[i, 0]
+        vy = x_before[i, 1] - xp[i, 1]
+        vz = x_before[i, 2] - xp[i, 2]
+        dd = dx * dx + dy * dy + dz * dz
+        if dd > 0.0:
+            vn = (vx * dx + vy * dy + vz * dz) / dd
+            if vn < 0.0:
+                vx -= vn * dx
+                vy -= vn * dy
+                vz -= vn * dz
+        xp[i, 0] = x[i, 0] - vx
+        xp[i, 1] = x[i, 1] - vy
+        xp[i, 2] = x[i, 2] - vz
