@@ -41,7 +41,8 @@ N_CONTACTS = 0     # contacts found over all rounds
 N_CORRECTED = 1    # particles moved by a response or the fail-safe (once per call each)
 N_UNRESOLVED = 2   # CROSS contacts left after the response rounds (handed to the fail-safe)
 N_REVERTED = 3     # particles the fail-safe put back to x_prev
-N_LEFT = 4         # CROSS contacts left after the fail-safe (0 unless pinned particles force them)
+N_LEFT = 4         # CROSS left after the fail-safe: 0 unless pinned particles force them, x_prev
+                   # already had crossings, or failsafe_rounds ran out
 N_ROUNDS = 5       # response rounds run
 N_NODE_PAIRS = 6   # tree node pairs visited
 N_TESTS = 7        # exact feature-pair tests
