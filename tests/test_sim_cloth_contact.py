@@ -19,23 +19,17 @@ H = 0.004
 # plain-Python references
 
 def brute_force_reference(cc, xs, xe, only_cross=False):
-    """Every feature pair whose owner triangles share no vertex, enumerated in Python; the layer
+    """Every vertex-face and edge-edge pair that shares no vertex, enumerated in Python; the layer
     rule written out again here. Returns sorted (kind, feature pair) like ClothContact.contacts."""
     tris = cc.triangles
     h, depth = cc.thickness, cc.layer_depth
-    vown = {}
-    eown = {}
-    for t in range(tris.shape[0]):
-        for k in range(3):
-            vown.setdefault(int(tris[t, k]), t)
-            eown.setdefault(int(cc.tri_edges[t, k]), t)
     sets = [set(tris[t].tolist()) for t in range(tris.shape[0])]
     layer = cc.garment_layer
     out = cc.garment_outward
     found = []
-    for p, op in vown.items():
+    for p in sorted(set(tris.ravel().tolist())):
         for t in range(tris.shape[0]):
-            if sets[op] & sets[t]:
+            if p in sets[t]:
                 continue
             gp, gt = cc.particle_garment[p], cc.tri_garment[t]
             forced = 0 if layer[gp] == layer[gt] else (int(out[gt]) if layer[gp] > layer[gt] else -int(out[gt]))
@@ -45,7 +39,7 @@ def brute_force_reference(cc, xs, xe, only_cross=False):
     ne = cc.edges.shape[0]
     for e in range(ne):
         for f in range(e + 1, ne):
-            if sets[eown[e]] & sets[eown[f]]:
+            if set(cc.edges[e].tolist()) & set(cc.edges[f].tolist()):
                 continue
             le, lf = layer[cc.edge_garment[e]], layer[cc.edge_garment[f]]
             forced, o = 0, (0.0, 0.0, 0.0)

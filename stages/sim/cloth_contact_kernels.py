@@ -10,12 +10,11 @@ Every contact is the constraint C = dir . sum_k w_k x_k - h >= 0 over its 4 part
 the unit normal at the end of the step; w the barycentric / edge weights), projected by inverse
 mass (PBD); pinned particles (inv_mass 0) never move.
 
-Which pairs are tested: the traversal pairs triangles whose swept, inflated k-DOPs overlap and that
-share no vertex (adjacent primitives are skipped). Each vertex and each edge is owned by one
-incident triangle (`tri_owns`), and a triangle pair tests only the features it owns, so each
-feature pair is tested once: a feature pair is tested iff its two owner triangles share no vertex
-(then only if the two features' own swept k-DOPs overlap, which is conservative). With `cull`,
-a garment's subtree that is a connected, flat patch is not tested against itself.
+Which pairs are tested: the traversal pairs triangles whose swept, inflated k-DOPs overlap. Each
+vertex and each edge is owned by one incident triangle (`tri_owns`), and a triangle pair tests only
+the features it owns, so each feature pair is tested once: every vertex-face and edge-edge pair that
+shares no vertex (adjacent features are skipped) and whose own swept k-DOPs overlap (conservative).
+With `cull`, a garment's subtree that is a connected, flat patch is not tested against itself.
 """
 from __future__ import annotations
 
@@ -162,12 +161,8 @@ def test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counte
 
 
 @njit(cache=True)
-def _share_vertex(triangles, t1, t2):
-    for i in range(3):
-        for j in range(3):
-            if triangles[t1, i] == triangles[t2, j]:
-                return True
-    return False
+def _in_triangle(triangles, p, t):
+    return p == triangles[t, 0] or p == triangles[t, 1] or p == triangles[t, 2]
 
 
 @njit(cache=True)
@@ -192,8 +187,8 @@ def _edges_apart(pt_min, pt_max, a, b, c, d):
 
 @njit(cache=True)
 def test_triangle_pair(xs, xe, t1, t2, topo, tree, h, layer_depth, only_cross, work, n, counters):
-    """Every feature pair owned by two triangles that share no vertex (see the module doc), after a
-    k-DOP check of the two features' own bounds (refit_cloth_tree)."""
+    """Every pair of features owned by the two triangles that share no vertex themselves (see the
+    module doc), after a k-DOP check of the two features' own bounds (refit_cloth_tree)."""
     triangles = topo[0]
     edges = topo[1]
     tri_edges = topo[2]
@@ -202,18 +197,16 @@ def test_triangle_pair(xs, xe, t1, t2, topo, tree, h, layer_depth, only_cross, w
     tri_max = tree[9]
     pt_min = tree[10]
     pt_max = tree[11]
-    if _share_vertex(triangles, t1, t2):
-        return n
     o1 = tri_owns[t1]
     o2 = tri_owns[t2]
     for k in range(3):
         if o1 & (1 << k):
             p = triangles[t1, k]
-            if not _point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t2):
+            if not _in_triangle(triangles, p, t2) and not _point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t2):
                 n = test_vf_pair(xs, xe, p, t2, topo, h, layer_depth, only_cross, work, n, counters)
         if o2 & (1 << k):
             p = triangles[t2, k]
-            if not _point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t1):
+            if not _in_triangle(triangles, p, t1) and not _point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t1):
                 n = test_vf_pair(xs, xe, p, t1, topo, h, layer_depth, only_cross, work, n, counters)
     for i in range(3):
         if not (o1 & (8 << i)):
@@ -223,6 +216,9 @@ def test_triangle_pair(xs, xe, t1, t2, topo, tree, h, layer_depth, only_cross, w
                 continue
             e = tri_edges[t1, i]
             f = tri_edges[t2, j]
+            if (edges[e, 0] == edges[f, 0] or edges[e, 0] == edges[f, 1] or edges[e, 1] == edges[f, 0]
+                    or edges[e, 1] == edges[f, 1]):
+                continue
             if _edges_apart(pt_min, pt_max, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1]):
                 continue
             if e < f:
@@ -511,28 +507,26 @@ def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
 
 @njit(cache=True)
 def brute_force_contacts(xs, xe, topo, h, layer_depth, only_cross, work, counters):
-    """Every feature pair whose owner triangles share no vertex, tested exactly: O(P T + E E).
+    """Every vertex-face and edge-edge pair that shares no vertex, tested exactly: O(P T + E E).
     Same buffer as `detect` (order differs). Returns the number of contacts stored."""
     (triangles, edges, tri_edges, tri_owns, edge_tris, particle_garment, tri_garment, edge_garment,
      garment_layer, garment_outward) = topo
-    vertex_owner = np.full(xs.shape[0], -1, dtype=np.int64)
-    edge_owner = np.full(edges.shape[0], -1, dtype=np.int64)
+    used = np.zeros(xs.shape[0], dtype=np.bool_)
     for t in range(triangles.shape[0]):
         for k in range(3):
-            if tri_owns[t] & (1 << k):
-                vertex_owner[triangles[t, k]] = t
-            if tri_owns[t] & (8 << k):
-                edge_owner[tri_edges[t, k]] = t
+            used[triangles[t, k]] = True
     n = 0
     for p in range(xs.shape[0]):
-        if vertex_owner[p] < 0:
+        if not used[p]:
             continue
         for t in range(triangles.shape[0]):
-            if not _share_vertex(triangles, vertex_owner[p], t):
+            if not _in_triangle(triangles, p, t):
                 n = test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters)
     for e in range(edges.shape[0]):
         for f in range(e + 1, edges.shape[0]):
-            if not _share_vertex(triangles, edge_owner[e], edge_owner[f]):
+            a = edges[e, 0]
+            b = edges[e, 1]
+            if a != edges[f, 0] and a != edges[f, 1] and b != edges[f, 0] and b != edges[f, 1]:
                 n = test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
     return n
 
