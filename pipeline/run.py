@@ -90,7 +90,8 @@ class _Timer:
 
 
 # simulation keys whose scene default (null) means "the preset's value" (stages.sim.types.PRESETS)
-PRESET_KEYS = ("substeps", "iterations", "damping", "tethers", "stretch_stiffness", "bend_stiffness")
+PRESET_KEYS = ("substeps", "iterations", "damping", "tethers", "stretch_stiffness", "bend_stiffness",
+               "cloth_collision")
 
 
 def sim_params(scene: Scene):
@@ -101,7 +102,12 @@ def sim_params(scene: Scene):
     return SimParams.preset(sp["preset"], dt=sp["dt"], gravity=tuple(sp["gravity"]), wind=tuple(sp["wind"]),
                             drag=sp["drag"], lift=sp["lift"], friction=sp["friction"],
                             inertia_scale=sp["inertia_scale"], hull_response=scene["colliders"]["response"],
-                            body_audit=sp["body_audit"], **given)
+                            body_audit=sp["body_audit"], cloth_thickness=sp["cloth_thickness"], **given)
+
+
+def garment_layers(scene: Scene) -> list[int]:
+    """Each garment's cloth collision layer: its `layer`, else its place in the list (earlier = inner)."""
+    return [g["layer"] if g.get("layer") is not None else i for i, g in enumerate(scene["garments"])]
 
 
 def body_params(settings: dict):
@@ -725,6 +731,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             with _Timer(summary, "simulation") as r:
                 try:
                     result = simulate(character, motion, colliders, maps, garments, params, obstacles=obstacles,
+                                      layers=garment_layers(scene),
                                       progress=lambda done, total: bar.update(done), threads=sp["threads"])
                 finally:
                     bar.close()

@@ -5,7 +5,7 @@ tree per garment over its triangles (paper B; stages.obstacles.kdop builds and r
 buffers. The phase itself is one numba call over flat arrays, `collide_cloth` in
 stages.sim.cloth_contact_kernels (exact tests in stages.sim.cloth_contact_ccd).
 
-How the step loop uses it (stages.sim.kernels.run_steps / run_frames)
+How the step loop uses it (stages.sim.step.run_steps / run_frames; `ClothPhase` below builds the tuples)
 --------------------------------------------------------------------
 Once per scene, with the simulation's concatenated garments (System.x, System.tris, System.offsets):
 
@@ -47,6 +47,7 @@ from stages.obstacles.types import KdopTree
 from stages.sim import cloth_contact_kernels as CK
 
 DEFAULT_THICKNESS = 0.003  # m: about two layers of shirt fabric
+SETTLE_FRAMES = 3          # frames at the frame-0 pose before frame 1 that sort garments starting interpenetrating
 
 
 @dataclass(frozen=True)
@@ -359,3 +360,63 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
         c_w=np.zeros((cap, 4)), c_dir=np.zeros((cap, 3)),
         thickness=float(thickness), layer_depth=float(layer_depth if layer_depth is not None else thickness),
         rounds=int(rounds), failsafe_rounds=int(failsafe_rounds), cull=bool(cull))
+
+
+class ClothPhase:
+    """The cloth x cloth phase as the simulation's step loop runs it (stages.sim.step, `cc` argument).
+
+    Built once per simulate() call from the concatenated garments (relative frame at frame 0):
+    x (N, 3), triangles (T, 3) global ids, offsets (G + 1,), cinv (N,) inverse masses with attached
+    particles 0 (never moved by this phase), layers (G,) 0 = innermost, body_points (V, 3) the skin at
+    frame 0 (which way each garment faces), thickness m, every: sub-steps per call,
+    layer_depth0 m: the sorting depth of `first`, the tuple simulate() runs SETTLE_FRAMES frames at
+    the frame-0 pose with before frame 1 (garments that start interpenetrating); `rest`: the
+    tuple of every simulated frame (depth = thickness).
+    """
+
+    def __init__(self, x, triangles, offsets, cinv, layers, body_points, thickness: float, every: int,
+                 layer_depth0: float):
+        g = len(offsets) - 1
+        tri_garment = (np.searchsorted(np.asarray(offsets), np.asarray(triangles)[:, 0], side="right") - 1)
+        outward = (outward_signs(x, triangles, tri_garment, g, body_points) if body_points is not None
+                   and body_points.shape[0] else np.ones(g))
+        self.cc = build_cloth_contact(x, triangles, offsets, layers=layers, outward=outward, thickness=thickness,
+                                      layer_depth=max(layer_depth0, thickness))
+        topo, tree, work, prm = self.cc.kernel_args()
+        self.counters = np.zeros(CK.N_COUNTERS, np.int64)
+        n = x.shape[0]
+        self.x_start = np.zeros((n, 3))
+        self.x_before = np.zeros((n, 3))
+        self.cinv = np.ascontiguousarray(cinv, np.float64)
+        first = prm
+        rest = (prm[0], float(thickness), prm[2], prm[3], prm[4])
+        self.first = (self.x_start, self.x_before, self.cinv, topo, tree, work, first, self.counters, int(every))
+        self.rest = (self.x_start, self.x_before, self.cinv, topo, tree, work, rest, self.counters, int(every))
+        self.settle_frames = SETTLE_FRAMES
+
+    @classmethod
+    def for_simulation(cls, sysm, layers, params, character, motion) -> "ClothPhase":
+        """The phase of simulate()'s particle system `sysm` (stages.sim.simulate._System); layers
+        (G,) or None (the garments' order); params: SimParams (cloth_thickness, cloth_contact_every,
+        cloth_layer_depth0)."""
+        g = len(sysm.names)
+        layers = np.arange(g) if layers is None else np.asarray(layers)
+        if layers.shape != (g,):
+            raise ContractError(f"simulate: layers: expected one per garment ({g}), got {layers.tolist()}")
+        body = None
+        if character.triangles.shape[0] > 0:
+            from stages.rig.skinning import skin
+            body = skin(character, motion, frames=[0])[0]
+        cinv = np.where(sysm.attach_joint >= 0, 0.0, sysm.inv_mass)
+        return cls(sysm.x, sysm.tris, sysm.offsets, cinv, layers, body, params.cloth_thickness,
+                   params.cloth_contact_every, params.cloth_layer_depth0)
+
+    def summary(self) -> dict:
+        """Counters summed over the run (see stages.sim.cloth_contact_kernels N_*)."""
+        c = self.counters
+        return {"contacts": int(c[CK.N_CONTACTS]), "corrected": int(c[CK.N_CORRECTED]),
+                "unresolved": int(c[CK.N_UNRESOLVED]), "reverted": int(c[CK.N_REVERTED]),
+                "left": int(c[CK.N_LEFT]), "rounds": int(c[CK.N_ROUNDS]), "node_pairs": int(c[CK.N_NODE_PAIRS]),
+                "tests": int(c[CK.N_TESTS]), "overflow": int(c[CK.N_OVERFLOW]),
+                "layers": [int(v) for v in self.cc.garment_layer],
+                "outward": [int(v) for v in self.cc.garment_outward]}

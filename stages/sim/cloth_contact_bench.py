@@ -1,5 +1,5 @@
 """A small Verlet mass-spring cloth that calls the cloth contact phase every step, for the tests and
-the benchmark (not the production step loop, which is stages.sim.kernels).
+the benchmark (not the production step loop, which is stages.sim.step).
 
     python -m stages.sim.cloth_contact_bench            # time collide_cloth on two layered 40 x 40 sheets
 """
