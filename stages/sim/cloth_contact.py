@@ -411,6 +411,21 @@ class ClothPhase:
         return cls(sysm.x, sysm.tris, sysm.offsets, cinv, layers, body, params.cloth_thickness,
                    params.cloth_contact_every, params.cloth_layer_depth0)
 
+    def settle(self, cloth, cols, m, prm, gravity, wind, fwd0, inv0, substeps, max_speed2, goff, flags) -> None:
+        """SETTLE_FRAMES frames of the step loop at the frame-0 pose (fwd0 / inv0 (J, 4, 4)) with the
+        sorting depth (`first`), not recorded; then xp = x (the sorting moves are not velocity). The
+        other arguments are simulate()'s run_frames arguments."""
+        from stages.sim import step
+        k = self.settle_frames * substeps
+        fwd = np.ascontiguousarray(np.repeat(fwd0[None], k, axis=0))
+        inv = np.ascontiguousarray(np.repeat(inv0[None], k, axis=0))
+        z = np.zeros((k, 3))
+        f, n, g = self.settle_frames, cloth[0].shape[0], goff.size - 1
+        step.run_frames(cloth, cols, m, prm, gravity, wind, fwd, inv, inv, z, z, substeps, max_speed2, goff,
+                        np.zeros((f, n, 3), np.float32), np.zeros((f, g), np.int32), np.zeros((f, 2)),
+                        np.zeros(f, np.int64), flags, np.zeros(step.N_TIMERS, np.int64), self.first)
+        cloth[1][:] = cloth[0]
+
     def summary(self) -> dict:
         """Counters summed over the run (see stages.sim.cloth_contact_kernels N_*)."""
         c = self.counters

@@ -40,6 +40,7 @@ from stages.garments.types import BEND, STRETCH, Garment
 from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER
 from stages.maps.types import KIND_CYLINDER, MapArrays
 from stages.sim import body_collide, collider_grid, forces, simd, step, winding
+from stages.sim.cloth_contact import ClothPhase
 from stages.sim.springs import pack_springs, partition_springs
 from stages.sim.types import GarmentTrack, SimParams, SimResult, SimulationDiverged
 
@@ -462,10 +463,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     timers = np.zeros(step.N_TIMERS, np.int64)
     timings = {"poses": 0.0, "integrate": 0.0, "constraints": 0.0, "collisions": 0.0, "obstacles": 0.0,
                "audit": 0.0}
-    cphase = None
-    if params.cloth_collision:
-        from stages.sim.cloth_contact import ClothPhase
-        cphase = ClothPhase.for_simulation(sysm, layers, params, character, motion)
+    cphase = ClothPhase.for_simulation(sysm, layers, params, character, motion) if params.cloth_collision else None
 
     root = motion.root_translation
     ocol = None
@@ -535,14 +533,8 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     sysm.speed2[:] = 0.0
     step.record_frame(sysm.x, flags, np.inf, sysm.goff, rel[0], pen_col[0], counts[0])
     audit_frames(0, 1)
-    if cphase is not None:   # garments that start interpenetrating: sorted by their layers before frame 1,
-        m = cphase.settle_frames   # frames at the frame-0 pose (not recorded, no velocity kept)
-        jw0 = np.repeat(fwd0[None], m * ss, axis=0)
-        z, ij0 = np.zeros((m * ss, 3)), np.repeat(inv_0[None], m * ss, axis=0)
-        scratch = (np.zeros((m, n, 3), np.float32), np.zeros((m, len(garments)), np.int32), np.zeros((m, 2)))
-        step.run_frames(cloth, cols, col.m, prm, gravity, wind, jw0, ij0, ij0, z, z, ss, max2, sysm.goff,
-                        *scratch, np.zeros(m, np.int64), flags, np.zeros(step.N_TIMERS, np.int64), cphase.first)
-        sysm.xp[:] = sysm.x
+    if cphase is not None:   # garments that start interpenetrating: sorted by their layers before frame 1
+        cphase.settle(cloth, cols, col.m, prm, gravity, wind, fwd0, inv_0, ss, max2, sysm.goff, flags)
     if progress is not None:
         progress(1, nf)
 
