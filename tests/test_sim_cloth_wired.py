@@ -129,3 +129,12 @@ print(len(CK.collide_cloth.signatures), len(step.cloth_phase.signatures), len(st
     assert out.returncode == 0, out.stderr[-2000:]
     n_cc, n_phase, n_frames = map(int, out.stdout.split()[-3:])
     assert (n_cc, n_phase) == (0, 0) and n_frames >= 1
+
+
+def test_shipped_scenes_turn_cloth_collision_on_with_their_layers():
+    from pipeline.scene import load_scene
+    walk = load_scene(REPO / "scenes" / "walk_tshirt_skirt.yaml")
+    assert garment_layers(walk) == [1, 0]                      # the T-shirt worn over the skirt
+    assert sim_params(walk).cloth_collision
+    assert sim_params(load_scene(REPO / "scenes" / "long_skirt.yaml")).cloth_collision
+    assert not sim_params(load_scene(REPO / "scenes" / "default.yaml")).cloth_collision
