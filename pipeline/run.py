@@ -615,9 +615,9 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     summary = RunSummary(scene=scene.name, output=None, frames=len(times))
     announce = on_stage or (lambda name: None)
 
-    def say(name: str) -> None:
+    def say(name: str, *more: str) -> None:
         where.stage(name)
-        note = compile_note(name) if progress else None
+        note = compile_note(name, *more) if progress else None
         announce(f"{name} ({note})" if note else name)
 
     def bar(label: str, unit: str) -> Progress:   # a stage's progress(done, total) callback
@@ -723,10 +723,10 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             for name, (log, build) in builds.items():
                 i = next(k for k, g in enumerate(garments) if g.name == name)
                 logs.log_sewing(rec, name, log, build, garments[i], color=style.fabric(i))
-            say("simulation")
             from stages.sim import simulate
             sp = s["simulation"]
             params = sim_params(scene)
+            say("simulation", *(("cloth collision",) if params.cloth_collision else ()))
             bar = Progress(len(times), "simulation", enabled=progress)
             with _Timer(summary, "simulation") as r:
                 try:
