@@ -126,6 +126,7 @@ def cloth_phase(x, xp, k, cc):
         collide_cloth(x_start, x, cinv, topo, tree, work, cprm, counters)
         contact_velocity(x_before, x, xp, work[1])
 
+
 @njit(cache=True, _nrt=False)
 def record_frame(x, flags, max_speed2, goff, pos, pen, counts):
     """Store one frame: pos (N, 3) float32 <- x; pen (G,) particles inside a collider per garment
