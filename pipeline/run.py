@@ -90,7 +90,8 @@ class _Timer:
 
 
 # simulation keys whose scene default (null) means "the preset's value" (stages.sim.types.PRESETS)
-PRESET_KEYS = ("substeps", "iterations", "damping", "tethers", "stretch_stiffness", "bend_stiffness")
+PRESET_KEYS = ("substeps", "iterations", "damping", "tethers", "stretch_stiffness", "bend_stiffness",
+               "cloth_collision")
 
 
 def sim_params(scene: Scene):
@@ -101,7 +102,12 @@ def sim_params(scene: Scene):
     return SimParams.preset(sp["preset"], dt=sp["dt"], gravity=tuple(sp["gravity"]), wind=tuple(sp["wind"]),
                             drag=sp["drag"], lift=sp["lift"], friction=sp["friction"],
                             inertia_scale=sp["inertia_scale"], hull_response=scene["colliders"]["response"],
-                            body_audit=sp["body_audit"], **given)
+                            body_audit=sp["body_audit"], cloth_thickness=sp["cloth_thickness"], **given)
+
+
+def garment_layers(scene: Scene) -> list[int]:
+    """Each garment's cloth collision layer: its `layer`, else its place in the list (earlier = inner)."""
+    return [g["layer"] if g.get("layer") is not None else i for i, g in enumerate(scene["garments"])]
 
 
 def body_params(settings: dict):
@@ -609,9 +615,9 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     summary = RunSummary(scene=scene.name, output=None, frames=len(times))
     announce = on_stage or (lambda name: None)
 
-    def say(name: str) -> None:
+    def say(name: str, *more: str) -> None:
         where.stage(name)
-        note = compile_note(name) if progress else None
+        note = compile_note(name, *more) if progress else None
         announce(f"{name} ({note})" if note else name)
 
     def bar(label: str, unit: str) -> Progress:   # a stage's progress(done, total) callback
@@ -717,14 +723,15 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             for name, (log, build) in builds.items():
                 i = next(k for k, g in enumerate(garments) if g.name == name)
                 logs.log_sewing(rec, name, log, build, garments[i], color=style.fabric(i))
-            say("simulation")
             from stages.sim import simulate
             sp = s["simulation"]
             params = sim_params(scene)
+            say("simulation", *(("cloth collision",) if params.cloth_collision else ()))
             bar = Progress(len(times), "simulation", enabled=progress)
             with _Timer(summary, "simulation") as r:
                 try:
                     result = simulate(character, motion, colliders, maps, garments, params, obstacles=obstacles,
+                                      layers=garment_layers(scene),
                                       progress=lambda done, total: bar.update(done), threads=sp["threads"])
                 finally:
                     bar.close()

@@ -40,6 +40,8 @@ _GARMENT_COMMON = {
     "name": Field("str", REQUIRED, "garment name (entity path sim/<name>)"),
     "density": Field("float", 0.2, "area density, kg/m^2", lo=0.0, lo_open=True),
     "pin": PIN,
+    "layer": Field("int", None, "cloth collision layer, 0 = innermost; default: the garment's place in the "
+                   "list (earlier = inner); garments of a higher layer are kept outside lower ones", lo=0, hi=1000),
 }
 
 GARMENT = Field("union", REQUIRED, "a garment", variants={
@@ -78,6 +80,7 @@ def _check_options(o):
 GARMENT.variants["pattern"] = {
     "name": _GARMENT_COMMON["name"],
     "density": _GARMENT_COMMON["density"],
+    "layer": _GARMENT_COMMON["layer"],
     "kind": Field("str", REQUIRED, "a built-in sewing pattern, sized from the character's measurements",
                   choices=_PATTERN_KINDS),
     "edge_length": Field("float", 0.025, "target mean edge length of the flat panels, m", lo=0.005, hi=0.2),
@@ -207,6 +210,10 @@ SCENE_SPEC = {
                                    "(frequency-scaled: the same cloth at any sub-step count; preset)", lo=0.0, lo_open=True, hi=1.0),
         "bend_stiffness": Field("float", None, "share of a bend correction applied per round at 300 rounds/s (preset)",
                                 lo=0.0, hi=1.0),
+        "cloth_collision": Field("bool", None, "on | off (preset; off in both presets: it costs 10-30x the rest of "
+                                 "the step) garment-garment and self collision (cloth x cloth, last phase of every "
+                                 "step); garments keep their `layer` order"),
+        "cloth_thickness": Field("float", 0.003, "distance kept between cloth layers, m", lo=0.0, lo_open=True, hi=0.1),
         "body_audit": Field("bool", True, "count particles inside the true skinned mesh per frame"),
         "cloth_audit": Field("bool", True, "per frame edge strain and cloth edges crossing cloth triangles (sim/<garment>/strain, sim/intersections/...)"),
         "strain_colors": Field("bool", False, "colour the cloth meshes by per-vertex edge strain (blue 0 -> red 10 %)"),
