@@ -368,10 +368,19 @@ def build_pattern_garment(scene: Scene, index: int, character, motion, colliders
         raise SceneError(f"{where}: cannot place and sew the pattern: {err}") from None
     if not log.converged:
         seam, gap = build.worst_seam()
-        raise SceneError(f"{where}: sewing did not close seam {seam}: {gap * 1000:.1f} mm open after "
-                         f"{log.iterations} iterations (garments[{index}].sewing.tolerance {sw['tolerance'] * 1000:.1f} mm, "
-                         f"max_iterations {sw['max_iterations']})")
+        raise SewingError(f"{where}: sewing did not close seam {seam}: {gap * 1000:.1f} mm open after "
+                          f"{log.iterations} iterations (garments[{index}].sewing.tolerance {sw['tolerance'] * 1000:.1f} mm, "
+                          f"max_iterations {sw['max_iterations']})", partial=(garment, log, build))
     return garment, log, build
+
+
+class SewingError(SceneError):
+    """A pattern garment's seams did not close. partial: (Garment, SewingLog, GarmentBuild) as the
+    sewing left them (what a sweep keeps of a failed job)."""
+
+    def __init__(self, message: str, partial=None):
+        super().__init__(message)
+        self.partial = partial
 
 
 def placement_matrix(item: dict) -> np.ndarray:
@@ -535,13 +544,14 @@ def garment_fits(character, motion, skinned, garments, builds, result) -> list:
     return out
 
 
-def garment_fit_report(character, motion, skinned, garments, builds, result) -> str:
-    """The fit figures of every garment (garment_fits) as a table; warns about any figure out of range
-    and about garments that start inside the body or a collider."""
+def garment_fit_report(character, motion, skinned, garments, builds, result, fits=None) -> str:
+    """The fit figures of every garment (garment_fits, unless given) as a table; warns about any
+    figure out of range and about garments that start inside the body or a collider."""
     import warnings
 
     from stages.garments.fit import fit_table, start_warnings
-    fits = garment_fits(character, motion, skinned, garments, builds, result)
+    if fits is None:
+        fits = garment_fits(character, motion, skinned, garments, builds, result)
     for f, track in zip(fits, result.garments):
         for w in start_warnings(track) + f.warnings():
             warnings.warn(w, stacklevel=1)
@@ -577,9 +587,27 @@ def blueprint_of(scene: Scene, character, motion, skinned, colliders, coverage_r
         spheres=[sp.name for sp in colliders.spheres], coverage=coverage_ran))
 
 
+def _partial_sim_hook(state: dict):
+    """The simulation's progress callback for `run_scene(state=...)`: records the frames done and
+    keeps the simulation's own partial-result function (the `result` closure of
+    stages.sim.simulate._simulate, the one SimulationDiverged uses), so that a run stopped during
+    the simulation (a sweep's timeout) still has the frames already simulated. Reading the caller's
+    local is a stopgap until the simulation offers such a hook; when it is not found, nothing is kept."""
+    import sys
+
+    def hook(done: int, total: int) -> None:
+        state["sim_done"] = int(done)
+        if "sim_partial" not in state:
+            caller = sys._getframe(1)
+            fn = caller.f_locals.get("result") if caller.f_code.co_name == "_simulate" else None
+            state["sim_partial"] = fn if callable(fn) else None
+    return hook
+
+
 def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = None,
               progress: bool = True, on_stage=None, deterministic: bool = False,
-              export: tuple | None = None) -> RunSummary:
+              export: tuple | None = None, state: dict | None = None,
+              keep_partial: Path | None = None) -> RunSummary:
     """Check the inputs that need no character (`preflight`), run every stage the scene needs and
     write the recording atomically.
 
@@ -589,6 +617,12 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
 
     export: (formats, folder or None) written after the recording (default: the scene's
     output.export, output.export_dir); see pipeline.export.
+
+    state: a dict filled as the run goes (summary, character, motion, skinned, colliders, garments,
+    builds, result, audit, fits, and during the simulation sim_done / sim_partial), so that a caller
+    (pipeline.sweep) can measure the run and keep what exists when it fails.
+    keep_partial: where a failed run's recording goes (whatever was logged before the failure)
+    instead of being deleted.
     """
     from pipeline import logs, style, where
     from pipeline.kernel_cache import compile_note
@@ -608,6 +642,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                              f"(expected at least one entry under 'garments:')")
     summary = RunSummary(scene=scene.name, output=None, frames=len(times))
     announce = on_stage or (lambda name: None)
+    state = {} if state is None else state
+    state["summary"] = summary
 
     def say(name: str) -> None:
         where.stage(name)
@@ -618,7 +654,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
         return Progress(1, label, unit=unit, enabled=progress)
 
     s = scene.settings
-    with atomic_recording(out, scene_name=scene.name, scene_text=scene.text, seed=s["seed"]) as rec:
+    with atomic_recording(out, scene_name=scene.name, scene_text=scene.text, seed=s["seed"],
+                          keep_failed=keep_partial) as rec:
         say("rig")
         with _Timer(summary, "rig") as r:
             with where.item(character_item(scene)):
@@ -628,6 +665,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             times = motion.times
             summary.frames = len(times)
             skinned = skin(character, motion)
+            state.update(character=character, motion=motion, skinned=skinned)
             r.sizes.update(vertices=character.vertices.shape[0], triangles=character.triangles.shape[0],
                            joints=character.n_joints)
         if character.notes:  # e.g. the up axis a glTF was found to have, its floor shift
@@ -641,6 +679,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 split, colliders = split_and_fit(scene, character, motion, progress=hull_bar)
             finally:
                 hull_bar.close()
+            state["colliders"] = colliders
             faces = [h.report.faces_simplified for h in colliders.hulls]
             r.sizes.update(split=split.method, rigid_hulls=len(split.hull_bones),
                            swept_hulls=sum(h.kind == "swept" for h in colliders.hulls),
@@ -709,6 +748,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 finally:
                     if sewing_bars:
                         sewing_bars[-1].close()
+                state.update(garments=garments, builds=builds)
                 r.sizes.update(particles=sum(g.n_particles for g in garments))
                 for name, (log, _) in builds.items():
                     r.sizes[f"{name} sewing"] = (f"{log.iterations} it, gap {log.gap_max[-1] * 1000:.1f} mm, "
@@ -722,12 +762,18 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             sp = s["simulation"]
             params = sim_params(scene)
             bar = Progress(len(times), "simulation", enabled=progress)
+            hook = _partial_sim_hook(state)
+
+            def sim_progress(done, total):
+                hook(done, total)
+                bar.update(done)
             with _Timer(summary, "simulation") as r:
                 try:
                     result = simulate(character, motion, colliders, maps, garments, params, obstacles=obstacles,
-                                      progress=lambda done, total: bar.update(done), threads=sp["threads"])
+                                      progress=sim_progress, threads=sp["threads"])
                 finally:
                     bar.close()
+                state["result"] = result
                 r.sizes.update(steps=result.steps)
             audit = None
             if sp["cloth_audit"]:
@@ -738,12 +784,15 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 with _Timer(summary, "cloth audit") as r:
                     audit = audit_cloth(result, garments, vertex_strain=sp["strain_colors"])
                     r.sizes.update(exact_pairs=audit.exact_pairs)
+                state["audit"] = audit
                 for w in audit.warnings:
                     warnings.warn(w, stacklevel=1)
             summary.penetrations = logs.log_sim(rec, motion, garments, result, audit)
             summary.speeds = {k: summary.penetrations.pop(k) for k in list(summary.penetrations) if k.startswith("steps/s")}
             step_ms = result.step_ms
-            summary.tables["garment fit"] = garment_fit_report(character, motion, skinned, garments, builds, result)
+            state["fits"] = garment_fits(character, motion, skinned, garments, builds, result)
+            summary.tables["garment fit"] = garment_fit_report(character, motion, skinned, garments, builds, result,
+                                                               fits=state["fits"])
             logs.log_text(rec, "sim/fit", summary.tables["garment fit"])
         where.stage("writing the recording")
         logs.log_text(rec, "meta/summary", summary.markdown())
