@@ -598,8 +598,14 @@ def _partial_sim_hook(state: dict):
     def hook(done: int, total: int) -> None:
         state["sim_done"] = int(done)
         if "sim_partial" not in state:
-            caller = sys._getframe(1)
-            fn = caller.f_locals.get("result") if caller.f_code.co_name == "_simulate" else None
+            fn, caller = None, sys._getframe(1)
+            for _ in range(4):   # the simulation's frame is a caller or two up (run_scene's callback)
+                if caller is None:
+                    break
+                if caller.f_code.co_name == "_simulate":
+                    fn = caller.f_locals.get("result")
+                    break
+                caller = caller.f_back
             state["sim_partial"] = fn if callable(fn) else None
     return hook
 
@@ -618,7 +624,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     export: (formats, folder or None) written after the recording (default: the scene's
     output.export, output.export_dir); see pipeline.export.
 
-    state: a dict filled as the run goes (summary, character, motion, skinned, colliders, garments,
+    state: a dict filled as the run goes (summary, character, motion, skinned, colliders, coverage, garments,
     builds, result, audit, fits, and during the simulation sim_done / sim_partial), so that a caller
     (pipeline.sweep) can measure the run and keep what exists when it fails.
     keep_partial: where a failed run's recording goes (whatever was logged before the failure)
@@ -702,6 +708,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                     coverage = None
                 finally:
                     coverage_bar.close()
+            state["coverage"] = coverage
             if coverage is not None:
                 t = coverage.totals()
                 r.sizes.update(frames=t["frames"], coverage=f"{t['coverage_min'] * 100:.2f} %",

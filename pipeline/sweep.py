@@ -59,14 +59,16 @@ FAILURES = ("sewing", "timeout", "diverged", "bad-input", "crash")
 # the metrics row, in table order; the override columns (one per swept key) follow `job`
 COLUMNS = ("job", "status", "failure", "message", "frames", "frames_done", "particles",
            "in_body_max", "in_colliders_max", "strain_mean_pct", "strain_p99_pct", "strain_p99_worst_pct",
-           "crossings_self_max", "crossings_between_max", "seam_gap_mm", "fit_gap_cm", "floor_cm", "warnings",
+           "crossings_self_max", "crossings_between_max", "seam_gap_mm", "fit_gap_cm", "floor_cm",
+           "coverage_min_pct", "excess_p95_cm", "warnings",
            "wall_s", "frames_per_s", "sim_frames_per_s", "warm_up_s", "worker", "recording", "exports")
 # columns that depend on the machine and its load, not on the job: left out when comparing tables
 TIMING_COLUMNS = ("wall_s", "frames_per_s", "sim_frames_per_s", "warm_up_s", "worker")
 INT_COLUMNS = ("frames", "frames_done", "particles", "in_body_max", "in_colliders_max", "crossings_self_max",
                "crossings_between_max", "warnings")
 FLOAT_COLUMNS = ("strain_mean_pct", "strain_p99_pct", "strain_p99_worst_pct", "seam_gap_mm", "fit_gap_cm",
-                 "floor_cm", "wall_s", "frames_per_s", "sim_frames_per_s", "warm_up_s")
+                 "floor_cm", "coverage_min_pct", "excess_p95_cm", "wall_s", "frames_per_s", "sim_frames_per_s",
+                 "warm_up_s")
 
 
 class SweepError(SceneError):
@@ -210,7 +212,7 @@ class Sweep:
     timeout: float | None
     workers: int | None
     warm_up: bool
-    keys: list          # the swept keys, in column order
+    keys: list          # the label columns: 'case' (with cases), then the grid keys
     jobs: list          # Job, in expansion order
 
 
@@ -292,23 +294,22 @@ def load_sweep(path: str | os.PathLike, output: str | os.PathLike | None = None)
                                  f"expected each key in the grid or in the cases, not both")
         cases.append((label, items, i))
 
-    keys = [k for k, _ in axes]
-    for _, items, _ in cases:
-        keys += [k for k, _ in items if k not in keys]
+    keys = (["case"] if cases else []) + [k for k, _ in axes]   # the table's columns of the job's labels
     jobs, seen = [], {}
-    for point in product(*[vals for _, vals in axes]):
-        for case in (cases or [None]):
+    for case in (cases or [None]):
+        for point in product(*[vals for _, vals in axes]):
             overrides, labels, blame, names = {}, {}, {}, []
+            if case is not None:
+                label, items, ci = case
+                names.append(label)
+                labels["case"] = label
+                for k, v in items:
+                    overrides[k] = v
+                    blame[k] = (_at(p, marks, f"cases[{ci}].{k}"), f"cases[{ci}] ({label!r}) {k!r}")
             for (key, _), (lab, value, mk) in zip(axes, point):
                 overrides[key], labels[key] = value, lab
                 blame[key] = (_at(p, marks, mk), f"grid {key!r}")
                 names.append(lab)
-            if case is not None:
-                label, items, ci = case
-                names.append(label)
-                for k, v in items:
-                    overrides[k], labels[k] = v, label
-                    blame[k] = (_at(p, marks, f"cases[{ci}].{k}"), f"cases[{ci}] ({label!r}) {k!r}")
             jid = job_id(names, overrides)
             if jid in seen:
                 raise SweepError(f"{p}: two combinations are the same job ({jid}): {seen[jid]} and {overrides}; "
@@ -514,6 +515,11 @@ def _metrics(state: dict, err: BaseException | None) -> dict:
         gaps = [f.fit_gap_median for f in fits if math.isfinite(f.fit_gap_median)]
         r["fit_gap_cm"] = max(gaps, key=abs) * 100 if gaps else None
         r["floor_cm"] = float(min(f.floor_clearance.min() for f in fits) * 100)
+    coverage = state.get("coverage")
+    if coverage is not None:   # the collider-fit audit (the one figure the seed moves: its sample points)
+        t = coverage.totals()
+        r["coverage_min_pct"] = float(t["coverage_min"] * 100)
+        r["excess_p95_cm"] = float(t["excess_p95"] * 100)
     summary = state.get("summary")
     if summary is not None:
         sim = next((s for s in summary.stages if s.name == "simulation"), None)
@@ -628,7 +634,7 @@ def run_job(spec: dict, warm_up_s: float | None = None) -> dict:
     old_handler = None
 
     def on_alarm(signum, frame):
-        raise JobTimeout(f"timeout: the job ran longer than {timeout:g} s")
+        raise JobTimeout(f"the job ran longer than {timeout:g} s")
 
     with warnings.catch_warnings(record=True) as caught, contextlib.redirect_stdout(log), \
             contextlib.redirect_stderr(log):
