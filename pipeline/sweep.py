@@ -632,9 +632,13 @@ def run_job(spec: dict, warm_up_s: float | None = None) -> dict:
     timeout = spec.get("timeout")
     alarm = bool(timeout) and threading.current_thread() is threading.main_thread() and hasattr(signal, "setitimer")
     old_handler = None
+    armed = [True]
 
     def on_alarm(signum, frame):
-        raise JobTimeout(f"the job ran longer than {timeout:g} s")
+        # raised again every second until the job stops: library code that catches everything (rtree's
+        # library finder prints "unexpected error" and goes on) may swallow one
+        if armed[0]:
+            raise JobTimeout(f"the job ran longer than {timeout:g} s")
 
     with warnings.catch_warnings(record=True) as caught, contextlib.redirect_stdout(log), \
             contextlib.redirect_stderr(log):
@@ -642,17 +646,19 @@ def run_job(spec: dict, warm_up_s: float | None = None) -> dict:
         try:
             if alarm:
                 old_handler = signal.signal(signal.SIGALRM, on_alarm)
-                signal.setitimer(signal.ITIMER_REAL, float(timeout))
+                signal.setitimer(signal.ITIMER_REAL, float(timeout), 1.0)
             where.reset(spec["source"])
             scene = job_scene(spec["text"], spec["source"], spec["base_dir"])
             run_scene(scene, progress=False, state=state, keep_partial=job_dir / f"{spec['id']}.partial.rrd")
         except BaseException as e:   # noqa: BLE001  (a failed job is a row, never the end of the sweep)
+            armed[0] = False
             if isinstance(e, KeyboardInterrupt):
                 raise
             err = e
             if _failure(e) == "crash":
                 log.write(f"{where.current()}\n" + traceback.format_exc())
         finally:
+            armed[0] = False
             if alarm:
                 signal.setitimer(signal.ITIMER_REAL, 0.0)
                 signal.signal(signal.SIGALRM, old_handler or signal.SIG_DFL)
@@ -926,7 +932,11 @@ def _worker_main(conn, warm_spec, env: dict) -> None:   # pragma: no cover - run
             return
         if spec is None:
             return
-        row = run_job(spec, warm_up_s=warm if first else None)
+        t0 = time.perf_counter()
+        try:
+            row = run_job(spec, warm_up_s=warm if first else None)
+        except BaseException as e:   # noqa: BLE001  (run_job answers for the job; this is its last resort)
+            row = crash_row(spec, time.perf_counter() - t0, f"the job runner failed: {type(e).__name__}: {e}")
         first = False
         conn.send(("row", row))
 
