@@ -17,7 +17,8 @@ For each file it prints one line `ok|FAIL|SKIP <file>: <what was found>` and exi
     at Blender's default 24 fps a 30 fps file's 120 frames land on 96); every mesh's shape keys
     (morph targets) = F, its action spans frames 0..F-1, at frame k the key shown is target_k, and
     the shape keys of 3 frames hold the npz's positions (else the glb's) turned to Z up (within 1e-5 m);
-  - <scene>.usdc: USD importer; every mesh has time-sampled points over frames 0..F-1. A Blender
+  - <scene>.usdc: USD importer; every mesh has time-sampled points (a Mesh Sequence Cache) over
+    frames 0..F-1, and at 3 frames the npz's positions turned to Z up (within 1e-5 m). A Blender
     built without USD (Debian's package) prints SKIP for it.
 The counts expected come from the files themselves (PC2 header, glTF accessors, USD stage), and
 --frames checks F as well when given.
@@ -193,9 +194,23 @@ for usd in sorted(folder.glob("*.usd*")):
     frames = sc.frame_end - sc.frame_start + 1
     for obj in [o for o in bpy.data.objects if o.type == "MESH"]:
         cached = any(m.type == "MESH_SEQUENCE_CACHE" for m in obj.modifiers)
-        ok = cached and (want_frames is None or frames == want_frames)
-        report(ok, f"{usd.name}:{obj.name}", f"{len(obj.data.vertices)} vertices, animated={cached}, "
-                                            f"frames {sc.frame_start}..{sc.frame_end}")
+        ref = npz_reference(folder, usd.stem, obj.name)
+        errors = []
+        if ref is not None:
+            for k in probe_frames(frames):
+                sc.frame_set(sc.frame_start + k)
+                got = world_vertices(obj)
+                if got.shape != ref.shape[1:]:
+                    errors.append(f"frame {k}: {got.shape[0]} vertices, the npz {ref.shape[1]}")
+                    break
+                err = float(np.abs(got - z_up(ref[k])).max())
+                if err > TOL:
+                    errors.append(f"frame {k}: {err:.3g} m off the npz")
+        ok = cached and not errors and (want_frames is None or frames == want_frames)
+        report(ok, f"{usd.name}:{obj.name}", f"{len(obj.data.vertices)} vertices, animated={cached}, frames "
+                                            f"{sc.frame_start}..{sc.frame_end} at {sc.render.fps / sc.render.fps_base:g} fps"
+                                            + ("" if ref is None else f", positions at frames {probe_frames(frames)} "
+                                               + ("as in the npz" if not errors else "; ".join(errors))))
 
 if not any(folder.glob("*")):
     report(False, str(folder), "no exported files")
