@@ -112,9 +112,14 @@ def cmd_sweep(args) -> int:
     CSV and Parquet; exit 1 when a job failed (the table says which and why)."""
     from pipeline.sweep import run_sweep, summary_text
     echo = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr, flush=True))
-    sw, rows = run_sweep(args.scene, output=args.output, jobs=args.jobs,
-                         ray_address=False if args.ray is None else args.ray,
-                         retry_failed=args.retry_failed, progress=not args.quiet, echo=echo)
+    try:
+        sw, rows = run_sweep(args.scene, output=args.output, jobs=args.jobs,
+                             ray_address=False if args.ray is None else args.ray,
+                             retry_failed=args.retry_failed, progress=not args.quiet, echo=echo)
+    except KeyboardInterrupt:   # the workers are stopped; finished jobs keep their rows
+        print("\ninterrupted: the finished jobs are in the table; run the same command to go on",
+              file=sys.stderr)
+        return 130
     print(summary_text(sw, rows))
     return 0 if len(rows) == len(sw.jobs) and all(r["status"] == "ok" for r in rows) else 1
 
