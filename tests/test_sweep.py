@@ -213,3 +213,37 @@ def test_example_sweep_same_table_on_the_pool_and_on_ray(tmp_path, assets_dir):
     sw2, rows2, _ = _run(REPO / "scenes" / "sweep_example.yaml", tmp_path / "ray", ray_address=None)
     assert len(rows) == len(sw.jobs) == 24
     assert S.comparable(rows2) == S.comparable(rows)
+
+
+def test_a_simulation_stopped_midway_keeps_the_frames_it_did():
+    """pipeline.run._partial_sim_hook: what a timeout inside the simulation keeps."""
+    from pipeline.run import _partial_sim_hook
+    from stages.garments.simple import rectangle_cloth
+    from stages.garments.types import attach_indices, bind_pose, build_garment
+    from stages.sim import SimParams, simulate
+    from stages.sim.scenes import toy_character, toy_motion
+    tet = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]) * 0.01 - 5.0
+    ch = toy_character(tet, np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]], np.int32))
+    mo = toy_motion(70)
+    x, tri = rectangle_cloth(0.5, 0.5, 8, 8, center=(0, 1, 0), normal=(0, 0, 1))
+    top = np.flatnonzero(np.isclose(x[:, 1], x[:, 1].max()))
+    g = build_garment("flag", x, tri, attachments=[attach_indices(top, "root")], bind=bind_pose(ch, mo))
+    params = SimParams(body_audit=False)
+    full = simulate(ch, mo, None, None, [g], params)
+    state: dict = {}
+    hook = _partial_sim_hook(state)
+
+    class Stop(BaseException):
+        pass
+
+    def progress(done, total):   # as run_scene's callback: the hook, then something that stops the run
+        hook(done, total)
+        if done > 1:
+            raise Stop
+    with pytest.raises(Stop):
+        simulate(ch, mo, None, None, [g], params, progress=progress)
+    done = state["sim_done"]
+    assert 1 < done < 70
+    part = state["sim_partial"](done)
+    assert part.garments[0].positions.shape[0] == done
+    np.testing.assert_array_equal(part.garments[0].positions, full.garments[0].positions[:done])
