@@ -247,3 +247,22 @@ def test_a_simulation_stopped_midway_keeps_the_frames_it_did():
     part = state["sim_partial"](done)
     assert part.garments[0].positions.shape[0] == done
     np.testing.assert_array_equal(part.garments[0].positions, full.garments[0].positions[:done])
+
+
+def test_a_job_that_ignores_its_deadline_has_its_worker_killed_and_the_sweep_goes_on(tmp_path, monkeypatch):
+    """The hard timeout: SIGALRM blocked in this process is blocked in the workers it spawns too, so
+    the jobs' own deadline never fires, as in a job stuck in one long kernel call."""
+    import signal
+    monkeypatch.setattr(S, "_grace", lambda timeout: 1.0)
+    f = tmp_path / "stuck.yaml"
+    f.write_text(SWEEP.replace("timeout: 600", "timeout: 1").replace("jobs: 2", "jobs: 1")
+                 .replace("  garments[0].kind: [short_skirt, shorts]\n", "  garments[0].kind: [short_skirt]\n") % "false")
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGALRM})
+    try:
+        sw, rows, notes = _run(f, tmp_path / "out")
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+    assert len(rows) == 2   # the worker killed for the first job was replaced for the second
+    for r in rows:
+        assert r["failure"] == "timeout" and "killed" in r["message"], r
+        assert json.loads((tmp_path / "out" / "jobs" / r["job"] / "row.json").read_text())["failure"] == "timeout"
