@@ -471,10 +471,6 @@ def _one_line(text: str, limit: int = 400) -> str:
     return s if len(s) <= limit else s[:limit - 3] + "..."
 
 
-def _nan() -> float:
-    return float("nan")
-
-
 def _metrics(state: dict, err: BaseException | None) -> dict:
     """The row's figures from what the run left in `state` (a failed run: what it reached)."""
     import numpy as np
