@@ -88,7 +88,7 @@ GARMENT.variants["pattern"] = {
                      check=_check_options),
     "sewing": Field("section", {}, "sewing under micro-gravity", fields={
         "tolerance": Field("float", 0.004, "largest seam gap accepted, m", lo=0.0, lo_open=True),
-        "max_iterations": Field("int", 40, "sewing simulation rounds at most", lo=1, hi=10000),
+        "max_iterations": Field("int", 40, "sewing simulation rounds at most (the sewing runs at least 2)", lo=2, hi=10000),
         "gravity_scale": Field("float", 0.005, "share of gravity while sewing", lo=0.0, hi=1.0),
         "iterations": Field("int", 16, "spring correction rounds while sewing", lo=1, hi=1000),
     }),
@@ -298,6 +298,15 @@ def parse_scene_text(text: str, *, source: str = "<scene>", base_dir: Path | Non
     if data is None:   # nothing but blanks and comments: running the defaults would be a surprise
         raise SceneError(f"{source}: the scene file is empty (expected a mapping such as 'character:', "
                          f"'garments:'; write '{{}}' to run every default)")
+    return scene_from_data(data, text=text, source=source, base_dir=base_dir, default_name=default_name, marks=marks)
+
+
+def scene_from_data(data, *, text: str, source: str = "<scene>", base_dir: Path | None = None,
+                    default_name: str = "scene", marks: dict | None = None) -> Scene:
+    """Validate an already parsed scene mapping (`text` is what the recording stores as the scene).
+    Without `marks` the messages name the key path but no line and column (a sweep's generated
+    scenes: pipeline.sweep)."""
+    marks = {} if marks is None else marks
     export = {"path": None, "export": [], "export_dir": None}
     if isinstance(data, dict) and isinstance(data.get("output"), dict):   # output: {path, export, export_dir}
         export = validate({"output": Field("section", {}, fields=OUTPUT_FIELDS)}, {"output": data["output"]},

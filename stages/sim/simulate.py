@@ -402,24 +402,26 @@ def winding_number(vertices, triangles, points, *, exact: bool = False, beta: fl
 
 # -- the stage ----------------------------------------------------------------------------------------
 def simulate(character, motion, colliders, maps, garments, params: SimParams, *, obstacles=None,
-             progress=None, threads: int | None = 1, layers=None) -> SimResult:
+             progress=None, threads: int | None = 1, layers=None, partial: dict | None = None) -> SimResult:
     """See `_simulate`. threads: numba threads for the parallel kernels during the call (None = the
     current numba setting). Results do not depend on it (every parallel loop writes disjoint
     particles). Default 1: on the shared 2-core machine a second thread pays only when a core is
     idle (see stages/sim/bench.py). layers: (G,) cloth collision layer per garment, 0 = innermost
-    (default: the garments' order); used when params.cloth_collision."""
+    (default: the garments' order); used when params.cloth_collision. partial: optional dict the
+    simulation keeps 'result' in (a function of no argument: the SimResult of the frames done so
+    far), for a caller that stops the run from outside (a sweep's timeout) and keeps what was done."""
     if threads is None:
-        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, layers)
+        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, layers, partial)
     import numba
     old = numba.get_num_threads()
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     try:
-        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, layers)
+        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, layers, partial)
     finally:
         numba.set_num_threads(old)
 
 
-def _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, layers) -> SimResult:
+def _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, layers, partial) -> SimResult:
     """Simulate `garments` on `character` playing `motion` (see the module docstring).
 
     character: stages.rig.types.Character; motion: Motion sampled every params.dt seconds;
@@ -538,6 +540,9 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     if progress is not None:
         progress(1, nf)
 
+    if partial is not None:
+        frames_done = [1]
+        partial["result"] = lambda: result(frames_done[0])
     d_last = None
     f0 = 1
     while f0 < nf:
@@ -578,6 +583,8 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
             if not step.record_frame(sysm.x, flags, max2, sysm.goff, rel[f], pen_col[f], counts[f]):
                 raise diverged(f)
         audit_frames(f0, f1)
+        if partial is not None:
+            frames_done[0] = f1
         if progress is not None:
             progress(f1, nf)
         f0 = f1
