@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from pipeline import sweep as S
+from pipeline import sweep_file as F
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -139,19 +140,19 @@ def test_a_killed_worker_leaves_a_timeout_row_and_its_partial_recording(tmp_path
 
 
 def test_job_ids_are_stable_and_keys_parse():
-    assert S.parse_key("garments[0].options.ease") == ["garments", 0, "options", "ease"]
-    assert S.parse_key("character.body") == ["character", "body"]
+    assert F.parse_key("garments[0].options.ease") == ["garments", 0, "options", "ease"]
+    assert F.parse_key("character.body") == ["character", "body"]
     for bad in ("", "a..b", "garments[x]", "0abc"):
         with pytest.raises(ValueError):
-            S.parse_key(bad)
-    a = S.job_id(["tshirt", "0"], {"garments[0].kind": "tshirt", "seed": 0})
-    assert a == S.job_id(["tshirt", "0"], {"seed": 0, "garments[0].kind": "tshirt"})
-    assert a != S.job_id(["tshirt", "0"], {"garments[0].kind": "tshirt", "seed": 1})
+            F.parse_key(bad)
+    a = F.job_id(["tshirt", "0"], {"garments[0].kind": "tshirt", "seed": 0})
+    assert a == F.job_id(["tshirt", "0"], {"seed": 0, "garments[0].kind": "tshirt"})
+    assert a != F.job_id(["tshirt", "0"], {"garments[0].kind": "tshirt", "seed": 1})
     data = {"garments": [{"kind": "a"}]}
-    S._set(data, ["garments", 0, "options", "ease"], 0.1, "garments[0].options.ease")
+    F._set(data, ["garments", 0, "options", "ease"], 0.1, "garments[0].options.ease")
     assert data == {"garments": [{"kind": "a", "options": {"ease": 0.1}}]}
     with pytest.raises(ValueError, match="out of range"):
-        S._set(data, ["garments", 2, "kind"], "b", "garments[2].kind")
+        F._set(data, ["garments", 2, "kind"], "b", "garments[2].kind")
 
 
 BASE = ("base: {character: {source: procedural, clip: walk}, frames: {count: 2}, "
