@@ -63,3 +63,68 @@ def _register_dependent_locators() -> bool:
 
 
 REGISTERED = _register_dependent_locators()
+
+
+# -- serial and parallel variants of one kernel ------------------------------------------------------
+# numba compiles a `parallel=True` kernel several times slower than the same loop as plain code (the
+# parfor passes and the outlined gufunc; the collision kernel: ~26 s against a few), and with one
+# thread the parallel form buys nothing. A kernel with prange loops is therefore compiled serially
+# (prange is range) under its own name, and in parallel only when a caller asks for more threads.
+# numba names its cache files after the function's qualified name and line, and its cache index does
+# not tell the two compilations apart, so the parallel one is a copy of the function renamed
+# `<name>_parallel` (its own cache files).
+import types as _types
+
+_PARALLEL = {}      # id(serial dispatcher) -> parallel dispatcher
+
+
+def _renamed(func, name, globals_=None):
+    """A copy of the plain function `func` named `name` (and its qualified name), over `globals_`."""
+    f = _types.FunctionType(func.__code__, func.__globals__ if globals_ is None else globals_, name,
+                            func.__defaults__, func.__closure__)
+    f.__qualname__ = func.__qualname__.rpartition(func.__name__)[0] + name
+    f.__module__ = func.__module__
+    f.__doc__ = func.__doc__
+    f.__kwdefaults__ = func.__kwdefaults__
+    return f
+
+
+def serial_and_parallel(**options):
+    """Decorator for a kernel with prange loops: njit(**options) of it without `parallel` (the
+    returned dispatcher, the one its callers use by default), and njit(parallel=True, **options) of a
+    copy named `<name>_parallel`, lazily compiled, which `parallel(kernel)` returns."""
+    from numba import njit
+
+    def wrap(func):
+        serial = njit(**options)(func)
+        _PARALLEL[id(serial)] = njit(parallel=True, **options)(_renamed(func, func.__name__ + "_parallel"))
+        return serial
+    return wrap
+
+
+def with_parallel_calls(kernel):
+    """For a serial kernel that calls (through module globals) kernels with a parallel variant:
+    the same kernel compiled over globals where each such callee is its parallel variant, named
+    `<name>_parallel` (registered, so a caller of this one can be switched the same way)."""
+    from numba import njit
+    g = dict(kernel.py_func.__globals__)
+    swapped = {k: _PARALLEL[id(v)] for k, v in g.items() if id(v) in _PARALLEL}
+    if not swapped:
+        raise ValueError(f"{kernel.py_func.__qualname__} calls no kernel with a parallel variant")
+    g.update(swapped)
+    options = {k: v for k, v in kernel.targetoptions.items() if k not in ("nopython", "boundscheck")}
+    options["cache"] = type(kernel._cache).__name__ != "NullCache"
+    par = njit(**options)(_renamed(kernel.py_func, kernel.py_func.__name__ + "_parallel", g))
+    _PARALLEL[id(kernel)] = par
+    return par
+
+
+def parallel(kernel):
+    """The parallel variant of a kernel (serial_and_parallel / with_parallel_calls); the kernel
+    itself when it has none."""
+    return _PARALLEL.get(id(kernel), kernel)
+
+
+def for_threads(kernel, threads: int):
+    """The variant of `kernel` to run with `threads` numba threads: serial for 1, else parallel."""
+    return parallel(kernel) if threads > 1 else kernel

@@ -14,6 +14,7 @@ import numpy as np
 from numba import njit, prange
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.jit import serial_and_parallel
 from stages.maps.kernels import METHOD_NEAREST_PLANE, METHOD_PAPER, ZERO_DIR, hull_query, query_arrays
 from stages.maps.types import KIND_CYLINDER as KIND_CYLINDER_MAP
 from stages.sim.collider_grid import KIND_SPHERE, apply12, grid_cell, rotate12
@@ -349,7 +350,7 @@ def escape_union(c, last, col_kind, col_index, sph_radius, method, tq, cw,
     return True, px + best * ex, py + best * ey, pz + best * ez
 
 
-@njit(cache=True, parallel=True, _nrt=False)
+@serial_and_parallel(cache=True, _nrt=False)
 def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
             grid_start, grid_items, grid_box, grid_dims, face_edges, src_range, friction, passes, corrected, inside,
             speed2, contact, h):
@@ -390,7 +391,7 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
             e = grid_start[b]
             e1 = grid_start[b + 1]
             stage = 0
-            last = -1
+            last = np.int64(-1)     # not the literal -1: numba would compile escape_union for it too
             streak = 0
             budget = passes * nc
             c = 0

@@ -246,7 +246,7 @@ def build_grid(m, method, col_kind, col_index, sph_radius, tq, fq, cw, grid_star
     grid_dims[2] = n2
     nce = n0 * n1 * n2
     grid_start[:nce + 1] = 0
-    nr = 0
+    nr = np.int64(0)    # not the literal 0: numba would compile _collider_runs for Literal[int](0) too
     for c in range(nc):     # count each cell's colliders into grid_start[cell]
         nr = _collider_runs(c, m, col_kind, col_index, sph_radius, use_obb, tq, fq, cw, grid_start, grid_runs, nr,
                             grid_box, grid_dims)

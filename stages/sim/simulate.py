@@ -36,6 +36,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from stages.checks import ContractError
+from stages.jit import for_threads
 from stages.garments.types import BEND, STRETCH, Garment
 from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER
 from stages.maps.types import KIND_CYLINDER, MapArrays
@@ -485,6 +486,10 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     prm = (h, params.step_damping(), s, k_drag, k_lift, float(params.friction), use_aero, int(params.iterations),
            int(params.collision_passes), method)
     cloth, cols, flags = sysm.cloth(), col.cols(), sysm.flags()
+    # one thread: the serial kernels (compiled several times faster than the parallel ones)
+    import numba
+    threads = numba.get_num_threads()
+    run_frames, run_steps = (for_threads(k, threads) for k in (step.run_frames, step.run_steps))
     max2 = float(params.max_speed) ** 2
 
     def audit_frames(f0, f1):
@@ -540,7 +545,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
         fwd, inv, inv0, d_prev, d_next, tr, d_last = _chunk_poses(motion, f0, f1, ss, s, d_last)
         timings["poses"] += time.perf_counter() - t0
         if ocol is None:
-            done = step.run_frames(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, ss, max2,
+            done = run_frames(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, ss, max2,
                                 sysm.goff, rel[f0:f1], pen_col[f0:f1], counts[f0:f1], step_cycles[f0:f1], flags,
                                 timers)
             if done < f1 - f0:
@@ -550,7 +555,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
             sysm.corrected[:] = 0
             c0 = simd.read_cycles()
             for k in range(ss):
-                step.run_steps(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, k, k + 1,
+                run_steps(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, k, k + 1,
                             flags, timers)
                 to = time.perf_counter()
                 ta = motion.times[f - 1] + k * h

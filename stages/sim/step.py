@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.jit import with_parallel_calls
 from stages.sim.body_collide import collide
 from stages.sim.collider_grid import build_grid, collider_frames
 from stages.sim.forces import aero_forces
@@ -127,3 +128,9 @@ def run_frames(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_nex
         if not record_frame(cloth[0], flags, max_speed2, goff, pos[f], pen[f], counts[f]):
             return f
     return pos.shape[0]
+
+
+# threads > 1: the same loops over the phases' parallel variants (stages.jit: the serial ones
+# compile several times faster; simulate picks with stages.jit.for_threads)
+run_steps_parallel = with_parallel_calls(run_steps)
+run_frames_parallel = with_parallel_calls(run_frames)
