@@ -128,3 +128,28 @@ def parallel(kernel):
 def for_threads(kernel, threads: int):
     """The variant of `kernel` to run with `threads` numba threads: serial for 1, else parallel."""
     return parallel(kernel) if threads > 1 else kernel
+
+
+def threaded(kernel):
+    """The variant of `kernel` for numba's current thread count (numba.set_num_threads)."""
+    import numba
+    return for_threads(kernel, numba.get_num_threads())
+
+
+class numba_threads:
+    """Context manager: numba's thread count set to `threads` (at most NUMBA_NUM_THREADS) inside,
+    restored after; kernels called through `threaded` then take their serial variant for 1."""
+
+    def __init__(self, threads: int):
+        self.threads = threads
+
+    def __enter__(self):
+        import numba
+        self.old = numba.get_num_threads()
+        numba.set_num_threads(max(1, min(int(self.threads), numba.config.NUMBA_NUM_THREADS)))
+        return self
+
+    def __exit__(self, *exc):
+        import numba
+        numba.set_num_threads(self.old)
+        return False

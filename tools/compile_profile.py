@@ -25,12 +25,14 @@ sys.path.insert(0, os.getcwd())     # the tree it is run from (not the installed
 class _Exclusive(event.Listener):
     def __init__(self):
         self.stack = []          # [name, start, child time]
+        self.dispatchers = {}
         self.rows = defaultdict(lambda: {"exclusive_s": 0.0, "inclusive_s": 0.0, "llvm_s": 0.0, "signatures": []})
 
     def on_start(self, ev):
         d = ev.data["dispatcher"]
         name = f"{d.py_func.__module__}.{d.py_func.__qualname__}"
         self.stack.append([name, time.perf_counter(), 0.0, ev.data.get("args")])
+        self.dispatchers[name] = d
 
     def on_end(self, ev):
         name, t0, child, args = self.stack.pop()
@@ -66,6 +68,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--top", type=int, default=40)
     ap.add_argument("--json")
+    ap.add_argument("--passes", type=int, default=0, help="numba pass times of the N slowest kernels")
     ap.add_argument("command", nargs=argparse.REMAINDER)
     a = ap.parse_args(argv)
     cmd = a.command[1:] if a.command[:1] == ["--"] else a.command
@@ -85,6 +88,15 @@ def main(argv=None) -> int:
     print(f"{'exclusive s':>11} {'LLVM s':>7} {'n':>3}  kernel", file=sys.stderr)
     for name, r in rows[:a.top]:
         print(f"{r['exclusive_s']:11.2f} {r['llvm_s']:7.2f} {len(r['signatures']):3d}  {name}", file=sys.stderr)
+    if a.passes:
+        for name, _ in rows[:a.passes]:
+            times = defaultdict(float)
+            for cres in listener.dispatchers[name].overloads.values():
+                for pipeline, passes in cres.metadata.get("pipeline_times", {}).items():
+                    for pname, t in passes.items():
+                        times[pname.split("_", 1)[-1]] += t.init + t.run + t.finalize
+            top = sorted(times.items(), key=lambda kv: -kv[1])[:6]
+            print(f"  {name}: " + ", ".join(f"{k} {v:.2f}" for k, v in top), file=sys.stderr)
     if a.json:
         with open(a.json, "w") as f:
             json.dump({"wall_s": wall, "compile_s": total, "kernels": dict(rows)}, f, indent=1)

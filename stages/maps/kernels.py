@@ -83,7 +83,7 @@ def query_arrays(m):
 
 
 # -- frames -------------------------------------------------------------------------------------
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _to_local(m, h, p):
     c = m.center[h]
     r = m.axes[h]
@@ -95,7 +95,7 @@ def _to_local(m, h, p):
             r[2, 0] * dx + r[2, 1] * dy + r[2, 2] * dz)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _to_bone(m, h, q0, q1, q2):
     c = m.center[h]
     r = m.axes[h]
@@ -104,13 +104,13 @@ def _to_bone(m, h, q0, q1, q2):
             c[2] + r[0, 2] * q0 + r[1, 2] * q1 + r[2, 2] * q2)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _plane_dist(planes, f, q0, q1, q2):
     return planes[f, 0] * q0 + planes[f, 1] * q1 + planes[f, 2] * q2 - planes[f, 3]
 
 
 # -- inside ---------------------------------------------------------------------------------------
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _slab_locate(loc_base, loc_x, loc_start, loc_y, loc_face, k, x, y):
     """Face of planar mesh k (= 2h + side) containing (x, y); -1 outside the outline, -2 in a gap."""
     b0 = loc_base[k]
@@ -153,7 +153,7 @@ def _locate(m, k, x, y):
     return _slab_locate(m.loc_base, m.loc_x, m.loc_start, m.loc_y, m.loc_face, k, x, y)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _inside_brute(planes, face_start, h, q0, q1, q2):
     for f in range(face_start[h], face_start[h + 1]):
         if _plane_dist(planes, f, q0, q1, q2) > 0.0:
@@ -161,7 +161,7 @@ def _inside_brute(planes, face_start, h, q0, q1, q2):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _inside_paper(half, face_start, planes, loc_base, loc_x, loc_start, loc_y, loc_face, h, q0, q1, q2):
     """(inside, face): OBB rejection, the upper and lower planar meshes' faces above / below q, their
     two planes. face: when outside, a face whose plane q is in front of (a separating plane: the
@@ -184,7 +184,7 @@ def _inside_paper(half, face_start, planes, loc_base, loc_x, loc_start, loc_y, l
 
 
 # -- response -------------------------------------------------------------------------------------
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _nearest_plane(planes, face_start, h, q0, q1, q2):
     """(signed distance, face) of the plane q is least behind (largest signed distance)."""
     best = -np.inf
@@ -197,7 +197,7 @@ def _nearest_plane(planes, face_start, h, q0, q1, q2):
     return best, bf
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _cell_of(kind, n_theta, n_second, second_lo, second_hi, cell_base, h, q0, d0, d1, d2):
     """Global cell of a unit ray direction d (and axial coordinate q0 for the cylinder)."""
     nt = n_theta[h]
@@ -221,7 +221,7 @@ def _cell_of(kind, n_theta, n_second, second_lo, second_hi, cell_base, h, q0, d0
     return cell_base[h] + it * ns + js
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _response(half, kind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base, cell_start,
               cell_tris, h, brute, q0, q1, q2):
     """(x, y, z, face): where the map ray through q (OBB-local) leaves the hull and the face it leaves
@@ -263,7 +263,7 @@ def _response(half, kind, n_theta, n_second, second_lo, second_hi, face_start, p
     return q0 - best * planes[bf, 0], q1 - best * planes[bf, 1], q2 - best * planes[bf, 2], bf
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def hull_query(half, kind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base, cell_start,
                cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, h, method, q0, q1, q2):
     """(inside, x, y, z, face) of hull h for an OBB-local point q: the response point (OBB-local) and
@@ -304,7 +304,7 @@ def hull_inside_brute(m, h, p):
     return _inside_brute(m.planes, m.face_start, h, q0, q1, q2)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _response_bone(m, h, p, brute):
     q0, q1, q2 = _to_local(m, h, p)
     r0, r1, r2, _ = _response(m.half, m.kind, m.n_theta, m.n_second, m.second_lo, m.second_hi, m.face_start,

@@ -52,7 +52,7 @@ def _force_sums(typingctx, tri_force, vt_table, i0):
     return types.UniTuple(types.float64, 12)(tri_force, vt_table, i0), codegen
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _verlet(x, xp, inv_mass, attach_joint, attach_local, fwd, i, hh, keep, gx, gy, gz, rx, ry, rz,
             use_aero, fx, fy, fz):
     """One particle of `integrate`; (fx, fy, fz) the sum of its triangles' forces."""

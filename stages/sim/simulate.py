@@ -36,7 +36,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from stages.checks import ContractError
-from stages.jit import for_threads
+from stages.jit import for_threads, threaded
 from stages.garments.types import BEND, STRETCH, Garment
 from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER
 from stages.maps.types import KIND_CYLINDER, MapArrays
@@ -371,7 +371,7 @@ class BodyAudit:
         """Winding numbers of `points` w.r.t. the vertices of the last `refit`."""
         order, start, end, kids = self.tree
         out = np.empty(points.shape[0])
-        winding.winding_numbers_tree(np.ascontiguousarray(points, dtype=np.float64), self.vertices, self.tris, order,
+        threaded(winding.winding_numbers_tree)(np.ascontiguousarray(points, dtype=np.float64), self.vertices, self.tris, order,
                                start, end, kids, self.data, self.beta, out)
         return out
 
@@ -391,12 +391,12 @@ def winding_number(vertices, triangles, points, *, exact: bool = False, beta: fl
     p = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
     out = np.empty(p.shape[0])
     if exact:
-        winding.winding_numbers_brute(p, v, t, out)
+        threaded(winding.winding_numbers_brute)(p, v, t, out)
         return out
     order, start, end, kids = winding.build_winding_tree(v, t)
     data = np.zeros((start.size, 8))
     winding.refit_winding_tree(v, t, order, start, end, kids, data)
-    winding.winding_numbers_tree(p, v, t, order, start, end, kids, data, float(beta), out)
+    threaded(winding.winding_numbers_tree)(p, v, t, order, start, end, kids, data, float(beta), out)
     return out
 
 
