@@ -116,6 +116,8 @@ def with_parallel_calls(kernel):
     options["cache"] = type(kernel._cache).__name__ != "NullCache"
     par = njit(**options)(_renamed(kernel.py_func, kernel.py_func.__name__ + "_parallel", g))
     _PARALLEL[id(kernel)] = par
+    if id(kernel) in _OPT_LEVELS:
+        _OPT_LEVELS[id(par)] = _OPT_LEVELS[id(kernel)]
     return par
 
 
@@ -153,3 +155,49 @@ class numba_threads:
         import numba
         numba.set_num_threads(self.old)
         return False
+
+
+# -- LLVM optimisation level per kernel ------------------------------------------------------------
+# numba optimises a kernel's LLVM module at NUMBA_OPT (3), then again the module with every kernel
+# it calls linked in, at every level of a call chain: a thin caller of big, already optimised
+# kernels (the step loop over the phases) or a deep chain run once per hull (the simplification)
+# pays O3 over all of its callees' code again. `opt_level(n)` compiles one kernel's own module at
+# level n; every other kernel (its callees too) keeps the default. numba reads config.OPT when it
+# builds its pass managers, so the level is set around the kernel's compile (numba's compile lock
+# serialises compiles). The level changes no result: without fastmath, LLVM's passes keep IEEE
+# semantics at every level.
+_OPT_LEVELS = {}      # id(dispatcher) -> LLVM level
+
+
+def _install_opt_levels() -> bool:
+    from numba.core import config, dispatcher
+    base = dispatcher.Dispatcher
+    if getattr(base.compile, "_opt_levels", False):
+        return True
+    default = config.OPT
+    plain = base.compile
+
+    def compile(self, sig):
+        level = _OPT_LEVELS.get(id(self))
+        old = config.OPT
+        config.OPT = default if level is None else config._OptLevel(level)
+        try:
+            return plain(self, sig)
+        finally:
+            config.OPT = old
+    compile._opt_levels = True
+    compile.__doc__ = plain.__doc__
+    base.compile = compile
+    return True
+
+
+def opt_level(level: int):
+    """Decorator above @njit / @serial_and_parallel (both variants): LLVM level for this kernel."""
+    def wrap(kernel):
+        _install_opt_levels()
+        _OPT_LEVELS[id(kernel)] = level
+        par = _PARALLEL.get(id(kernel))
+        if par is not None:
+            _OPT_LEVELS[id(par)] = level
+        return kernel
+    return wrap
