@@ -31,8 +31,8 @@ STAGE_PACKAGES = {
     "simulation": ("sim", "-sim/audit_kernels"),
     "cloth audit": ("sim/audit_kernels",),
 }
-ESTIMATE_S = {"rig": 1, "colliders": 24, "collider coverage": 6, "obstacles": 5, "garments": 50,
-              "simulation": 5, "cloth audit": 7}
+ESTIMATE_S = {"rig": 1, "colliders": 18, "collider coverage": 3, "obstacles": 5, "garments": 16,
+              "simulation": 5, "cloth audit": 4}
 
 _CACHED = re.compile(r"cache\s*=\s*True")
 

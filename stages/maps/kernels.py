@@ -5,9 +5,10 @@ The core, `hull_query`, takes the MapArrays fields one by one (plain arrays, in 
 order; `query_arrays(m)` unpacks them) and an OBB-local point, and returns the face it responded
 on (the contact normal). Why plain arrays: numba increments / decrements (atomically) the reference
 count of every array reached through a named tuple argument of a compiled call (~300 ns per query
-with the 18-array MapArrays, more than the query itself); hull_query and its helpers are inlined
-(inline="always") into the caller, so compiled with the caller's flags (the simulation's loops use
-`_nrt=False`: no reference counting at all).
+with the 18-array MapArrays, more than the query itself); hull_query and its helpers are compiled
+once with `_nrt=False` (no reference counting at all) and `forceinline=True`: LLVM inlines them into
+each caller (numba's own inline="always" re-ran its front end at every call site: 8 s of the
+collision kernels' compile for the same machine code, issue 19).
 
     hull_query(half, kind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
                cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, h, method, q0, q1, q2)
