@@ -1,4 +1,4 @@
-"""Command line: `python -m pipeline run|validate|bench|matrix|inspect|snapshot ...` (also the `garment-sim` script).
+"""Command line: `python -m pipeline run|validate|bench|matrix|inspect|snapshot|export|sweep ...` (also the `garment-sim` script).
 
 User errors (bad scene, bad asset, bad output path, broken stage input) print one line
 `error: ...` naming the scene file and exit 2, without a traceback. Any other exception is a bug:
@@ -107,6 +107,23 @@ def cmd_export(args) -> int:
     return 0
 
 
+def cmd_sweep(args) -> int:
+    """Every combination of a sweep file's overrides as a job (process pool or Ray), the table as
+    CSV and Parquet; exit 1 when a job failed (the table says which and why)."""
+    from pipeline.sweep import run_sweep, summary_text
+    echo = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr, flush=True))
+    try:
+        sw, rows = run_sweep(args.scene, output=args.output, jobs=args.jobs,
+                             ray_address=False if args.ray is None else args.ray,
+                             retry_failed=args.retry_failed, progress=not args.quiet, echo=echo)
+    except KeyboardInterrupt:   # the workers are stopped; finished jobs keep their rows
+        print("\ninterrupted: the finished jobs are in the table; run the same command to go on",
+              file=sys.stderr)
+        return 130
+    print(summary_text(sw, rows))
+    return 0 if len(rows) == len(sw.jobs) and all(r["status"] == "ok" for r in rows) else 1
+
+
 def cmd_inspect(args) -> int:
     import json
 
@@ -163,6 +180,19 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--frames", type=int, help="a scene: override the number of frames")
     ex.add_argument("-q", "--quiet", action="store_true", help="a scene: no progress line")
     ex.set_defaults(func=cmd_export)
+    sw = sub.add_parser("sweep", parents=[common], help="run a base scene once per combination of overrides (a grid "
+                                                        "and/or cases) on a process pool or a Ray cluster; metrics "
+                                                        "table as CSV and Parquet")
+    sw.add_argument("scene", metavar="SWEEP.yaml", help="the sweep file (base scene, grid, cases; see scenes/sweep_example.yaml)")
+    sw.add_argument("--jobs", type=int, help="worker processes (default: the sweep file's 'jobs', else every core)")
+    sw.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
+                    help="run the jobs as Ray tasks: on the cluster at ADDRESS, or on a local one when no address "
+                         "is given (extra 'ray': pip install -e \".[ray]\")")
+    sw.add_argument("--retry-failed", action="store_true", help="run the failed jobs of an earlier run again "
+                                                                 "(finished ones are always skipped)")
+    sw.add_argument("-o", "--output", help="results folder (default: the sweep file's 'output', else sweeps/<name>)")
+    sw.add_argument("-q", "--quiet", action="store_true", help="no progress; only the summary")
+    sw.set_defaults(func=cmd_sweep)
     ins = sub.add_parser("inspect", parents=[common], help="a character file as the pipeline reads it: joints, "
                                                            "clips, mesh size, up axis, garment anchors")
     ins.add_argument("asset", help="a .glb / .gltf / .bvh file, or 'builtin' (the procedural character)")
@@ -217,6 +247,10 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     scene = str(Path(args.scene)) if getattr(args, "scene", None) else None   # as load_scene names it
     where.reset(scene)
+    if getattr(args, "jobs", None) is not None and args.jobs < 1:
+        print(f"error: {scene + ': ' if scene else ''}--jobs: expected a positive integer, got {args.jobs}",
+              file=sys.stderr)
+        return EXIT_USAGE
     if isinstance(getattr(args, "frames", None), int) and args.frames < 1:   # snapshot's --frames is a list
         print(f"error: {scene + ': ' if scene else ''}--frames: expected a positive integer, got {args.frames}",
               file=sys.stderr)

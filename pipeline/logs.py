@@ -346,6 +346,14 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=Non
                                               if audited else "not audited (simulation.body_audit: false)",
         "steps/s (simulation only)": f"{steps_s:.0f}",
     }
+    cc = result.cloth_contact
+    if cc:
+        layers = ", ".join(f"{t.name} {l}" for t, l in zip(result.garments, cc.get("layers", ())))
+        out["cloth collision (layers; contacts / corrected / reverted / left over the run)"] = (
+            f"on, thickness {1000 * p.cloth_thickness:.1f} mm (layers: {layers}); {cc['contacts']} / "
+            f"{cc['corrected']} / {cc['reverted']} / {cc['left']}")
+    else:
+        out["cloth collision (layers; contacts / corrected / reverted / left over the run)"] = "off"
     if audit is not None:
         out.update(audit.summary())
     # wall-clock figures stay out of sim/report so identical runs log identical data there

@@ -87,11 +87,13 @@ def check_output_path(path, *, where: str, create: bool) -> Path:
 
 
 @contextlib.contextmanager
-def atomic_recording(path: Path, *, scene_name: str, scene_text: str, seed: int):
+def atomic_recording(path: Path, *, scene_name: str, scene_text: str, seed: int, keep_failed: Path | None = None):
     """Yield a RecordingStream saving to a temporary file; rename it to `path` on success.
 
     On any exception (including KeyboardInterrupt, and a failed rename) the temporary file is
     removed and the exception propagates; an earlier file at `path` is left untouched.
+    keep_failed: on an exception, the temporary file (what was logged before it) is renamed to
+    this path instead (a sweep keeps a failed job's partial recording).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -118,6 +120,8 @@ def atomic_recording(path: Path, *, scene_name: str, scene_text: str, seed: int)
             rec.disconnect()  # writes the footer; flushes everything
             if ok:
                 os.replace(tmp, path)
+            elif keep_failed is not None and tmp.exists():
+                os.replace(tmp, keep_failed)
         finally:
             with contextlib.suppress(OSError):
                 if tmp.exists():   # anything but a completed rename: no temporary file survives

@@ -90,7 +90,8 @@ class _Timer:
 
 
 # simulation keys whose scene default (null) means "the preset's value" (stages.sim.types.PRESETS)
-PRESET_KEYS = ("substeps", "iterations", "damping", "tethers", "stretch_stiffness", "bend_stiffness")
+PRESET_KEYS = ("substeps", "iterations", "damping", "tethers", "stretch_stiffness", "bend_stiffness",
+               "cloth_collision")
 
 
 def sim_params(scene: Scene):
@@ -101,7 +102,12 @@ def sim_params(scene: Scene):
     return SimParams.preset(sp["preset"], dt=sp["dt"], gravity=tuple(sp["gravity"]), wind=tuple(sp["wind"]),
                             drag=sp["drag"], lift=sp["lift"], friction=sp["friction"],
                             inertia_scale=sp["inertia_scale"], hull_response=scene["colliders"]["response"],
-                            body_audit=sp["body_audit"], **given)
+                            body_audit=sp["body_audit"], cloth_thickness=sp["cloth_thickness"], **given)
+
+
+def garment_layers(scene: Scene) -> list[int]:
+    """Each garment's cloth collision layer: its `layer`, else its place in the list (earlier = inner)."""
+    return [g["layer"] if g.get("layer") is not None else i for i, g in enumerate(scene["garments"])]
 
 
 def body_params(settings: dict):
@@ -368,10 +374,19 @@ def build_pattern_garment(scene: Scene, index: int, character, motion, colliders
         raise SceneError(f"{where}: cannot place and sew the pattern: {err}") from None
     if not log.converged:
         seam, gap = build.worst_seam()
-        raise SceneError(f"{where}: sewing did not close seam {seam}: {gap * 1000:.1f} mm open after "
-                         f"{log.iterations} iterations (garments[{index}].sewing.tolerance {sw['tolerance'] * 1000:.1f} mm, "
-                         f"max_iterations {sw['max_iterations']})")
+        raise SewingError(f"{where}: sewing did not close seam {seam}: {gap * 1000:.1f} mm open after "
+                          f"{log.iterations} iterations (garments[{index}].sewing.tolerance {sw['tolerance'] * 1000:.1f} mm, "
+                          f"max_iterations {sw['max_iterations']})", partial=(garment, log, build))
     return garment, log, build
+
+
+class SewingError(SceneError):
+    """A pattern garment's seams did not close. partial: (Garment, SewingLog, GarmentBuild) as the
+    sewing left them (what a sweep keeps of a failed job)."""
+
+    def __init__(self, message: str, partial=None):
+        super().__init__(message)
+        self.partial = partial
 
 
 def placement_matrix(item: dict) -> np.ndarray:
@@ -535,13 +550,14 @@ def garment_fits(character, motion, skinned, garments, builds, result) -> list:
     return out
 
 
-def garment_fit_report(character, motion, skinned, garments, builds, result) -> str:
-    """The fit figures of every garment (garment_fits) as a table; warns about any figure out of range
-    and about garments that start inside the body or a collider."""
+def garment_fit_report(character, motion, skinned, garments, builds, result, fits=None) -> str:
+    """The fit figures of every garment (garment_fits, unless given) as a table; warns about any
+    figure out of range and about garments that start inside the body or a collider."""
     import warnings
 
     from stages.garments.fit import fit_table, start_warnings
-    fits = garment_fits(character, motion, skinned, garments, builds, result)
+    if fits is None:
+        fits = garment_fits(character, motion, skinned, garments, builds, result)
     for f, track in zip(fits, result.garments):
         for w in start_warnings(track) + f.warnings():
             warnings.warn(w, stacklevel=1)
@@ -579,7 +595,8 @@ def blueprint_of(scene: Scene, character, motion, skinned, colliders, coverage_r
 
 def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = None,
               progress: bool = True, on_stage=None, deterministic: bool = False,
-              export: tuple | None = None) -> RunSummary:
+              export: tuple | None = None, state: dict | None = None,
+              keep_partial: Path | None = None) -> RunSummary:
     """Check the inputs that need no character (`preflight`), run every stage the scene needs and
     write the recording atomically.
 
@@ -589,6 +606,12 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
 
     export: (formats, folder or None) written after the recording (default: the scene's
     output.export, output.export_dir); see pipeline.export.
+
+    state: a dict filled as the run goes (summary, character, motion, skinned, colliders, coverage, garments,
+    builds, result, audit, fits, and during the simulation 'sim': {'result': the frames done so far}), so that a caller
+    (pipeline.sweep) can measure the run and keep what exists when it fails.
+    keep_partial: where a failed run's recording goes (whatever was logged before the failure)
+    instead of being deleted.
     """
     from pipeline import logs, style, where
     from pipeline.kernel_cache import compile_note
@@ -609,10 +632,12 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                              f"(expected at least one entry under 'garments:')")
     summary = RunSummary(scene=scene.name, output=None, frames=len(times))
     announce = on_stage or (lambda name: None)
+    state = {} if state is None else state
+    state["summary"] = summary
 
-    def say(name: str) -> None:
+    def say(name: str, *more: str) -> None:
         where.stage(name)
-        note = compile_note(name) if progress else None
+        note = compile_note(name, *more) if progress else None
         announce(f"{name} ({note})" if note else name)
 
     def bar(label: str, unit: str) -> Progress:   # a stage's progress(done, total) callback
@@ -621,8 +646,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     s = scene.settings
     # every stage's parallel kernels run on simulation.threads threads (1: their serial variants,
     # compiled several times faster: stages.jit)
-    with atomic_recording(out, scene_name=scene.name, scene_text=scene.text, seed=s["seed"]) as rec, \
-            numba_threads(s["simulation"]["threads"]):
+    with atomic_recording(out, scene_name=scene.name, scene_text=scene.text, seed=s["seed"],
+                          keep_failed=keep_partial) as rec, numba_threads(s["simulation"]["threads"]):
         say("rig")
         with _Timer(summary, "rig") as r:
             with where.item(character_item(scene)):
@@ -632,6 +657,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             times = motion.times
             summary.frames = len(times)
             skinned = skin(character, motion)
+            state.update(character=character, motion=motion, skinned=skinned)
             r.sizes.update(vertices=character.vertices.shape[0], triangles=character.triangles.shape[0],
                            joints=character.n_joints)
         if character.notes:  # e.g. the up axis a glTF was found to have, its floor shift
@@ -645,6 +671,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 split, colliders = split_and_fit(scene, character, motion, progress=hull_bar)
             finally:
                 hull_bar.close()
+            state["colliders"] = colliders
             faces = [h.report.faces_simplified for h in colliders.hulls]
             r.sizes.update(split=split.method, rigid_hulls=len(split.hull_bones),
                            swept_hulls=sum(h.kind == "swept" for h in colliders.hulls),
@@ -667,6 +694,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                     coverage = None
                 finally:
                     coverage_bar.close()
+            state["coverage"] = coverage
             if coverage is not None:
                 t = coverage.totals()
                 r.sizes.update(frames=t["frames"], coverage=f"{t['coverage_min'] * 100:.2f} %",
@@ -713,6 +741,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 finally:
                     if sewing_bars:
                         sewing_bars[-1].close()
+                state.update(garments=garments, builds=builds)
                 r.sizes.update(particles=sum(g.n_particles for g in garments))
                 for name, (log, _) in builds.items():
                     r.sizes[f"{name} sewing"] = (f"{log.iterations} it, gap {log.gap_max[-1] * 1000:.1f} mm, "
@@ -721,17 +750,19 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             for name, (log, build) in builds.items():
                 i = next(k for k, g in enumerate(garments) if g.name == name)
                 logs.log_sewing(rec, name, log, build, garments[i], color=style.fabric(i))
-            say("simulation")
             from stages.sim import simulate
             sp = s["simulation"]
             params = sim_params(scene)
+            say("simulation", *(("cloth collision",) if params.cloth_collision else ()))
             bar = Progress(len(times), "simulation", enabled=progress)
             with _Timer(summary, "simulation") as r:
                 try:
                     result = simulate(character, motion, colliders, maps, garments, params, obstacles=obstacles,
+                                      layers=garment_layers(scene), partial=state.setdefault("sim", {}),
                                       progress=lambda done, total: bar.update(done), threads=sp["threads"])
                 finally:
                     bar.close()
+                state["result"] = result
                 r.sizes.update(steps=result.steps)
             audit = None
             if sp["cloth_audit"]:
@@ -742,12 +773,15 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 with _Timer(summary, "cloth audit") as r:
                     audit = audit_cloth(result, garments, vertex_strain=sp["strain_colors"])
                     r.sizes.update(exact_pairs=audit.exact_pairs)
+                state["audit"] = audit
                 for w in audit.warnings:
                     warnings.warn(w, stacklevel=1)
             summary.penetrations = logs.log_sim(rec, motion, garments, result, audit)
             summary.speeds = {k: summary.penetrations.pop(k) for k in list(summary.penetrations) if k.startswith("steps/s")}
             step_ms = result.step_ms
-            summary.tables["garment fit"] = garment_fit_report(character, motion, skinned, garments, builds, result)
+            state["fits"] = garment_fits(character, motion, skinned, garments, builds, result)
+            summary.tables["garment fit"] = garment_fit_report(character, motion, skinned, garments, builds, result,
+                                                               fits=state["fits"])
             logs.log_text(rec, "sim/fit", summary.tables["garment fit"])
         where.stage("writing the recording")
         logs.log_text(rec, "meta/summary", summary.markdown())

@@ -40,6 +40,8 @@ _GARMENT_COMMON = {
     "name": Field("str", REQUIRED, "garment name (entity path sim/<name>)"),
     "density": Field("float", 0.2, "area density, kg/m^2", lo=0.0, lo_open=True),
     "pin": PIN,
+    "layer": Field("int", None, "cloth collision layer, 0 = innermost; default: the garment's place in the "
+                   "list (earlier = inner); garments of a higher layer are kept outside lower ones", lo=0, hi=1000),
 }
 
 GARMENT = Field("union", REQUIRED, "a garment", variants={
@@ -78,6 +80,7 @@ def _check_options(o):
 GARMENT.variants["pattern"] = {
     "name": _GARMENT_COMMON["name"],
     "density": _GARMENT_COMMON["density"],
+    "layer": _GARMENT_COMMON["layer"],
     "kind": Field("str", REQUIRED, "a built-in sewing pattern, sized from the character's measurements",
                   choices=_PATTERN_KINDS),
     "edge_length": Field("float", 0.025, "target mean edge length of the flat panels, m", lo=0.005, hi=0.2),
@@ -85,7 +88,7 @@ GARMENT.variants["pattern"] = {
                      check=_check_options),
     "sewing": Field("section", {}, "sewing under micro-gravity", fields={
         "tolerance": Field("float", 0.004, "largest seam gap accepted, m", lo=0.0, lo_open=True),
-        "max_iterations": Field("int", 40, "sewing simulation rounds at most", lo=1, hi=10000),
+        "max_iterations": Field("int", 40, "sewing simulation rounds at most (the sewing runs at least 2)", lo=2, hi=10000),
         "gravity_scale": Field("float", 0.005, "share of gravity while sewing", lo=0.0, hi=1.0),
         "iterations": Field("int", 16, "spring correction rounds while sewing", lo=1, hi=1000),
     }),
@@ -207,6 +210,10 @@ SCENE_SPEC = {
                                    "(frequency-scaled: the same cloth at any sub-step count; preset)", lo=0.0, lo_open=True, hi=1.0),
         "bend_stiffness": Field("float", None, "share of a bend correction applied per round at 300 rounds/s (preset)",
                                 lo=0.0, hi=1.0),
+        "cloth_collision": Field("bool", None, "on | off (preset; off in both presets: it costs 10-30x the rest of "
+                                 "the step) garment-garment and self collision (cloth x cloth, last phase of every "
+                                 "step); garments keep their `layer` order"),
+        "cloth_thickness": Field("float", 0.003, "distance kept between cloth layers, m", lo=0.0, lo_open=True, hi=0.1),
         "body_audit": Field("bool", True, "count particles inside the true skinned mesh per frame"),
         "cloth_audit": Field("bool", True, "per frame edge strain and cloth edges crossing cloth triangles (sim/<garment>/strain, sim/intersections/...)"),
         "strain_colors": Field("bool", False, "colour the cloth meshes by per-vertex edge strain (blue 0 -> red 10 %)"),
@@ -291,6 +298,15 @@ def parse_scene_text(text: str, *, source: str = "<scene>", base_dir: Path | Non
     if data is None:   # nothing but blanks and comments: running the defaults would be a surprise
         raise SceneError(f"{source}: the scene file is empty (expected a mapping such as 'character:', "
                          f"'garments:'; write '{{}}' to run every default)")
+    return scene_from_data(data, text=text, source=source, base_dir=base_dir, default_name=default_name, marks=marks)
+
+
+def scene_from_data(data, *, text: str, source: str = "<scene>", base_dir: Path | None = None,
+                    default_name: str = "scene", marks: dict | None = None) -> Scene:
+    """Validate an already parsed scene mapping (`text` is what the recording stores as the scene).
+    Without `marks` the messages name the key path but no line and column (a sweep's generated
+    scenes: pipeline.sweep)."""
+    marks = {} if marks is None else marks
     export = {"path": None, "export": [], "export_dir": None}
     if isinstance(data, dict) and isinstance(data.get("output"), dict):   # output: {path, export, export_dir}
         export = validate({"output": Field("section", {}, fields=OUTPUT_FIELDS)}, {"output": data["output"]},

@@ -41,7 +41,9 @@ def test_tree_distance_equals_every_triangle_and_trimesh(seed, angle):
     brute = _brute_distance(p, v, c.triangles)
     assert np.allclose(tree, brute, rtol=0, atol=1e-12)
     _, ref, _ = trimesh.proximity.closest_point(trimesh.Trimesh(v, c.triangles, process=False), p)
-    assert np.allclose(tree, ref, rtol=0, atol=1e-5)     # trimesh's own rounding reaches ~1e-6 m
+    # trimesh's own closest point is off by up to ~1e-5 m near the surface (seed 185982, angle 0.5:
+    # 0.1096 mm here, 0.1209 mm from trimesh, and the brute force agrees with us to 1e-12)
+    assert np.allclose(tree, ref, rtol=0, atol=5e-5)
 
 
 def _reference_inside(points, colliders, pose):

@@ -123,3 +123,33 @@ def test_both_split_modes_run_with_both_flexible_kinds(flexible):
         s, cs = fit_character(c, poses, split=split, flexible=flexible)
         assert cs.flexible == flexible and s.method == split
         assert (len(cs.spheres) > 0) == (flexible == "sphere")
+
+
+def test_swept_core_points_stay_inside_the_body_at_every_pose():
+    """The bone points a swept hull reaches down to (own bone and parent's) are inside the skinned
+    body at the bind pose and at every pose: checked with the winding number directly."""
+    from stages.coverage.measure import SkinDistance
+    from stages.hulls import swept
+    from stages.hulls.fit import core_points
+    from stages.rig.procedural import procedural_character
+    from stages.rig.skinning import sample_motion
+    from stages.sim import winding_number
+    c = procedural_character()
+    clip = c.clip("walk")
+    poses = sample_motion(c, "walk", clip.times[::6] - clip.times[0]).joint_world
+    x = skin_poses(c, poses)
+    dev = bone_deviation(c, poses, x)
+    split = split_by_motion(c, dev, 0.005)
+    parts, _ = swept.swept_parts(c, split, dev)
+    body = SkinDistance(c)
+    body.refit(c.vertices)
+    cores = core_points(c, parts, poses, x, body)
+    assert sum(k.shape[0] for k in cores) > 0
+    for (_, b, _), local in zip(parts, cores):
+        if local.shape[0] == 0:
+            continue
+        bind = np.linalg.inv(c.inverse_bind[b])
+        assert (winding_number(c.vertices, c.triangles, local @ bind[:3, :3].T + bind[:3, 3]) >= 0.5).all()
+        for f in range(poses.shape[0]):
+            world = local @ poses[f, b, :3, :3].T + poses[f, b, :3, 3]
+            assert (winding_number(x[f], c.triangles, world) >= 0.5).all(), (c.joint_names[b], f)

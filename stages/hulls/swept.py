@@ -21,6 +21,7 @@ from stages.rig.regions import is_hull_ready
 from stages.rig.types import Character, RegionSplit
 
 SNAP = 1e-5      # m: swept positions are snapped to this grid (far below delta) before the hull
+RING_REACH = 0.01  # m: a ring vertex's sweep in the piece's frame is clamped to this far from its bind place
 RING_EDGE = 3.0  # the one-ring follows edges up to this many times the median edge (not a web)
 MIN_PART = 8     # vertices: a smaller piece of a flexible region joins a neighbour
 CORE_STEP = 0.01  # m: spacing of the bone points added to a hull (bone_core)
@@ -122,7 +123,18 @@ def swept_points(character: Character, poses: np.ndarray, skinned: np.ndarray, b
     ring = one_ring(character.triangles, vertices, character.vertices.shape[0],
                     RING_EDGE * median_edge(character), character.vertices)
     ring = np.union1d(vertices, ring[near_bone(character, ring, bone)])
-    pts = local_tracks(character, poses, ring, bone, skinned)
+    # the ring's own vertices move with other bones: swept here, they would stand off the skin by
+    # their deviation in this bone's frame (centimetres over a walk); at their bind position they
+    # still close the border strip
+    other = np.setdiff1d(ring, vertices)
+    if other.size == 0:
+        other = vertices[:1]                     # a piece without a ring: its first vertex stands in
+    ib = character.inverse_bind[bone]
+    bind = character.vertices[other] @ ib[:3, :3].T + ib[:3, 3]
+    track = local_tracks(character, poses, other, bone, skinned).reshape(-1, other.size, 3) - bind[None]
+    d = np.linalg.norm(track, axis=2, keepdims=True)
+    track *= np.minimum(1.0, RING_REACH / np.maximum(d, 1e-12))
+    pts = np.concatenate([local_tracks(character, poses, vertices, bone, skinned), (bind + track).reshape(-1, 3)])
     # poses repeat positions (a held pose, the bind pose): near-duplicates make Qhull slivers
     pts = np.unique(np.round(pts / SNAP), axis=0) * SNAP
     if is_hull_ready(pts):

@@ -30,7 +30,7 @@ from stages.sim.types import SimParams
 
 def _figures(result, garments, wall: float) -> dict:
     tm = result.timings
-    kernel = tm["integrate"] + tm["constraints"] + tm["collisions"]
+    kernel = tm["integrate"] + tm["constraints"] + tm["collisions"] + tm.get("cloth", 0.0)
     # step_ms is per step within each frame: the frames' stepping time is its sum times the sub-steps
     stepping_s = max(float(result.step_ms[1:].sum()) * result.params.substeps / 1e3, 1e-12)
     steps_s = result.steps / stepping_s
@@ -49,7 +49,11 @@ def _figures(result, garments, wall: float) -> dict:
         "steps_per_s_median_frame": round(1e3 / max(float(np.median(result.step_ms[1:])), 1e-12), 1),
         "wall_steps_per_s": round(result.steps / max(wall - tm.get("audit", 0.0) - tm.get("setup", 0.0), 1e-12), 1),
         "collision_share": round(tm["collisions"] / kernel, 3) if kernel > 0 else None,
-        "phase_share": {k: round(tm[k] / kernel, 3) for k in ("integrate", "constraints", "collisions")} if kernel else {},
+        "phase_share": {k: round(tm[k] / kernel, 3) for k in ("integrate", "constraints", "collisions", "cloth")}
+        if kernel else {},
+        "cloth_collision": bool(result.params.cloth_collision),
+        "cloth_contact_per_step": {k: round(v / max(result.steps, 1), 1) for k, v in result.cloth_contact.items()
+                                   if isinstance(v, int)},
         "strain": strain,
         "crossings_self_max": {g.name: int(g.crossings_self[1:].max(initial=0)) for g in audit.garments},
         "crossings_between_max": int(audit.crossings_between[1:].max(initial=0)),
@@ -58,13 +62,13 @@ def _figures(result, garments, wall: float) -> dict:
     }
 
 
-def _run(scene, params: SimParams, repeats: int, threads: int) -> dict:
+def _run(scene, params: SimParams, repeats: int, threads: int, layers=None) -> dict:
     """Best of `repeats` timed runs."""
     ch, motion, cs, maps, garments = scene
     best = None
     for _ in range(repeats):
         t0 = time.perf_counter()
-        r = simulate(ch, motion, cs, maps, garments, params, threads=threads)
+        r = simulate(ch, motion, cs, maps, garments, params, threads=threads, layers=layers)
         fig = _figures(r, garments, time.perf_counter() - t0)
         if best is None or fig["steps_per_s"] > best["steps_per_s"]:
             best = fig
@@ -150,16 +154,42 @@ def walk(frames: int = 90, threads: int = 1, repeats: int = 3, colliders: str = 
     return out
 
 
+def shipped_walk(frames: int = 60, threads: int = 1, repeats: int = 1, preset: str = "default",
+                 cloth_collision: bool = True) -> dict:
+    """scenes/walk_tshirt_skirt.yaml as `run` builds it (sewn T-shirt and skirt, its layers), simulated
+    with the scene's settings (default: cloth x cloth collision on, as the scene sets it; off with
+    cloth_collision=False) or the paper preset (collision off); `frames` frames of the clip."""
+    from pathlib import Path
+
+    from pipeline.matrix import Prepared
+    from pipeline.run import build_scene_garments, garment_layers, sim_params
+    from pipeline.scene import load_scene
+
+    scene = load_scene(Path(__file__).resolve().parents[2] / "scenes" / "walk_tshirt_skirt.yaml")
+    scene.settings["frames"]["count"] = frames
+    p = Prepared(scene)
+    garments, _ = build_scene_garments(scene, p.character, p.motion, p.colliders, p.maps)
+    params = replace(sim_params(scene), body_audit=True, cloth_collision=cloth_collision)
+    if preset != "default":
+        params = SimParams.preset(preset, friction=params.friction, body_audit=True)
+    sc = (p.character, p.motion, p.colliders, p.maps, garments)
+    out = _run(sc, params, repeats, threads, layers=garment_layers(scene))
+    out.update(threads=threads, preset=preset, frames=frames)
+    return out
+
+
 def table(results: dict) -> str:
     """The comparison as a markdown table."""
-    rows = ["| scene | preset | sub-steps x rounds | frames/s | sub-steps/s | strain mean / p99 (last frame, %) "
-            "| p99 worst (%) | crossing edges (self / between, max after frame 0) | inside body (max) |",
-            "| --- | --- | --- | ---: | ---: | --- | --- | --- | ---: |"]
+    rows = ["| scene | preset | sub-steps x rounds | cloth collision (share of the step) | frames/s | sub-steps/s "
+            "| strain mean / p99 (last frame, %) | p99 worst (%) | crossing edges (self / between, max after frame 0) "
+            "| inside body (max) |",
+            "| --- | --- | --- | --- | ---: | ---: | --- | --- | --- | ---: |"]
     for key, r in results.items():
         if not isinstance(r, dict) or "strain" not in r:
             continue
         st = r["strain"].values()
-        rows.append(f"| {key.rsplit('_', 1)[0]} | {r['preset']} | {r['substeps']} x {r['iterations']} | {r['frames_per_s']:.0f} "
+        cc = f"on ({100 * r['phase_share'].get('cloth', 0):.0f} %)" if r.get("cloth_collision") else "off"
+        rows.append(f"| {key.rsplit('_', 1)[0]} | {r['preset']} | {r['substeps']} x {r['iterations']} | {cc} | {r['frames_per_s']:.0f} "
                     f"| {r['steps_per_s']:.0f} | " + ", ".join(f"{100 * s['mean_last']:.2f} / {100 * s['p99_last']:.1f}" for s in st)
                     + " | " + ", ".join(f"{100 * s['p99_worst']:.1f}" for s in st) + " | "
                     + ", ".join(str(v) for v in r["crossings_self_max"].values()) + f" / {r['crossings_between_max']} | "
@@ -178,6 +208,11 @@ def run_benchmark(frames_drape: int = 150, frames_walk: int = 90, repeats: int =
             out[f"walk_{preset}"] = walk(frames_walk, 1, repeats, preset=preset)
         except ImportError as err:  # a stage the walk needs is missing
             out[f"walk_{preset}"] = {"skipped": f"{err}"}
+    # the shipped scene: cloth x cloth collision on (as the scene sets it), off, and the paper preset
+    fw = frames_walk // 3 * 2
+    out["walk_tshirt_skirt_default"] = shipped_walk(fw, 1, 1)
+    out["walk_tshirt_skirt_default-off"] = shipped_walk(fw, 1, repeats, cloth_collision=False)
+    out["walk_tshirt_skirt_paper"] = shipped_walk(fw, 1, repeats, preset="paper")
     out["machine"]["load_avg_1min_end"] = os.getloadavg()[0]
     out["table"] = table(out)
     return out

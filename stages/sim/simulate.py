@@ -41,6 +41,7 @@ from stages.garments.types import BEND, STRETCH, Garment
 from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER
 from stages.maps.types import KIND_CYLINDER, MapArrays
 from stages.sim import body_collide, collider_grid, forces, simd, step, winding
+from stages.sim.cloth_contact import ClothPhase
 from stages.sim.springs import pack_springs, partition_springs
 from stages.sim.types import GarmentTrack, SimParams, SimResult, SimulationDiverged
 
@@ -402,23 +403,26 @@ def winding_number(vertices, triangles, points, *, exact: bool = False, beta: fl
 
 # -- the stage ----------------------------------------------------------------------------------------
 def simulate(character, motion, colliders, maps, garments, params: SimParams, *, obstacles=None,
-             progress=None, threads: int | None = 1) -> SimResult:
+             progress=None, threads: int | None = 1, layers=None, partial: dict | None = None) -> SimResult:
     """See `_simulate`. threads: numba threads for the parallel kernels during the call (None = the
     current numba setting). Results do not depend on it (every parallel loop writes disjoint
     particles). Default 1: on the shared 2-core machine a second thread pays only when a core is
-    idle (see stages/sim/bench.py)."""
+    idle (see stages/sim/bench.py). layers: (G,) cloth collision layer per garment, 0 = innermost
+    (default: the garments' order); used when params.cloth_collision. partial: optional dict the
+    simulation keeps 'result' in (a function of no argument: the SimResult of the frames done so
+    far), for a caller that stops the run from outside (a sweep's timeout) and keeps what was done."""
     if threads is None:
-        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress)
+        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, layers, partial)
     import numba
     old = numba.get_num_threads()
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     try:
-        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress)
+        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, layers, partial)
     finally:
         numba.set_num_threads(old)
 
 
-def _simulate(character, motion, colliders, maps, garments, params, obstacles, progress) -> SimResult:
+def _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, layers, partial) -> SimResult:
     """Simulate `garments` on `character` playing `motion` (see the module docstring).
 
     character: stages.rig.types.Character; motion: Motion sampled every params.dt seconds;
@@ -459,9 +463,10 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     k_drag = 0.5 * params.air_density * params.drag
     k_lift = 0.5 * params.air_density * params.lift
     use_aero = bool(k_drag > 0 or k_lift > 0)
-    timers = np.zeros(3, np.int64)
+    timers = np.zeros(step.N_TIMERS, np.int64)
     timings = {"poses": 0.0, "integrate": 0.0, "constraints": 0.0, "collisions": 0.0, "obstacles": 0.0,
                "audit": 0.0}
+    cphase = ClothPhase.for_simulation(sysm, layers, params, character, motion) if params.cloth_collision else None
 
     root = motion.root_translation
     ocol = None
@@ -509,7 +514,8 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
         res = _result(garments, pos, pen_col, pen_body, counts[:, 0].astype(np.int32),
                       np.sqrt(counts[:, 1]), step_ms, motion.times, timings, timers, max(f_end - 1, 0) * ss,
                       params, notes, f_end)
-        return dataclasses.replace(res, contacts_obstacles=n_obst[:f_end].copy(), contact_points=tuple(obst_points[:f_end]))
+        return dataclasses.replace(res, contacts_obstacles=n_obst[:f_end].copy(), contact_points=tuple(obst_points[:f_end]),
+                                   cloth_contact=cphase.summary() if cphase is not None else {})
 
     def diverged(f):
         sp2 = sysm.speed2
@@ -534,20 +540,26 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     sysm.speed2[:] = 0.0
     step.record_frame(sysm.x, flags, np.inf, sysm.goff, rel[0], pen_col[0], counts[0])
     audit_frames(0, 1)
+    if cphase is not None:   # garments that start interpenetrating: sorted by their layers before frame 1
+        cphase.settle(cloth, cols, col.m, prm, gravity, wind, fwd0, inv_0, ss, max2, sysm.goff, flags)
     if progress is not None:
         progress(1, nf)
 
+    if partial is not None:
+        frames_done = [1]
+        partial["result"] = lambda: result(frames_done[0])
     d_last = None
     f0 = 1
     while f0 < nf:
         f1 = min(nf, f0 + (1 if ocol is not None else FRAME_CHUNK))
+        cc = cphase.rest if cphase is not None else None
         t0 = time.perf_counter()
         fwd, inv, inv0, d_prev, d_next, tr, d_last = _chunk_poses(motion, f0, f1, ss, s, d_last)
         timings["poses"] += time.perf_counter() - t0
         if ocol is None:
             done = run_frames(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, ss, max2,
                                 sysm.goff, rel[f0:f1], pen_col[f0:f1], counts[f0:f1], step_cycles[f0:f1], flags,
-                                timers)
+                                timers, cc)
             if done < f1 - f0:
                 raise diverged(f0 + done)
         else:   # paper B obstacles live in world: hand over world positions after every step
@@ -555,8 +567,10 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
             sysm.corrected[:] = 0
             c0 = simd.read_cycles()
             for k in range(ss):
+                if cc is not None and k % params.cloth_contact_every == 0:
+                    cc[0][:] = sysm.x
                 run_steps(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, k, k + 1,
-                            flags, timers)
+                          flags, timers, None)
                 to = time.perf_counter()
                 ta = motion.times[f - 1] + k * h
                 xpw, xw = sysm.xp + tr[k], sysm.x + tr[k + 1]
@@ -565,11 +579,17 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
                 sysm.x[:] = xw - tr[k + 1]
                 n_obst[f] += ocol.n_contacts
                 timings["obstacles"] += time.perf_counter() - to
+                if cc is not None:   # cloth x cloth last, after the obstacles
+                    tc = simd.read_cycles()
+                    step.cloth_phase(sysm.x, sysm.xp, k, cc)
+                    timers[step.T_CLOTH] += simd.read_cycles() - tc
             obst_points[f] = ocol.contacts()["point"].astype(np.float32)
             step_cycles[f] = simd.read_cycles() - c0
             if not step.record_frame(sysm.x, flags, max2, sysm.goff, rel[f], pen_col[f], counts[f]):
                 raise diverged(f)
         audit_frames(f0, f1)
+        if partial is not None:
+            frames_done[0] = f1
         if progress is not None:
             progress(f1, nf)
         f0 = f1
@@ -584,6 +604,7 @@ def _result(garments, pos, pen_col, pen_body, corrected, max_speed, step_ms, tim
     tm["integrate"] = float(timers[step.T_INTEGRATE] / cps)
     tm["constraints"] = float(timers[step.T_CONSTRAINTS] / cps)
     tm["collisions"] = float(timers[step.T_COLLISIONS] / cps)
+    tm["cloth"] = float(timers[step.T_CLOTH] / cps)
     audit_on = bool((pen_body[:nf] >= 0).all())
     tracks = tuple(GarmentTrack(g.name, g.triangles, pos[i][:nf], np.ascontiguousarray(pen_col[:nf, i]),
                                 np.ascontiguousarray(pen_body[:nf, i]))

@@ -7,7 +7,8 @@ inv0 (J, 4, 4) the inverse at the START of the step (for friction relative to a 
 
 Phases, one module each: stages.sim.forces (aerodynamic forces), stages.sim.integrate (Verlet,
 gravity, attachments), stages.sim.springs (spring corrections and tethers), stages.sim.collider_grid
-(collider frames, broad phase), stages.sim.body_collide (colliders).
+(collider frames, broad phase), stages.sim.body_collide (colliders), stages.sim.cloth_contact_kernels
+(cloth x cloth: garment-garment and self collision, last, so a recorded frame is what it checked).
 
 Speed (issue 6): a whole chunk of frames runs in one call (`run_frames`): nothing is allocated and
 no Python runs between steps. The per-step phases are parallel loops (prange) over disjoint
@@ -23,6 +24,13 @@ Cloth-side argument tuples (built once by simulate.py, unpacked for free inside 
              tq, tq0, fq, cw, grid_start, grid_items, grid_runs, grid_box, grid_dims, face_edges, src_range)
     prm   = (h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method)
     flags = (corrected, inside, speed2, contact)
+    cc    = None (no cloth-cloth phase: its kernels are then neither typed nor compiled: numba prunes
+            the `cc is not None` branches for a None argument) or, built by simulate.py from
+            stages.sim.cloth_contact.ClothContact.kernel_args():
+            (x_start, x_before, cinv, topo, tree, work, cprm, counters, every)
+            x_start / x_before (N, 3) work arrays; cinv (N,) inverse masses with attached particles 0;
+            every: sub-steps per cloth-contact call (1: every sub-step; k: one call swept over k
+            sub-steps, its correction not turned into velocity, see contact_velocity).
 """
 from __future__ import annotations
 
@@ -32,6 +40,7 @@ from numba import njit
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.jit import opt_level, with_parallel_calls
 from stages.sim.body_collide import collide
+from stages.sim.cloth_contact_kernels import collide_cloth, contact_velocity
 from stages.sim.collider_grid import build_grid, collider_frames
 from stages.sim.forces import aero_forces
 from stages.sim.integrate import integrate
@@ -41,21 +50,25 @@ from stages.sim.springs import correct_springs
 # the phases are compiled into the step loop: an edit of any of them must invalidate its cache
 NUMBA_CACHE_DEPENDS = ("stages.sim.body_collide", "stages.sim.collider_grid", "stages.sim.forces",
                        "stages.sim.integrate", "stages.sim.simd", "stages.sim.springs", "stages.maps.kernels",
-                       "stages.maps.types", "stages.affine", "stages.fastmath")
+                       "stages.maps.types", "stages.affine", "stages.fastmath", "stages.sim.cloth_contact_kernels",
+                       "stages.sim.cloth_contact_ccd", "stages.obstacles.kdop")
 
 # timer slots (CPU cycles; simulate.py converts to seconds)
 T_INTEGRATE = 0
 T_CONSTRAINTS = 1
 T_COLLISIONS = 2
+T_CLOTH = 3
+N_TIMERS = 4
 
 
 # -- steps and frames ------------------------------------------------------------------------------
 @njit(cache=True, _nrt=False)
-def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, k0, k1, flags, timers):
+def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, k0, k1, flags, timers, cc):
     """Steps k0..k1-1 in the paper's order: forces, Verlet (+ attachments), spring corrections,
-    collisions. Per step k: fwd[k] / inv[k] (J, 4, 4) the pose at its end, inv0[k] at its start;
-    d_prev[k] / d_next[k] (3,) the root translation over the previous / this step.
-    timers (3,) int64 accumulate cycles of integrate / constraints / collisions."""
+    collisions, then cloth x cloth (cc, or None: off). Per step k: fwd[k] / inv[k] (J, 4, 4) the pose
+    at its end, inv0[k] at its start; d_prev[k] / d_next[k] (3,) the root translation over the
+    previous / this step. timers (N_TIMERS,) int64 accumulate cycles of integrate / constraints /
+    collisions / cloth contact."""
     (x, xp, inv_mass, attach_joint, attach_local, ij, sp, group_start, ti, ta, tl, tris, tri_mass,
      tri_force, vt_table, x4) = cloth
     (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
@@ -63,6 +76,9 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
     h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method = prm
     corrected, inside, speed2, contact = flags
     for k in range(k0, k1):
+        if cc is not None:
+            if k % cc[8] == 0:
+                copy_rows(cc[0], x)     # x_start: the start of the swept interval (free of crossings)
         t0 = cycles()
         if use_aero:
             aero_forces(x, xp, tri_mass, tris, h, s, d_prev[k], wind, k_drag, k_lift, tri_force)
@@ -79,9 +95,37 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
                 grid_start, grid_items, grid_box, grid_dims, face_edges, src_range, friction, passes, corrected, inside,
                 speed2, contact, h)
         t3 = cycles()
+        if cc is not None:
+            cloth_phase(x, xp, k, cc)
+            timers[T_CLOTH] += cycles() - t3
         timers[T_INTEGRATE] += t1 - t0
         timers[T_CONSTRAINTS] += t2 - t1
         timers[T_COLLISIONS] += t3 - t2
+
+
+@njit(cache=True, _nrt=False)
+def copy_rows(dst, src):
+    """dst[:] = src for (N, 3) arrays, without numba's runtime (a slice copy needs it)."""
+    for i in range(src.shape[0]):
+        dst[i, 0] = src[i, 0]
+        dst[i, 1] = src[i, 1]
+        dst[i, 2] = src[i, 2]
+
+
+@njit(cache=True, _nrt=False)
+def cloth_phase(x, xp, k, cc):
+    """The cloth x cloth phase after step k: every `every` steps, one collide_cloth over the
+    interval since x_start; when that interval is longer than one step, the correction is not
+    turned into Verlet velocity (contact_velocity: only the approach along it is dropped)."""
+    x_start, x_before, cinv, topo, tree, work, cprm, counters, every = cc
+    if (k + 1) % every != 0:
+        return
+    if every == 1:
+        collide_cloth(x_start, x, cinv, topo, tree, work, cprm, counters)
+    else:
+        copy_rows(x_before, x)
+        collide_cloth(x_start, x, cinv, topo, tree, work, cprm, counters)
+        contact_velocity(x_before, x, xp, work[1])
 
 
 @njit(cache=True, _nrt=False)
@@ -113,7 +157,7 @@ def record_frame(x, flags, max_speed2, goff, pos, pen, counts):
 
 @njit(cache=True, _nrt=False)
 def run_frames(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, substeps, max_speed2,
-               goff, pos, pen, counts, step_cycles, flags, timers):
+               goff, pos, pen, counts, step_cycles, flags, timers, cc):
     """Frames 0..F-1 of a chunk (F = pos.shape[0]), `substeps` steps each (pose arrays: F * substeps),
     each recorded with record_frame into pos[f], pen[f], counts[f]; step_cycles[f] the frame's
     stepping cycles (recording excluded). Returns the number of frames done: F, or the index of the
@@ -123,7 +167,7 @@ def run_frames(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_nex
         corrected[:] = 0
         c0 = cycles()
         run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next,
-                  f * substeps, (f + 1) * substeps, flags, timers)
+                  f * substeps, (f + 1) * substeps, flags, timers, cc)
         step_cycles[f] = cycles() - c0
         if not record_frame(cloth[0], flags, max_speed2, goff, pos[f], pen[f], counts[f]):
             return f

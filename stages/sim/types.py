@@ -56,6 +56,13 @@ class SimParams:
         after that (round-off) is counted in penetrations_colliders.
     max_speed: m/s; a particle faster than this (or NaN / inf) stops the run as diverged.
     body_audit: count particles inside the true skinned mesh per frame (generalised winding number).
+    cloth_collision: the cloth x cloth phase (garment-garment and self collision, stages.sim.cloth_contact)
+        last in every step; garments keep the order of their layers (simulate's `layers`).
+    cloth_thickness: m > 0, distance kept between cloth layers.
+    cloth_contact_every: sub-steps per cloth-contact call (1: every sub-step; k > 1: one call swept
+        over k sub-steps; must divide substeps).
+    cloth_layer_depth0: m >= cloth_thickness, how deep garments may interpenetrate at frame 0 and be
+        sorted by their layers during the first frame (afterwards the depth is the thickness).
     """
 
     dt: float = 1.0 / 30.0
@@ -77,6 +84,10 @@ class SimParams:
     collision_passes: int = 4
     max_speed: float = 100.0
     body_audit: bool = True
+    cloth_collision: bool = False
+    cloth_thickness: float = 0.003
+    cloth_contact_every: int = 1
+    cloth_layer_depth0: float = 0.03
 
     def __post_init__(self):
         o = "SimParams"
@@ -106,6 +117,13 @@ class SimParams:
         rng("bend_stiffness", 0.0, 1.0)
         rng("thickness", 0.0, 1.0)
         rng("max_speed", 0.0, 1e6, lo_open=True)
+        rng("cloth_thickness", 0.0, 0.1, lo_open=True)
+        rng("cloth_layer_depth0", self.cloth_thickness, 1.0)
+        v = self.cloth_contact_every
+        if not (isinstance(v, (int, np.integer)) and v >= 1 and self.substeps % v == 0):
+            raise ContractError(f"{o}.cloth_contact_every: expected an integer >= 1 dividing substeps ({self.substeps}), got {v!r}")
+        if not isinstance(self.cloth_collision, (bool, np.bool_)):
+            raise ContractError(f"{o}.cloth_collision: expected a bool, got {self.cloth_collision!r}")
         if not isinstance(self.tethers, (bool, np.bool_)):
             raise ContractError(f"{o}.tethers: expected a bool, got {self.tethers!r}")
         if self.hull_response not in HULL_METHODS:
@@ -144,11 +162,12 @@ class SimParams:
         return d
 
 
-# Named parameter sets. "default": the dataclass defaults. "paper": paper A's step (one Verlet step
+# Named parameter sets. "default": the dataclass defaults (cloth x cloth collision off: it costs
+# 10-30x the rest of the step, see the README; scenes turn it on). "paper": paper A's step (one Verlet step
 # and 3 rounds of spring correction per 1/30 s frame, no tethers), whose figures it reproduces.
 PRESETS = {
     "default": {},
-    "paper": {"substeps": 1, "iterations": 3, "tethers": False},
+    "paper": {"substeps": 1, "iterations": 3, "tethers": False, "cloth_collision": False},
 }
 
 
@@ -201,6 +220,8 @@ class SimResult:
         without obstacles.
     contact_points: per frame, (c, 3) float32 world positions of the particles in contact with an
         obstacle at the frame's last step (empty arrays without obstacles).
+    cloth_contact: the cloth x cloth phase's counters summed over the run (ClothPhase.summary();
+        empty when params.cloth_collision is off); timings['cloth'] its time.
     """
 
     garments: tuple
@@ -216,6 +237,7 @@ class SimResult:
     notes: tuple = field(default_factory=tuple)
     contacts_obstacles: np.ndarray | None = None
     contact_points: tuple = ()
+    cloth_contact: dict = field(default_factory=dict)
 
     def __post_init__(self):
         o = "SimResult"

@@ -1,0 +1,437 @@
+"""Cloth x cloth collision (garment-garment and self) as a self-contained phase of the step loop.
+
+Setup (Python, once per scene) builds a `ClothContact`: topology (edges, feature ownership), one k-DOP
+tree per garment over its triangles (paper B; stages.obstacles.kdop builds and refits it), work
+buffers. The phase itself is one numba call over flat arrays, `collide_cloth` in
+stages.sim.cloth_contact_kernels (exact tests in stages.sim.cloth_contact_ccd).
+
+How the step loop uses it (stages.sim.step.run_steps / run_frames; `ClothPhase` below builds the tuples)
+--------------------------------------------------------------------
+Once per scene, with the simulation's concatenated garments (System.x, System.tris, System.offsets):
+
+    cc = build_cloth_contact(x, tris, offsets, layers=[layer of each garment], thickness=0.003,
+                             outward=outward_signs(x, tris, tri_garment, G, body_vertices))
+    topo, tree, work, prm = cc.kernel_args()      # tuples of arrays + (thickness, layer_depth,
+                                                  #  rounds, failsafe_rounds, cull): pass them into
+                                                  #  run_frames next to `cloth` / `cols`
+    x_start = np.empty_like(x); counters = np.zeros(N_COUNTERS, np.int64)
+
+Phase order: forces, Verlet, springs and tethers, body colliders, obstacles, then cloth-cloth LAST,
+so the positions a frame records are the ones this phase checked (a later phase could push cloth
+back through cloth). Either
+
+- once per sub-step (recommended): `x_start[:] = x` before integrate, `collide_cloth(...)` after the
+  obstacles; the correction becomes Verlet velocity like every other position correction; or
+- once per frame: at the frame's start `x_start[:] = x`; after the frame's last sub-step
+  `x_before[:] = x; collide_cloth(x_start, x, inv_mass, topo, tree, work, prm, counters)` then
+  `contact_velocity(x_before, x, xp, work[1])` (else the correction would enter the next sub-step
+  as a velocity of correction / dt_sub); the tree's bounds sweep the whole frame. Only sound while
+  layers move less than the thickness relative to each other per frame: a layer resting on another
+  falls g dt^2 / 2 = 5.4 mm per 1/30 s frame in the free sub-steps, through a 3-4 mm gap, so every
+  frame starts with crossings that the rounds cannot all undo and the fail-safe freezes particles
+  (the benchmark's per-frame line: ~200 particles reverted per call).
+
+x_start must be free of cloth crossings (the fail-safe reverts to it): true from the first frame on
+if the garments start apart; garments that start interpenetrating are sorted by the layer rule up
+to `layer_depth` deep (prm[1] may be raised for the first frames only).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stages.checks import ContractError, check_array, check_index, check_positive
+from stages.obstacles.kdop import DEFAULT_K, build_tree, kdop_directions, merge_forest, triangle_bounds
+from stages.obstacles.types import KdopTree
+from stages.sim import cloth_contact_kernels as CK
+
+DEFAULT_THICKNESS = 0.003  # m: about two layers of shirt fabric
+SETTLE_FRAMES = 3          # frames at the frame-0 pose before frame 1 that sort garments starting interpenetrating
+
+
+@dataclass(frozen=True)
+class ClothContact:
+    """Everything `collide_cloth` needs, as flat arrays (world frame, metres).
+
+    N particles (all garments concatenated, garment g = particles garment_offsets[g]..[g+1]),
+    T triangles, E edges, G garments, h = k/2 k-DOP directions, n = 2T - G tree nodes (one tree
+    per garment with triangles). Bounds are world frame, metres, over the current call's step.
+
+    triangles: (T, 3) int32, global particle ids, each within one garment.
+    edges: (E, 2) int32, the unique triangle edges, i < j, sorted.
+    tri_edges: (T, 3) int32, edge id of triangle t's edge k = (triangles[t, k], triangles[t, (k+1) % 3]).
+    tri_owns: (T,) uint8, bit k (0-2): t owns its corner vertex k; bit 3 + k: t owns its edge k. Each
+      vertex and edge has exactly one owner, its lowest-numbered triangle; a triangle pair tests only
+      the features it owns, so each feature pair is tested once.
+    edge_tris: (E, 2) int32, the (one or two) triangles of an edge, -1 for none.
+    particle_garment (N,), tri_garment (T,), edge_garment (E,): int32 garment ids.
+    garment_layer: (G,) int32, 0 = innermost; garments of different layers keep their order.
+    garment_outward: (G,) float64, +1 if the garment's triangle normals (b-a) x (c-a) point away
+      from the body, -1 if they point towards it.
+    tree: KdopTree forest, one tree per garment over its triangles (leaf_prim = global triangle id),
+      topology from the setup positions; node_min/node_max are refit in place on every call.
+    Traversal work arrays:
+      node_dirty (n,) uint8: a particle of the node moved since the last detection;
+      tri_min / tri_max (T, h) float64: each triangle's k-DOP over the step, inflated;
+      pt_min / pt_max (N, h) float64: each particle's swept k-DOP, inflated alike;
+      nrm_min / nrm_max (n, h) float64: bounds of the node's unit normals projected on the directions;
+      node_patch (n,) uint8: 1 if the node's triangles are one patch of one garment (connected
+        through shared vertices); fixed at setup;
+      axis_order (h,) int32: the order the directions are tested in;
+      stack (S, 2) int32: node pairs still to visit.
+    moved, corrected: (N,) uint8 work flags.
+    c_kind (C,) int8, c_feat (C, 2) int32, c_idx (C, 4) int32, c_w (C, 4) float64, c_dir (C, 3)
+      float64: the contact buffer (capacity C); after a call it holds the last detection's contacts.
+    thickness: m > 0, the distance kept between cloth layers (and the proximity band).
+    layer_depth: m >= thickness, how deep an outer-layer feature may start inside an inner garment and
+      still be pushed out (deeper pairs keep their side: the far side of the body is not "inside").
+    rounds: >= 1 response rounds; failsafe_rounds: >= 1 revert rounds.
+    cull: normal-cone culling of flat patches in the self test (off: every pair is tested, as the
+      brute-force reference does).
+    """
+
+    triangles: np.ndarray
+    edges: np.ndarray
+    tri_edges: np.ndarray
+    tri_owns: np.ndarray
+    edge_tris: np.ndarray
+    particle_garment: np.ndarray
+    tri_garment: np.ndarray
+    edge_garment: np.ndarray
+    garment_layer: np.ndarray
+    garment_outward: np.ndarray
+    tree: KdopTree
+    node_dirty: np.ndarray
+    tri_min: np.ndarray
+    tri_max: np.ndarray
+    pt_min: np.ndarray
+    pt_max: np.ndarray
+    nrm_min: np.ndarray
+    nrm_max: np.ndarray
+    node_patch: np.ndarray
+    axis_order: np.ndarray
+    stack: np.ndarray
+    moved: np.ndarray
+    corrected: np.ndarray
+    c_kind: np.ndarray
+    c_feat: np.ndarray
+    c_idx: np.ndarray
+    c_w: np.ndarray
+    c_dir: np.ndarray
+    thickness: float = DEFAULT_THICKNESS
+    layer_depth: float = DEFAULT_THICKNESS
+    rounds: int = 4
+    failsafe_rounds: int = 8
+    cull: bool = True
+
+    def __post_init__(self):
+        o = "ClothContact"
+        f = check_array(o, "triangles", self.triangles, (None, 3), np.int32)
+        e = check_array(o, "edges", self.edges, (None, 2), np.int32)
+        t, ne = f.shape[0], e.shape[0]
+        n = check_array(o, "particle_garment", self.particle_garment, (None,), np.int32).shape[0]
+        g = check_array(o, "garment_layer", self.garment_layer, (None,), np.int32).shape[0]
+        check_index(o, "triangles", f, n)
+        check_index(o, "edges", e, n)
+        if ne and not np.all(e[:, 0] < e[:, 1]):
+            raise ContractError(f"{o}.edges: expected i < j in every row")
+        check_index(o, "tri_edges", check_array(o, "tri_edges", self.tri_edges, (t, 3), np.int32), ne)
+        owns = check_array(o, "tri_owns", self.tri_owns, (t,), np.uint8)
+        check_index(o, "edge_tris", check_array(o, "edge_tris", self.edge_tris, (ne, 2), np.int32), t, allow=-1)
+        check_index(o, "particle_garment", self.particle_garment, g)
+        check_index(o, "tri_garment", check_array(o, "tri_garment", self.tri_garment, (t,), np.int32), g)
+        check_index(o, "edge_garment", check_array(o, "edge_garment", self.edge_garment, (ne,), np.int32), g)
+        out = check_array(o, "garment_outward", self.garment_outward, (g,), np.float64)
+        if not np.all(np.abs(out) == 1.0):
+            raise ContractError(f"{o}.garment_outward: expected +1 or -1 per garment")
+        # every used vertex and every edge owned exactly once
+        vcount = np.zeros(n, np.int64)
+        ecount = np.zeros(ne, np.int64)
+        for k in range(3):
+            np.add.at(vcount, f[:, k], (owns >> k) & 1)
+            np.add.at(ecount, self.tri_edges[:, k], (owns >> (3 + k)) & 1)
+        used = np.zeros(n, bool)
+        used[f.ravel()] = True
+        if not (np.all(vcount[used] == 1) and np.all(vcount[~used] == 0) and np.all(ecount == 1)):
+            raise ContractError(f"{o}.tri_owns: every vertex and edge needs exactly one owner triangle")
+        nn = self.tree.node_min.shape[0]
+        h = self.tree.directions.shape[0]
+        if sorted(self.tree.leaf_prim[self.tree.leaf_prim >= 0].tolist()) != list(range(t)):
+            raise ContractError(f"{o}.tree: expected one leaf per triangle")
+        roots = self.tree.tree_offsets[:-1]
+        if not all(len(set(self.tri_garment[self._leaves(r)].tolist())) == 1 for r in roots):
+            raise ContractError(f"{o}.tree: expected one tree per garment (a forest)")
+        check_array(o, "node_dirty", self.node_dirty, (nn,), np.uint8)
+        check_array(o, "tri_min", self.tri_min, (t, h), np.float64)
+        check_array(o, "tri_max", self.tri_max, (t, h), np.float64)
+        check_array(o, "pt_min", self.pt_min, (n, h), np.float64, finite=False)
+        check_array(o, "pt_max", self.pt_max, (n, h), np.float64, finite=False)
+        check_array(o, "nrm_min", self.nrm_min, (nn, h), np.float64, finite=False)
+        check_array(o, "nrm_max", self.nrm_max, (nn, h), np.float64, finite=False)
+        check_array(o, "node_patch", self.node_patch, (nn,), np.uint8)
+        ao = check_array(o, "axis_order", self.axis_order, (h,), np.int32)
+        if sorted(ao.tolist()) != list(range(h)):
+            raise ContractError(f"{o}.axis_order: expected a permutation of 0..{h - 1}")
+        st = check_array(o, "stack", self.stack, (None, 2), np.int32)
+        need = 8 * self.tree.max_depth + 32 + self.tree.n_trees ** 2
+        if st.shape[0] < need:
+            raise ContractError(f"{o}.stack: needs >= 8 * max_depth + 32 + trees^2 = {need} rows, got {st.shape[0]}")
+        check_array(o, "moved", self.moved, (n,), np.uint8)
+        check_array(o, "corrected", self.corrected, (n,), np.uint8)
+        c = check_array(o, "c_kind", self.c_kind, (None,), np.int8).shape[0]
+        check_array(o, "c_feat", self.c_feat, (c, 2), np.int32)
+        check_array(o, "c_idx", self.c_idx, (c, 4), np.int32)
+        check_array(o, "c_w", self.c_w, (c, 4), np.float64, finite=False)
+        check_array(o, "c_dir", self.c_dir, (c, 3), np.float64, finite=False)
+        check_positive(o, "thickness", float(self.thickness))
+        if not float(self.layer_depth) >= float(self.thickness):
+            raise ContractError(f"{o}.layer_depth: expected >= thickness ({self.thickness}), got {self.layer_depth}")
+        if int(self.rounds) < 1 or int(self.failsafe_rounds) < 1:
+            raise ContractError(f"{o}: rounds and failsafe_rounds must be >= 1")
+
+    def _leaves(self, root: int) -> np.ndarray:
+        lo = int(root)
+        hi = int(self.tree.tree_offsets[np.searchsorted(self.tree.tree_offsets, lo, side="right")])
+        lp = self.tree.leaf_prim[lo:hi]
+        return lp[lp >= 0]
+
+    @property
+    def n_particles(self) -> int:
+        return self.particle_garment.shape[0]
+
+    def kernel_args(self) -> tuple:
+        """(topo, tree, work, prm): the tuples `collide_cloth` takes after x_prev, x, inv_mass."""
+        tr = self.tree
+        topo = (self.triangles, self.edges, self.tri_edges, self.tri_owns, self.edge_tris, self.particle_garment,
+                self.tri_garment, self.edge_garment, self.garment_layer, self.garment_outward)
+        tree = (tr.directions, self.axis_order, tr.tree_offsets, tr.node_min, tr.node_max, tr.children, tr.leaf_prim,
+                self.node_dirty, self.tri_min, self.tri_max, self.pt_min, self.pt_max, self.nrm_min, self.nrm_max,
+                self.node_patch, self.stack)
+        work = (self.moved, self.corrected, self.c_kind, self.c_feat, self.c_idx, self.c_w, self.c_dir)
+        prm = (float(self.thickness), float(self.layer_depth), int(self.rounds), int(self.failsafe_rounds),
+               bool(self.cull))
+        return topo, tree, work, prm
+
+    def collide(self, x_prev: np.ndarray, x: np.ndarray, inv_mass: np.ndarray,
+                counters: np.ndarray | None = None) -> np.ndarray:
+        """Python convenience: one call of `collide_cloth` (x corrected in place). Returns counters."""
+        if counters is None:
+            counters = np.zeros(CK.N_COUNTERS, np.int64)
+        CK.collide_cloth(x_prev, x, inv_mass, *self.kernel_args(), counters)
+        return counters
+
+    def contacts(self, x_prev: np.ndarray, x: np.ndarray, only_cross: bool = False,
+                 brute_force: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Detection only (no response): (kind (m,) int8, feature pair (m, 2) int32: VF (particle,
+        triangle), EE (edge, edge) lower id first) of every contact between x_prev and x, sorted; by
+        the tree (default, with this object's `cull`) or by brute force over all pairs."""
+        topo, tree, work, prm = self.kernel_args()
+        counters = np.zeros(CK.N_COUNTERS, np.int64)
+        if brute_force:
+            n = CK.brute_force_contacts(x_prev, x, topo, prm[0], prm[1], only_cross, work, counters)
+        else:
+            self.moved[:] = 1
+            CK.refit_cloth_tree(x_prev, x, topo, tree, self.moved, 0.5 * max(prm[0], prm[1]))
+            n = CK.detect(x_prev, x, topo, tree, work, prm[0], prm[1], only_cross, prm[4], counters)
+        if counters[CK.N_OVERFLOW]:
+            raise ContractError(f"ClothContact.contacts: contact buffer of {self.c_kind.shape[0]} overflowed")
+        kind = self.c_kind[:n].copy()
+        feat = self.c_feat[:n].copy()
+        order = np.lexsort((feat[:, 1], feat[:, 0], kind))
+        return kind[order], feat[order]
+
+
+def mesh_edges(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(edges (E, 2) i < j sorted, tri_edges (T, 3), edge_tris (E, 2) -1 padded) of a triangle mesh."""
+    t = triangles.shape[0]
+    pairs = np.stack([triangles, np.roll(triangles, -1, axis=1)], axis=2).reshape(-1, 2)
+    key = np.sort(pairs, axis=1)
+    edges, inverse = np.unique(key, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    tri_edges = inverse.reshape(t, 3).astype(np.int32)
+    edge_tris = np.full((edges.shape[0], 2), -1, np.int32)
+    tri_of = np.repeat(np.arange(t, dtype=np.int32), 3)
+    order = np.argsort(inverse, kind="stable")
+    slot = np.zeros(edges.shape[0], np.int64)
+    for r in order:  # first two triangles of each edge (a non-manifold third is not kept)
+        e = inverse[r]
+        if slot[e] < 2:
+            edge_tris[e, slot[e]] = tri_of[r]
+        slot[e] += 1
+    return edges.astype(np.int32), tri_edges, edge_tris
+
+
+def feature_owners(triangles: np.ndarray, tri_edges: np.ndarray, n_particles: int,
+                   n_edges: int) -> np.ndarray:
+    """(T,) uint8 ownership bits: each vertex / edge is owned by its lowest-numbered triangle."""
+    t = triangles.shape[0]
+    vown = np.full(n_particles, t, np.int64)
+    eown = np.full(n_edges, t, np.int64)
+    rows = np.arange(t)
+    for k in range(3):
+        np.minimum.at(vown, triangles[:, k], rows)
+        np.minimum.at(eown, tri_edges[:, k], rows)
+    owns = np.zeros(t, np.uint8)
+    for k in range(3):
+        owns |= ((vown[triangles[:, k]] == rows).astype(np.uint8) << k)
+    # a triangle could list one vertex twice only if degenerate; the builders drop those
+    for k in range(3):
+        owns |= ((eown[tri_edges[:, k]] == rows).astype(np.uint8) << (3 + k))
+    return owns
+
+
+def outward_signs(x: np.ndarray, triangles: np.ndarray, tri_garment: np.ndarray, n_garments: int,
+                  body_points: np.ndarray) -> np.ndarray:
+    """(G,) float64 +-1: whether each garment's normals point away from the body, by an area vote of
+    n . (centroid - nearest body point) over its triangles."""
+    from scipy.spatial import cKDTree
+
+    v = x[triangles]
+    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    cen = v.mean(axis=1)
+    _, idx = cKDTree(body_points).query(cen)
+    vote = np.einsum("ij,ij->i", n, cen - body_points[idx])
+    s = np.bincount(tri_garment, weights=vote, minlength=n_garments)
+    return np.where(s >= 0.0, 1.0, -1.0)
+
+
+def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, layers=None, outward=None,
+                        thickness: float = DEFAULT_THICKNESS, layer_depth: float | None = None,
+                        k: int = DEFAULT_K, rounds: int = 4, failsafe_rounds: int = 8, cull: bool = True,
+                        contact_capacity: int | None = None) -> ClothContact:
+    """The cloth contact phase for garments concatenated as in the simulation.
+
+    x: (N, 3) float64 positions (world, m) the tree topology is built from (the setup pose).
+    triangles: (T, 3) int global particle ids. garment_offsets: (G + 1,) garment g owns particles
+    [off[g], off[g+1]). layers: (G,) int, 0 innermost (default all 0: no layer order). outward: (G,)
+    +-1 (default +1, see `outward_signs`). layer_depth: default = thickness (raise it
+    for the first frames of a scene whose garments start interpenetrating deeper).
+    """
+    x = np.ascontiguousarray(x, np.float64)
+    tris = np.ascontiguousarray(triangles, np.int32)
+    off = np.asarray(garment_offsets, np.int64)
+    g = off.size - 1
+    n = x.shape[0]
+    if g < 1 or off[0] != 0 or off[-1] != n or np.any(np.diff(off) < 0):
+        raise ContractError(f"build_cloth_contact: garment_offsets must rise from 0 to {n}, got {off.tolist()}")
+    if tris.shape[0] == 0:
+        raise ContractError("build_cloth_contact: needs at least one triangle")
+    particle_garment = (np.searchsorted(off, np.arange(n), side="right") - 1).astype(np.int32)
+    tri_garment = particle_garment[tris[:, 0]]
+    if not (np.all(particle_garment[tris[:, 1]] == tri_garment) and np.all(particle_garment[tris[:, 2]] == tri_garment)):
+        raise ContractError("build_cloth_contact: a triangle spans two garments")
+    edges, tri_edges, edge_tris = mesh_edges(tris)
+    owns = feature_owners(tris, tri_edges, n, edges.shape[0])
+    d = kdop_directions(k)
+    h = d.shape[0]
+    tmin = np.empty((tris.shape[0], h))
+    tmax = np.empty_like(tmin)
+    margin = 0.5 * max(thickness, layer_depth if layer_depth is not None else thickness)
+    triangle_bounds(d, x, x, tris, margin, tmin, tmax)
+    # one tree per garment (a forest): a node's triangles then belong to one garment, so a node
+    # can be a connected patch (normal-cone culling)
+    trees = []
+    cen = x[tris].mean(axis=1)
+    for gi in range(g):
+        rows = np.nonzero(tri_garment == gi)[0]
+        if rows.size == 0:
+            continue
+        tg = build_tree(tmin[rows], tmax[rows], cen[rows], d, margin)
+        leaf = np.where(tg.leaf_prim >= 0, rows[np.maximum(tg.leaf_prim, 0)], -1).astype(np.int32)
+        trees.append(KdopTree(directions=d, node_min=tg.node_min, node_max=tg.node_max, children=tg.children,
+                              leaf_prim=leaf, depth=tg.depth, tree_offsets=tg.tree_offsets, margin=tg.margin))
+    tree = merge_forest(trees)
+    cap = contact_capacity if contact_capacity is not None else max(1024, 8 * n)
+    layers = np.zeros(g, np.int32) if layers is None else np.asarray(layers, np.int32)
+    outward = np.ones(g) if outward is None else np.asarray(outward, np.float64)
+    return ClothContact(
+        triangles=tris, edges=edges, tri_edges=tri_edges, tri_owns=owns, edge_tris=edge_tris,
+        particle_garment=particle_garment, tri_garment=tri_garment.astype(np.int32),
+        edge_garment=particle_garment[edges[:, 0]].astype(np.int32), garment_layer=layers,
+        garment_outward=outward, tree=tree, node_dirty=np.ones(tree.node_min.shape[0], np.uint8),
+        tri_min=tmin, tri_max=tmax, pt_min=np.zeros((n, h)), pt_max=np.zeros((n, h)),
+        nrm_min=np.zeros((tree.node_min.shape[0], h)), nrm_max=np.zeros((tree.node_min.shape[0], h)),
+        node_patch=CK.patch_nodes(tree.children, tree.leaf_prim, tris, tri_garment.astype(np.int32), n),
+        axis_order=np.arange(h, dtype=np.int32),
+        stack=np.zeros((8 * tree.max_depth + 32 + tree.n_trees ** 2, 2), np.int32),
+        moved=np.ones(n, np.uint8), corrected=np.zeros(n, np.uint8),
+        c_kind=np.zeros(cap, np.int8), c_feat=np.zeros((cap, 2), np.int32), c_idx=np.zeros((cap, 4), np.int32),
+        c_w=np.zeros((cap, 4)), c_dir=np.zeros((cap, 3)),
+        thickness=float(thickness), layer_depth=float(layer_depth if layer_depth is not None else thickness),
+        rounds=int(rounds), failsafe_rounds=int(failsafe_rounds), cull=bool(cull))
+
+
+class ClothPhase:
+    """The cloth x cloth phase as the simulation's step loop runs it (stages.sim.step, `cc` argument).
+
+    Built once per simulate() call from the concatenated garments (relative frame at frame 0):
+    x (N, 3), triangles (T, 3) global ids, offsets (G + 1,), cinv (N,) inverse masses with attached
+    particles 0 (never moved by this phase), layers (G,) 0 = innermost, body_points (V, 3) the skin at
+    frame 0 (which way each garment faces), thickness m, every: sub-steps per call,
+    layer_depth0 m: the sorting depth of `first`, the tuple simulate() runs SETTLE_FRAMES frames at
+    the frame-0 pose with before frame 1 (garments that start interpenetrating); `rest`: the
+    tuple of every simulated frame (depth = thickness).
+    """
+
+    def __init__(self, x, triangles, offsets, cinv, layers, body_points, thickness: float, every: int,
+                 layer_depth0: float):
+        g = len(offsets) - 1
+        tri_garment = (np.searchsorted(np.asarray(offsets), np.asarray(triangles)[:, 0], side="right") - 1)
+        outward = (outward_signs(x, triangles, tri_garment, g, body_points) if body_points is not None
+                   and body_points.shape[0] else np.ones(g))
+        self.cc = build_cloth_contact(x, triangles, offsets, layers=layers, outward=outward, thickness=thickness,
+                                      layer_depth=max(layer_depth0, thickness))
+        topo, tree, work, prm = self.cc.kernel_args()
+        self.counters = np.zeros(CK.N_COUNTERS, np.int64)
+        n = x.shape[0]
+        self.x_start = np.zeros((n, 3))
+        self.x_before = np.zeros((n, 3))
+        self.cinv = np.ascontiguousarray(cinv, np.float64)
+        first = prm
+        rest = (prm[0], float(thickness), prm[2], prm[3], prm[4])
+        self.first = (self.x_start, self.x_before, self.cinv, topo, tree, work, first, self.counters, int(every))
+        self.rest = (self.x_start, self.x_before, self.cinv, topo, tree, work, rest, self.counters, int(every))
+        self.settle_frames = SETTLE_FRAMES
+
+    @classmethod
+    def for_simulation(cls, sysm, layers, params, character, motion) -> "ClothPhase":
+        """The phase of simulate()'s particle system `sysm` (stages.sim.simulate._System); layers
+        (G,) or None (the garments' order); params: SimParams (cloth_thickness, cloth_contact_every,
+        cloth_layer_depth0)."""
+        g = len(sysm.names)
+        layers = np.arange(g) if layers is None else np.asarray(layers)
+        if layers.shape != (g,):
+            raise ContractError(f"simulate: layers: expected one per garment ({g}), got {layers.tolist()}")
+        body = None
+        if character.triangles.shape[0] > 0:
+            from stages.rig.skinning import skin
+            body = skin(character, motion, frames=[0])[0]
+        cinv = np.where(sysm.attach_joint >= 0, 0.0, sysm.inv_mass)
+        return cls(sysm.x, sysm.tris, sysm.offsets, cinv, layers, body, params.cloth_thickness,
+                   params.cloth_contact_every, params.cloth_layer_depth0)
+
+    def settle(self, cloth, cols, m, prm, gravity, wind, fwd0, inv0, substeps, max_speed2, goff, flags) -> None:
+        """SETTLE_FRAMES frames of the step loop at the frame-0 pose (fwd0 / inv0 (J, 4, 4)) with the
+        sorting depth (`first`), not recorded; then xp = x (the sorting moves are not velocity). The
+        other arguments are simulate()'s run_frames arguments."""
+        from stages.sim import step
+        k = self.settle_frames * substeps
+        fwd = np.ascontiguousarray(np.repeat(fwd0[None], k, axis=0))
+        inv = np.ascontiguousarray(np.repeat(inv0[None], k, axis=0))
+        z = np.zeros((k, 3))
+        f, n, g = self.settle_frames, cloth[0].shape[0], goff.size - 1
+        step.run_frames(cloth, cols, m, prm, gravity, wind, fwd, inv, inv, z, z, substeps, max_speed2, goff,
+                        np.zeros((f, n, 3), np.float32), np.zeros((f, g), np.int32), np.zeros((f, 2)),
+                        np.zeros(f, np.int64), flags, np.zeros(step.N_TIMERS, np.int64), self.first)
+        cloth[1][:] = cloth[0]
+
+    def summary(self) -> dict:
+        """Counters summed over the run (see stages.sim.cloth_contact_kernels N_*)."""
+        c = self.counters
+        return {"contacts": int(c[CK.N_CONTACTS]), "corrected": int(c[CK.N_CORRECTED]),
+                "unresolved": int(c[CK.N_UNRESOLVED]), "reverted": int(c[CK.N_REVERTED]),
+                "left": int(c[CK.N_LEFT]), "rounds": int(c[CK.N_ROUNDS]), "node_pairs": int(c[CK.N_NODE_PAIRS]),
+                "tests": int(c[CK.N_TESTS]), "overflow": int(c[CK.N_OVERFLOW]),
+                "layers": [int(v) for v in self.cc.garment_layer],
+                "outward": [int(v) for v in self.cc.garment_outward]}
