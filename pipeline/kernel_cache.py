@@ -36,8 +36,8 @@ STAGE_PACKAGES = {
     "cloth collision": ("sim/cloth_contact_kernels", "sim/cloth_contact_ccd"),   # only scenes that turn it on
     "cloth audit": ("sim/audit_kernels",),
 }
-ESTIMATE_S = {"rig": 1, "colliders": 24, "collider coverage": 6, "obstacles": 5, "garments": 50,
-              "simulation": 5, "cloth audit": 7, "cloth collision": 29}
+ESTIMATE_S = {"rig": 1, "colliders": 18, "collider coverage": 3, "obstacles": 5, "garments": 16,
+              "simulation": 5, "cloth audit": 4, "cloth collision": 29}
 
 _CACHED = re.compile(r"cache\s*=\s*True")
 

@@ -617,6 +617,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     from pipeline.kernel_cache import compile_note
     from pipeline.progress import Progress
     from pipeline.recording import atomic_recording
+    from stages.jit import numba_threads
     from stages.rig.skinning import skin
 
     out = Path(output) if output is not None else scene.output
@@ -643,8 +644,10 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
         return Progress(1, label, unit=unit, enabled=progress)
 
     s = scene.settings
+    # every stage's parallel kernels run on simulation.threads threads (1: their serial variants,
+    # compiled several times faster: stages.jit)
     with atomic_recording(out, scene_name=scene.name, scene_text=scene.text, seed=s["seed"],
-                          keep_failed=keep_partial) as rec:
+                          keep_failed=keep_partial) as rec, numba_threads(s["simulation"]["threads"]):
         say("rig")
         with _Timer(summary, "rig") as r:
             with where.item(character_item(scene)):

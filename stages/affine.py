@@ -8,7 +8,7 @@ from __future__ import annotations
 from numba import njit
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def apply_affine(m, x, y, z):
     """m @ (x, y, z, 1), first three components."""
     return (m[0, 0] * x + m[0, 1] * y + m[0, 2] * z + m[0, 3],
@@ -16,7 +16,7 @@ def apply_affine(m, x, y, z):
             m[2, 0] * x + m[2, 1] * y + m[2, 2] * z + m[2, 3])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def apply_rigid_inverse(m, x, y, z):
     """R^T ((x, y, z) - t) for a rigid m = [R t]: the inverse without inverting."""
     x -= m[0, 3]
@@ -27,7 +27,7 @@ def apply_rigid_inverse(m, x, y, z):
             m[0, 2] * x + m[1, 2] * y + m[2, 2] * z)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def triangle_cross(v, a, b, c):
     """(v[b] - v[a]) x (v[c] - v[a]) for rows a, b, c of v (N, 3): the normal, |.| = twice the area."""
     e1x = v[b, 0] - v[a, 0]

@@ -63,3 +63,141 @@ def _register_dependent_locators() -> bool:
 
 
 REGISTERED = _register_dependent_locators()
+
+
+# -- serial and parallel variants of one kernel ------------------------------------------------------
+# numba compiles a `parallel=True` kernel several times slower than the same loop as plain code (the
+# parfor passes and the outlined gufunc; the collision kernel: ~26 s against a few), and with one
+# thread the parallel form buys nothing. A kernel with prange loops is therefore compiled serially
+# (prange is range) under its own name, and in parallel only when a caller asks for more threads.
+# numba names its cache files after the function's qualified name and line, and its cache index does
+# not tell the two compilations apart, so the parallel one is a copy of the function renamed
+# `<name>_parallel` (its own cache files).
+import types as _types
+
+_PARALLEL = {}      # id(serial dispatcher) -> parallel dispatcher
+
+
+def _renamed(func, name, globals_=None):
+    """A copy of the plain function `func` named `name` (and its qualified name), over `globals_`."""
+    f = _types.FunctionType(func.__code__, func.__globals__ if globals_ is None else globals_, name,
+                            func.__defaults__, func.__closure__)
+    f.__qualname__ = func.__qualname__.rpartition(func.__name__)[0] + name
+    f.__module__ = func.__module__
+    f.__doc__ = func.__doc__
+    f.__kwdefaults__ = func.__kwdefaults__
+    return f
+
+
+def serial_and_parallel(**options):
+    """Decorator for a kernel with prange loops: njit(**options) of it without `parallel` (the
+    returned dispatcher, the one its callers use by default), and njit(parallel=True, **options) of a
+    copy named `<name>_parallel`, lazily compiled, which `parallel(kernel)` returns."""
+    from numba import njit
+
+    def wrap(func):
+        serial = njit(**options)(func)
+        _PARALLEL[id(serial)] = njit(parallel=True, **options)(_renamed(func, func.__name__ + "_parallel"))
+        return serial
+    return wrap
+
+
+def with_parallel_calls(kernel):
+    """For a serial kernel that calls (through module globals) kernels with a parallel variant:
+    the same kernel compiled over globals where each such callee is its parallel variant, named
+    `<name>_parallel` (registered, so a caller of this one can be switched the same way)."""
+    from numba import njit
+    g = dict(kernel.py_func.__globals__)
+    swapped = {k: _PARALLEL[id(v)] for k, v in g.items() if id(v) in _PARALLEL}
+    if not swapped:
+        raise ValueError(f"{kernel.py_func.__qualname__} calls no kernel with a parallel variant")
+    g.update(swapped)
+    options = {k: v for k, v in kernel.targetoptions.items() if k not in ("nopython", "boundscheck")}
+    options["cache"] = type(kernel._cache).__name__ != "NullCache"
+    par = njit(**options)(_renamed(kernel.py_func, kernel.py_func.__name__ + "_parallel", g))
+    _PARALLEL[id(kernel)] = par
+    if id(kernel) in _OPT_LEVELS:
+        _OPT_LEVELS[id(par)] = _OPT_LEVELS[id(kernel)]
+    return par
+
+
+def parallel(kernel):
+    """The parallel variant of a kernel (serial_and_parallel / with_parallel_calls); the kernel
+    itself when it has none."""
+    return _PARALLEL.get(id(kernel), kernel)
+
+
+def for_threads(kernel, threads: int):
+    """The variant of `kernel` to run with `threads` numba threads: serial for 1, else parallel."""
+    return parallel(kernel) if threads > 1 else kernel
+
+
+def threaded(kernel):
+    """The variant of `kernel` for numba's current thread count (numba.set_num_threads)."""
+    import numba
+    return for_threads(kernel, numba.get_num_threads())
+
+
+class numba_threads:
+    """Context manager: numba's thread count set to `threads` (at most NUMBA_NUM_THREADS) inside,
+    restored after; kernels called through `threaded` then take their serial variant for 1."""
+
+    def __init__(self, threads: int):
+        self.threads = threads
+
+    def __enter__(self):
+        import numba
+        self.old = numba.get_num_threads()
+        numba.set_num_threads(max(1, min(int(self.threads), numba.config.NUMBA_NUM_THREADS)))
+        return self
+
+    def __exit__(self, *exc):
+        import numba
+        numba.set_num_threads(self.old)
+        return False
+
+
+# -- LLVM optimisation level per kernel ------------------------------------------------------------
+# numba optimises a kernel's LLVM module at NUMBA_OPT (3), then again the module with every kernel
+# it calls linked in, at every level of a call chain: a thin caller of big, already optimised
+# kernels (the step loop over the phases) or a deep chain run once per hull (the simplification)
+# pays O3 over all of its callees' code again. `opt_level(n)` compiles one kernel's own module at
+# level n; every other kernel (its callees too) keeps the default. numba reads config.OPT when it
+# builds its pass managers, so the level is set around the kernel's compile (numba's compile lock
+# serialises compiles). The level changes no result: without fastmath, LLVM's passes keep IEEE
+# semantics at every level.
+_OPT_LEVELS = {}      # id(dispatcher) -> LLVM level
+
+
+def _install_opt_levels() -> bool:
+    from numba.core import config, dispatcher
+    base = dispatcher.Dispatcher
+    if getattr(base.compile, "_opt_levels", False):
+        return True
+    default = config.OPT
+    plain = base.compile
+
+    def compile(self, sig):
+        level = _OPT_LEVELS.get(id(self))
+        old = config.OPT
+        config.OPT = default if level is None else config._OptLevel(level)
+        try:
+            return plain(self, sig)
+        finally:
+            config.OPT = old
+    compile._opt_levels = True
+    compile.__doc__ = plain.__doc__
+    base.compile = compile
+    return True
+
+
+def opt_level(level: int):
+    """Decorator above @njit / @serial_and_parallel (both variants): LLVM level for this kernel."""
+    def wrap(kernel):
+        _install_opt_levels()
+        _OPT_LEVELS[id(kernel)] = level
+        par = _PARALLEL.get(id(kernel))
+        if par is not None:
+            _OPT_LEVELS[id(par)] = level
+        return kernel
+    return wrap

@@ -6,6 +6,7 @@ import numpy as np
 from hypothesis import given, settings, strategies as st
 
 from stages.fastmath import INV_SQRT_REL_ERROR
+from stages.jit import parallel
 from stages.sim.forces import aero_forces
 
 
@@ -70,7 +71,7 @@ def test_each_triangle_is_computed_alone():
     try:
         numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
         two = np.zeros((61, 4))
-        aero_forces(x, xp, tri_mass, tris, *args, two)
+        parallel(aero_forces)(x, xp, tri_mass, tris, *args, two)   # the parallel variant on 2 threads
     finally:
         numba.set_num_threads(old)
     assert np.array_equal(two, full)

@@ -7,6 +7,7 @@ import numpy as np
 from hypothesis import given, settings, strategies as st
 
 from stages.sim.forces import vertex_triangles
+from stages.jit import for_threads
 from stages.sim.integrate import integrate
 
 
@@ -72,7 +73,7 @@ def test_integrate_is_the_reference_bit_for_bit(seed, n, t, use_aero):
         for threads in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}):
             numba.set_num_threads(threads)
             x, xp = x0.copy(), xp0.copy()
-            integrate(x, xp, *args, use_aero, rows, table)
+            for_threads(integrate, threads)(x, xp, *args, use_aero, rows, table)   # 2: the parallel variant
             np.testing.assert_array_equal(x, ref[0])
             np.testing.assert_array_equal(xp, ref[1])
     finally:

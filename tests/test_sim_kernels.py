@@ -14,6 +14,7 @@ from stages.sim.collider_grid import build_grid, collider_frames
 from stages.sim.forces import aero_forces, vertex_triangles
 from stages.sim.integrate import integrate
 from stages.sim.simd import padded_rows
+from stages.jit import for_threads
 from stages.sim.springs import correct_springs, pack_springs, partition_springs, spring_colours
 from stages.sim import winding_number
 from scipy.spatial.transform import Rotation
@@ -109,7 +110,7 @@ def test_parallel_springs_match_sequential_block_order():
         numba.set_num_threads(t)
         try:
             y = x0.copy()
-            correct_springs(y, scratch, *packed, no, no, np.zeros(0), 3)
+            for_threads(correct_springs, t)(y, scratch, *packed, no, no, np.zeros(0), 3)   # 2: the parallel variant
         finally:
             numba.set_num_threads(old)
         out.append(y)

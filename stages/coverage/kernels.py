@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit, prange
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.jit import serial_and_parallel
 from stages.affine import apply_affine
 
 NUMBA_CACHE_DEPENDS = ("stages.affine",)
@@ -24,7 +25,7 @@ KIND_HULL = 0
 KIND_SPHERE = 1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def point_triangle_distance2(px, py, pz, vertices, a, b, c):
     """Squared distance from p to triangle (v[a], v[b], v[c]): closest point by Voronoi regions
     (Ericson, Real-Time Collision Detection, 5.1.5)."""
@@ -72,7 +73,7 @@ def point_triangle_distance2(px, py, pz, vertices, a, b, c):
     return qx * qx + qy * qy + qz * qz
 
 
-@njit(cache=True, parallel=True)
+@serial_and_parallel(cache=True)
 def distance_to_mesh_brute(points, vertices, triangles, out):
     """out[i] = distance from points[i] to the nearest triangle, every triangle tried. O(N T)."""
     for i in prange(points.shape[0]):
@@ -84,7 +85,7 @@ def distance_to_mesh_brute(points, vertices, triangles, out):
         out[i] = math.sqrt(best)
 
 
-@njit(cache=True, parallel=True)
+@serial_and_parallel(cache=True)
 def distance_to_mesh_tree(points, vertices, triangles, order, node_start, node_end, children, data, out):
     """out[i] = distance from points[i] to the nearest triangle (exact), over the refitted
     winding-number tree: nodes whose ball is farther than the best so far are skipped, the nearer
@@ -125,7 +126,7 @@ def distance_to_mesh_tree(points, vertices, triangles, order, node_start, node_e
         out[i] = math.sqrt(best)
 
 
-@njit(cache=True, parallel=True)
+@serial_and_parallel(cache=True)
 def inside_colliders(points, to_local, kind, bcenter, wcenter, bradius, plane_start, planes, sph_center, sph_radius,
                      out):
     """out[i, c] = 1 if points[i] (relative frame) is inside collider c, else 0 (boundary = inside).

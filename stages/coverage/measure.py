@@ -23,6 +23,7 @@ from scipy.spatial import cKDTree
 from stages.checks import ContractError, check_array
 from stages.errors import InputError
 from stages.coverage import kernels as K
+from stages.jit import threaded
 from stages.hulls.types import ColliderSet
 from stages.rig.skinning import skin
 from stages.rig.types import Character, Motion
@@ -173,7 +174,7 @@ def inside_matrix(points: np.ndarray, arrays: ColliderArrays, pose: np.ndarray) 
     wcenter = np.ascontiguousarray(np.einsum("cij,cj->ci", m[:, :3, :3], arrays.bcenter) + m[:, :3, 3])
     out = np.zeros((points.shape[0], arrays.joint.size), np.uint8)
     if points.shape[0] and arrays.joint.size:
-        K.inside_colliders(np.ascontiguousarray(points, np.float64), to_local, arrays.kind, arrays.bcenter,
+        threaded(K.inside_colliders)(np.ascontiguousarray(points, np.float64), to_local, arrays.kind, arrays.bcenter,
                            wcenter, arrays.bradius, arrays.plane_start, arrays.planes, arrays.sph_center,
                            arrays.sph_radius, out)
     return out
@@ -225,7 +226,7 @@ class SkinDistance:
         a = self.audit
         order, start, end, kids = a.tree
         out = np.zeros(points.shape[0])
-        K.distance_to_mesh_tree(np.ascontiguousarray(points, np.float64), a.vertices, a.tris, order, start, end,
+        threaded(K.distance_to_mesh_tree)(np.ascontiguousarray(points, np.float64), a.vertices, a.tris, order, start, end,
                                 kids, a.data, out)
         return out
 

@@ -521,7 +521,7 @@ def simplify_kernel(verts0, faces0, keep, keep_vertex, min_faces, tol, eps_conve
     vmark = np.zeros(cap, dtype=np.int64)
     stamp = 0
     while nalive - 4 >= min_faces:
-        best = -1
+        best = np.int64(-1)     # not the literal -1: numba would compile _evaluate for Literal[int](-1) too
         bc = np.inf
         for f in range(nf):
             if falive[f] and cost[f] < bc:

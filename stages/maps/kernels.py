@@ -5,9 +5,10 @@ The core, `hull_query`, takes the MapArrays fields one by one (plain arrays, in 
 order; `query_arrays(m)` unpacks them) and an OBB-local point, and returns the face it responded
 on (the contact normal). Why plain arrays: numba increments / decrements (atomically) the reference
 count of every array reached through a named tuple argument of a compiled call (~300 ns per query
-with the 18-array MapArrays, more than the query itself); hull_query and its helpers are inlined
-(inline="always") into the caller, so compiled with the caller's flags (the simulation's loops use
-`_nrt=False`: no reference counting at all).
+with the 18-array MapArrays, more than the query itself); hull_query and its helpers are compiled
+once with `_nrt=False` (no reference counting at all) and `forceinline=True`: LLVM inlines them into
+each caller (numba's own inline="always" re-ran its front end at every call site: 8 s of the
+collision kernels' compile for the same machine code, issue 19).
 
     hull_query(half, kind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
                cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, h, method, q0, q1, q2)
@@ -83,7 +84,7 @@ def query_arrays(m):
 
 
 # -- frames -------------------------------------------------------------------------------------
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _to_local(m, h, p):
     c = m.center[h]
     r = m.axes[h]
@@ -95,7 +96,7 @@ def _to_local(m, h, p):
             r[2, 0] * dx + r[2, 1] * dy + r[2, 2] * dz)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _to_bone(m, h, q0, q1, q2):
     c = m.center[h]
     r = m.axes[h]
@@ -104,13 +105,13 @@ def _to_bone(m, h, q0, q1, q2):
             c[2] + r[0, 2] * q0 + r[1, 2] * q1 + r[2, 2] * q2)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _plane_dist(planes, f, q0, q1, q2):
     return planes[f, 0] * q0 + planes[f, 1] * q1 + planes[f, 2] * q2 - planes[f, 3]
 
 
 # -- inside ---------------------------------------------------------------------------------------
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _slab_locate(loc_base, loc_x, loc_start, loc_y, loc_face, k, x, y):
     """Face of planar mesh k (= 2h + side) containing (x, y); -1 outside the outline, -2 in a gap."""
     b0 = loc_base[k]
@@ -153,7 +154,7 @@ def _locate(m, k, x, y):
     return _slab_locate(m.loc_base, m.loc_x, m.loc_start, m.loc_y, m.loc_face, k, x, y)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _inside_brute(planes, face_start, h, q0, q1, q2):
     for f in range(face_start[h], face_start[h + 1]):
         if _plane_dist(planes, f, q0, q1, q2) > 0.0:
@@ -161,7 +162,7 @@ def _inside_brute(planes, face_start, h, q0, q1, q2):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _inside_paper(half, face_start, planes, loc_base, loc_x, loc_start, loc_y, loc_face, h, q0, q1, q2):
     """(inside, face): OBB rejection, the upper and lower planar meshes' faces above / below q, their
     two planes. face: when outside, a face whose plane q is in front of (a separating plane: the
@@ -184,7 +185,7 @@ def _inside_paper(half, face_start, planes, loc_base, loc_x, loc_start, loc_y, l
 
 
 # -- response -------------------------------------------------------------------------------------
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _nearest_plane(planes, face_start, h, q0, q1, q2):
     """(signed distance, face) of the plane q is least behind (largest signed distance)."""
     best = -np.inf
@@ -197,7 +198,7 @@ def _nearest_plane(planes, face_start, h, q0, q1, q2):
     return best, bf
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _cell_of(kind, n_theta, n_second, second_lo, second_hi, cell_base, h, q0, d0, d1, d2):
     """Global cell of a unit ray direction d (and axial coordinate q0 for the cylinder)."""
     nt = n_theta[h]
@@ -221,7 +222,7 @@ def _cell_of(kind, n_theta, n_second, second_lo, second_hi, cell_base, h, q0, d0
     return cell_base[h] + it * ns + js
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _response(half, kind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base, cell_start,
               cell_tris, h, brute, q0, q1, q2):
     """(x, y, z, face): where the map ray through q (OBB-local) leaves the hull and the face it leaves
@@ -263,7 +264,7 @@ def _response(half, kind, n_theta, n_second, second_lo, second_hi, face_start, p
     return q0 - best * planes[bf, 0], q1 - best * planes[bf, 1], q2 - best * planes[bf, 2], bf
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def hull_query(half, kind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base, cell_start,
                cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, h, method, q0, q1, q2):
     """(inside, x, y, z, face) of hull h for an OBB-local point q: the response point (OBB-local) and
@@ -304,7 +305,7 @@ def hull_inside_brute(m, h, p):
     return _inside_brute(m.planes, m.face_start, h, q0, q1, q2)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _response_bone(m, h, p, brute):
     q0, q1, q2 = _to_local(m, h, p)
     r0, r1, r2, _ = _response(m.half, m.kind, m.n_theta, m.n_second, m.second_lo, m.second_hi, m.face_start,

@@ -22,6 +22,7 @@ import numpy as np
 
 from stages.checks import ContractError, check_array
 from stages.garments.types import STRETCH
+from stages.jit import threaded
 from stages.sim import audit_kernels as AK
 
 STRAIN_MEAN_LIMIT = 0.02     # warn above: mean edge strain of a frame
@@ -178,7 +179,7 @@ def crossing_flags(x: np.ndarray, edges: np.ndarray, edge_group: np.ndarray, tri
         cell *= 2.0
     lo, dims, start, items = AK.build_triangle_grid(x, tris, cell)
     out = np.zeros((edges.shape[0], 2), np.uint8)
-    AK.edge_crossings(x, edges, edge_group, tris, tri_group, lo, dims, cell, start, items, out)
+    threaded(AK.edge_crossings)(x, edges, edge_group, tris, tri_group, lo, dims, cell, start, items, out)
     flags = out == AK.CROSS_YES
     n_exact = 0
     for e, k in zip(*np.nonzero(out == AK.CROSS_UNKNOWN)):

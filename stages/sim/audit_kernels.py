@@ -24,6 +24,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from stages.jit import serial_and_parallel
+
 # Shewchuk's o3derrboundA = (7 + 56 eps) eps, eps = 2^-53
 O3D_ERRBOUND = (7.0 + 56.0 * 2.0 ** -53) * 2.0 ** -53
 GRID_MAX_CELLS = 1 << 21     # at most this many grid cells (the cell size grows to fit)
@@ -35,7 +37,7 @@ CROSS_UNKNOWN = 2
 SPLITTER = 134217729.0        # 2^27 + 1: Dekker's split of a float64 into two 26-bit halves
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _two_sum(a, b):
     """(s, e): s = fl(a + b) and a + b = s + e exactly."""
     s = a + b
@@ -44,7 +46,7 @@ def _two_sum(a, b):
     return s, (a - av) + (b - bv)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _two_product(a, b):
     """(p, e): p = fl(a b) and a b = p + e exactly (Dekker, no FMA needed)."""
     p = a * b
@@ -57,7 +59,7 @@ def _two_product(a, b):
     return p, al * bl - (((p - ah * bh) - al * bh) - ah * bl)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _exact_diff(a, b):
     """(a - b, exact?): the float64 difference and whether it has no rounding error."""
     d = a - b
@@ -106,7 +108,7 @@ def orient3d_exact(a0, a1, a2, b0, b1, b2, c0, c1, c2, d0, d1, d2):
     return 0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def orient3d_sign(a0, a1, a2, b0, b1, b2, c0, c1, c2, d0, d1, d2):
     """Sign of det[a - d, b - d, c - d] (Shewchuk's orient3d): 1, -1, 0 (exactly zero), or 2 when it
     cannot be decided in float64 (see orient3d_exact)."""
@@ -199,12 +201,12 @@ def build_triangle_grid(x, tris, cell):
     return lo, dims, count, cell_tris
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _cell_of(value, lo, cell, dim):
     return min(dim - 1, max(0, int((value - lo) / cell)))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _cell_range3(x, a, b, c, lo, cell, dims):
     """Cell index ranges (first0, first1, first2, last0, last1, last2) of the box of points a, b, c."""
     f0 = _cell_of(min(x[a, 0], x[b, 0], x[c, 0]), lo[0], cell, dims[0])
@@ -216,7 +218,7 @@ def _cell_range3(x, a, b, c, lo, cell, dims):
     return f0, f1, f2, l0, l1, l2
 
 
-@njit(cache=True, parallel=True)
+@serial_and_parallel(cache=True)
 def edge_crossings(x, edges, edge_group, tris, tri_group, lo, dims, cell, cell_start, cell_tris, out):
     """Per edge e: out[e, 0] / out[e, 1] = CROSS_YES if it crosses a triangle of its own group / of
     another group, CROSS_UNKNOWN if no crossing is certain but a pair's sign is (decide those

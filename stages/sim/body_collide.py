@@ -14,6 +14,7 @@ import numpy as np
 from numba import njit, prange
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.jit import serial_and_parallel
 from stages.maps.kernels import METHOD_NEAREST_PLANE, METHOD_PAPER, ZERO_DIR, hull_query, query_arrays
 from stages.maps.types import KIND_CYLINDER as KIND_CYLINDER_MAP
 from stages.sim.collider_grid import KIND_SPHERE, apply12, grid_cell, rotate12
@@ -30,7 +31,7 @@ TOUCH_EPS = 1e-9     # m: a response moving a particle less than this is a touch
 # kernel with query_arrays: a named tuple reached inside the loop would cost reference counting per
 # query); the sphere test and the OBB rejection are written out in collide's loop, and only points
 # inside an OBB reach the hull query.
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _sphere_hit(rad, q0, q1, q2):
     """(hit, r0, r1, r2, n0, n1, n2) of a sphere of radius rad at the origin of the query frame:
     paper eq. 5 (inside iff |q| < r) and eq. 6 (response r q / |q|), outward normal q / |q|."""
@@ -65,7 +66,7 @@ def _collider_hit(c, col_kind, col_index, sph_radius, method,
     return True, r0, r1, r2, planes[face, 0], planes[face, 1], planes[face, 2]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _penetrates(c, col_kind, col_index, sph_radius, method, tq, cw,
                 half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
                 cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
@@ -99,7 +100,7 @@ def _inside_any(col_kind, col_index, sph_radius, method, tq, cw, skip,
     return False
 
 
-@njit(cache=True, _nrt=False, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i, friction):
     """(pushed, px, py, pz): the world position after collider c's response r (query frame, contact
     normal n) to the point q, with Coulomb friction; moves xp[i] for a fully inelastic contact."""
@@ -146,7 +147,7 @@ def _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i, friction):
 EDGE_EPS = 1e-12     # m: slack of the exit-face containment test (rounding is ~1e-17 m here)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _cached_face(mkind, half, planes, face_edges, src_range, h, f, q0, q1, q2):
     """(known, inside, r0, r1, r2): the paper's hull query answered from one remembered face f.
 
@@ -182,7 +183,7 @@ def _cached_face(mkind, half, planes, face_edges, src_range, h, f, q0, q1, q2):
 
 
 # -- overlapping colliders: escape from their union when the pass budget is spent ------------------
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _outward(c, col_kind, face_start, planes, idx, tq, px, py, pz):
     """World unit direction out of collider c at the world point p: sphere, radial from its centre;
     hull, the normal of the face whose plane p is farthest in front of (the nearest face from inside).
@@ -209,7 +210,7 @@ def _outward(c, col_kind, face_start, planes, idx, tq, px, py, pz):
     return w0 * k, w1 * k, w2 * k
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _ray_exit(c, col_kind, face_start, planes, idx, sph_radius, tq, px, py, pz, dx, dy, dz):
     """Parameter t >= 0 where the world ray p + t d leaves convex collider c (0 if p is not inside).
     The query frame is affine in world, so t is the same in both frames: q(p + t d) = q(p) + t e."""
@@ -262,7 +263,7 @@ def _escape_along(col_kind, col_index, sph_radius, method, tq, cw,
     return False, s
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _settle(xp, i, px, py, pz, wx, wy, wz):
     """After the escape p -> w: fully inelastic along its direction d (as _push): xp[i] moves along
     d by the outward part of the travel w - xp[i], so the escape is no outward Verlet velocity."""
@@ -349,7 +350,7 @@ def escape_union(c, last, col_kind, col_index, sph_radius, method, tq, cw,
     return True, px + best * ex, py + best * ey, pz + best * ez
 
 
-@njit(cache=True, parallel=True, _nrt=False)
+@serial_and_parallel(cache=True, _nrt=False)
 def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
             grid_start, grid_items, grid_box, grid_dims, face_edges, src_range, friction, passes, corrected, inside,
             speed2, contact, h):
@@ -390,7 +391,7 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
             e = grid_start[b]
             e1 = grid_start[b + 1]
             stage = 0
-            last = -1
+            last = np.int64(-1)     # not the literal -1: numba would compile escape_union for it too
             streak = 0
             budget = passes * nc
             c = 0

@@ -25,7 +25,7 @@ _EYE3 = np.eye(3)    # the query frame of a sphere is not rotated
 
 
 # -- small affine helpers -------------------------------------------------------------------------
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def apply12(a, c, x, y, z):
     """Row c of a (C, 12) array of row-major 3x4 affine matrices applied to (x, y, z)."""
     return (a[c, 0] * x + a[c, 1] * y + a[c, 2] * z + a[c, 3],
@@ -33,7 +33,7 @@ def apply12(a, c, x, y, z):
             a[c, 8] * x + a[c, 9] * y + a[c, 10] * z + a[c, 11])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def rotate12(a, c, x, y, z):
     return (a[c, 0] * x + a[c, 1] * y + a[c, 2] * z,
             a[c, 4] * x + a[c, 5] * y + a[c, 6] * z,
@@ -83,7 +83,7 @@ def collider_frames(fwd, inv, inv0, m, col_joint, col_kind, col_index, col_bcent
         cw[c, 4] = rad * rad
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _world_box(c, m, col_kind, col_index, sph_radius, use_obb, fq, cw):
     """(lo0, lo1, lo2, hi0, hi1, hi2): a world axis-aligned box holding every point collider c can
     report inside: its world sphere's box, cut to the box of its query-frame box (hull: the OBB
@@ -111,7 +111,7 @@ def _world_box(c, m, col_kind, col_index, sph_radius, use_obb, fq, cw):
     return lo0 - e, lo1 - e, lo2 - e, hi0 + e, hi1 + e, hi2 + e
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _query_box(c, m, col_kind, col_index, sph_radius):
     """Half extents of a query-frame box around collider c: hull, its OBB widened by the maps'
     convexity tolerance (CONVEX_TOL = 1e-6 of the longest half extent: a face plane may pass that
@@ -124,7 +124,7 @@ def _query_box(c, m, col_kind, col_index, sph_radius):
     return m.half[idx, 0] + e, m.half[idx, 1] + e, m.half[idx, 2] + e
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _k_range(q, s, inv_s, lim, ka, kb):
     """[ka, kb] narrowed to the reals k with |q + k s| <= lim (empty: ka > kb); inv_s = 1 / s."""
     if s > 0.0:
@@ -246,7 +246,7 @@ def build_grid(m, method, col_kind, col_index, sph_radius, tq, fq, cw, grid_star
     grid_dims[2] = n2
     nce = n0 * n1 * n2
     grid_start[:nce + 1] = 0
-    nr = 0
+    nr = np.int64(0)    # not the literal 0: numba would compile _collider_runs for Literal[int](0) too
     for c in range(nc):     # count each cell's colliders into grid_start[cell]
         nr = _collider_runs(c, m, col_kind, col_index, sph_radius, use_obb, tq, fq, cw, grid_start, grid_runs, nr,
                             grid_box, grid_dims)
@@ -260,7 +260,7 @@ def build_grid(m, method, col_kind, col_index, sph_radius, tq, fq, cw, grid_star
             grid_items[grid_start[cell]] = c
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def grid_cell(grid_box, grid_dims, px, py, pz):
     """The grid cell of the world point (build_grid), -1 off the grid (non-finite points too)."""
     u0 = (px - grid_box[0]) * grid_box[3]

@@ -10,6 +10,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.jit import serial_and_parallel
 from stages.fastmath import V4, inv_sqrt_v4, v4_const
 from stages.sim.simd import fmuladd, shuffle, splat, transpose
 
@@ -149,7 +150,7 @@ def _aero_group(typingctx, x, xp, tris, tri_mass, out, t0, ih, c3x, c3y, c3z, wi
     return types.void(x, xp, tris, tri_mass, out, t0, *consts), codegen
 
 
-@njit(cache=True, parallel=True, fastmath=True, _nrt=False)
+@serial_and_parallel(cache=True, fastmath=True, _nrt=False)
 def aero_forces(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, out):
     """Per-triangle aerodynamic forces (N) into rows 0..T-1 of out (rows (x, y, z, 0), 4 columns), from
     the air velocity relative to each triangle. tri_mass (T,): the mass of the triangle's free vertices

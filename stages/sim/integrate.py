@@ -9,6 +9,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.jit import serial_and_parallel
 from stages.affine import apply_affine
 from stages.fastmath import V4
 
@@ -51,7 +52,7 @@ def _force_sums(typingctx, tri_force, vt_table, i0):
     return types.UniTuple(types.float64, 12)(tri_force, vt_table, i0), codegen
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False, forceinline=True)
 def _verlet(x, xp, inv_mass, attach_joint, attach_local, fwd, i, hh, keep, gx, gy, gz, rx, ry, rz,
             use_aero, fx, fy, fz):
     """One particle of `integrate`; (fx, fy, fz) the sum of its triangles' forces."""
@@ -89,7 +90,7 @@ def _verlet(x, xp, inv_mass, attach_joint, attach_local, fwd, i, hh, keep, gx, g
 # 4 vertices interleaved (each sum is a chain of dependent additions) over a fixed-width table; the
 # same additions in the same order, so bit-identical to the CSR loop it replaced. Integrate phase
 # (forces + Verlet), one thread: drape 51 -> 43 us a step, walk 66 -> 57 us.
-@njit(cache=True, parallel=True, _nrt=False)
+@serial_and_parallel(cache=True, _nrt=False)
 def integrate(x, xp, inv_mass, attach_joint, attach_local, fwd, h, gravity, damping, s, d_prev, d_next,
               use_aero, tri_force, vt_table):
     """Verlet step of every particle; attached particles follow their bone, pinned ones stay.

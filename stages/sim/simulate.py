@@ -36,6 +36,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from stages.checks import ContractError
+from stages.jit import for_threads, threaded
 from stages.garments.types import BEND, STRETCH, Garment
 from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER
 from stages.maps.types import KIND_CYLINDER, MapArrays
@@ -371,7 +372,7 @@ class BodyAudit:
         """Winding numbers of `points` w.r.t. the vertices of the last `refit`."""
         order, start, end, kids = self.tree
         out = np.empty(points.shape[0])
-        winding.winding_numbers_tree(np.ascontiguousarray(points, dtype=np.float64), self.vertices, self.tris, order,
+        threaded(winding.winding_numbers_tree)(np.ascontiguousarray(points, dtype=np.float64), self.vertices, self.tris, order,
                                start, end, kids, self.data, self.beta, out)
         return out
 
@@ -391,12 +392,12 @@ def winding_number(vertices, triangles, points, *, exact: bool = False, beta: fl
     p = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
     out = np.empty(p.shape[0])
     if exact:
-        winding.winding_numbers_brute(p, v, t, out)
+        threaded(winding.winding_numbers_brute)(p, v, t, out)
         return out
     order, start, end, kids = winding.build_winding_tree(v, t)
     data = np.zeros((start.size, 8))
     winding.refit_winding_tree(v, t, order, start, end, kids, data)
-    winding.winding_numbers_tree(p, v, t, order, start, end, kids, data, float(beta), out)
+    threaded(winding.winding_numbers_tree)(p, v, t, order, start, end, kids, data, float(beta), out)
     return out
 
 
@@ -490,6 +491,10 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     prm = (h, params.step_damping(), s, k_drag, k_lift, float(params.friction), use_aero, int(params.iterations),
            int(params.collision_passes), method)
     cloth, cols, flags = sysm.cloth(), col.cols(), sysm.flags()
+    # one thread: the serial kernels (compiled several times faster than the parallel ones)
+    import numba
+    threads = numba.get_num_threads()
+    run_frames, run_steps = (for_threads(k, threads) for k in (step.run_frames, step.run_steps))
     max2 = float(params.max_speed) ** 2
 
     def audit_frames(f0, f1):
@@ -552,7 +557,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
         fwd, inv, inv0, d_prev, d_next, tr, d_last = _chunk_poses(motion, f0, f1, ss, s, d_last)
         timings["poses"] += time.perf_counter() - t0
         if ocol is None:
-            done = step.run_frames(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, ss, max2,
+            done = run_frames(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, ss, max2,
                                 sysm.goff, rel[f0:f1], pen_col[f0:f1], counts[f0:f1], step_cycles[f0:f1], flags,
                                 timers, cc)
             if done < f1 - f0:
@@ -564,8 +569,8 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
             for k in range(ss):
                 if cc is not None and k % params.cloth_contact_every == 0:
                     cc[0][:] = sysm.x
-                step.run_steps(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, k, k + 1,
-                            flags, timers, None)
+                run_steps(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, k, k + 1,
+                          flags, timers, None)
                 to = time.perf_counter()
                 ta = motion.times[f - 1] + k * h
                 xpw, xw = sysm.xp + tr[k], sysm.x + tr[k + 1]

@@ -9,6 +9,7 @@ from numba import njit, prange, types
 from numba.extending import intrinsic
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.jit import serial_and_parallel
 from stages.fastmath import V4, inv_sqrt, inv_sqrt_v4, v4_const
 from stages.sim.simd import fmuladd, shuffle
 
@@ -131,7 +132,7 @@ def _correct_group(typingctx, xf, ij, sp, g):
     return types.void(xf, ij, sp, g), codegen
 
 
-@njit(cache=True, parallel=True, fastmath=True, _nrt=False)
+@serial_and_parallel(cache=True, fastmath=True, _nrt=False)
 def correct_springs(x, x4, ij, sp, group_start, ti, ta, tl, iterations):
     """`iterations` rounds of Gauss-Seidel position correction (stretch and compression), each: the
     spring blocks of `partition_springs` in parallel (they touch disjoint particles, so the result

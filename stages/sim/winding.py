@@ -9,12 +9,13 @@ import numpy as np
 from numba import njit, prange
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.jit import serial_and_parallel
 from stages.affine import triangle_cross
 
 NUMBA_CACHE_DEPENDS = ("stages.affine",)
 
 # -- body penetration audit: generalised winding number ------------------------------------------
-@njit(cache=True, inline="always")
+@njit(cache=True, forceinline=True)
 def _solid_angle(ax, ay, az, bx, by, bz, cx, cy, cz):
     """Signed solid angle of triangle (a, b, c) seen from the origin (Van Oosterom & Strackee)."""
     la = math.sqrt(ax * ax + ay * ay + az * az)
@@ -26,7 +27,7 @@ def _solid_angle(ax, ay, az, bx, by, bz, cx, cy, cz):
     return 2.0 * math.atan2(det, den)
 
 
-@njit(cache=True, parallel=True)
+@serial_and_parallel(cache=True)
 def winding_numbers_brute(points, vertices, triangles, out):
     """Exact generalised winding number of every point: sum of solid angles / 4 pi. O(N T)."""
     for i in prange(points.shape[0]):
@@ -117,7 +118,7 @@ def refit_winding_tree(vertices, triangles, order, node_start, node_end, childre
         data[n, 6] = r
 
 
-@njit(cache=True, parallel=True)
+@serial_and_parallel(cache=True)
 def winding_numbers_tree(points, vertices, triangles, order, node_start, node_end, children, data, beta, out):
     """Fast generalised winding number (Barill et al. 2018, first-order dipole far field).
 
