@@ -72,7 +72,8 @@ class Prepared:
 
 def run_pair(prepared: Prepared, scene) -> dict:
     """Dress, sew and simulate the scene's one garment on a prepared character; the pair's figures."""
-    from pipeline.run import build_scene_garments, garment_fits, sim_params
+    from pipeline.run import sim_params
+    from pipeline.dressing import build_scene_garments, garment_fits
     from stages.garments.fit import BODY_SHARE_MAX, FIT_GAP_MAX
     from stages.sim import simulate
     from pipeline.schema import SceneError

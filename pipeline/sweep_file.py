@@ -343,7 +343,8 @@ def validate_jobs(sw: Sweep, echo=None) -> None:
     character (loaded once per distinct character): clip and joint names, the joints each pattern
     garment anchors on. (Sizing, placing and sewing are left to the jobs: they need the colliders.)"""
     from pipeline import export
-    from pipeline.run import check_pattern, check_references, load_character, preflight
+    from pipeline.run import check_references, load_character, preflight
+    from pipeline.dressing import check_pattern
     from stages.errors import InputError
     characters: dict = {}
     for job in sw.jobs:

@@ -38,7 +38,7 @@ class JobTimeout(BaseException):
 # ------------------------------------------------------------------ one job (in a worker)
 
 def _failure(err: BaseException) -> str:
-    from pipeline.run import SewingError
+    from pipeline.dressing import SewingError
     from stages.checks import ContractError
     from stages.errors import InputError
     from stages.sim import SimulationDiverged

@@ -210,11 +210,11 @@ def test_a_bug_is_one_line_naming_stage_scene_and_item_exit_1(tmp_path):
 def test_a_bug_mid_run_leaves_no_recording(tmp_path, monkeypatch, capsys):
     """A bug after the recording was opened (obstacles stage): the temporary file goes, the earlier
     recording stays, and the line names the obstacle being built."""
-    import pipeline.run
+    import pipeline.dressing
 
     def broken(o, mesh, duration):
         raise RuntimeError("planted bug\nover two lines")
-    monkeypatch.setattr(pipeline.run, "_build_scene_obstacle", broken)
+    monkeypatch.setattr(pipeline.dressing, "_build_scene_obstacle", broken)
     scene = _case_folder(tmp_path, FAST + "colliders: {report_every: 0}\n"
                          "obstacles:\n  - {type: box, name: crate, size: [1, 1, 1]}\n", {})
     before = _left(tmp_path)

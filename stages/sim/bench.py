@@ -162,7 +162,8 @@ def shipped_walk(frames: int = 60, threads: int = 1, repeats: int = 1, preset: s
     from pathlib import Path
 
     from pipeline.matrix import Prepared
-    from pipeline.run import build_scene_garments, garment_layers, sim_params
+    from pipeline.run import garment_layers, sim_params
+    from pipeline.dressing import build_scene_garments
     from pipeline.scene import load_scene
 
     scene = load_scene(Path(__file__).resolve().parents[2] / "scenes" / "walk_tshirt_skirt.yaml")

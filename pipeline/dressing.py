@@ -1,0 +1,339 @@
+"""Garments and obstacles from a scene: pattern garments sized, placed and sewn on the character,
+mesh garments and obstacles read and checked, and the fit figures of what was simulated. The
+pipeline (pipeline.run) calls these; `validate` and the dressing matrix use them too."""
+from __future__ import annotations
+
+
+import numpy as np
+
+from pipeline.scene import Scene
+from pipeline.schema import SceneError
+
+
+def pattern_options(kind: str) -> tuple[str, ...]:
+    """The size options a built-in pattern kind accepts (its generator's keyword arguments)."""
+    import inspect
+
+    from stages.garments import library
+    gen = {"short_skirt": "skirt", "long_skirt": "skirt"}.get(kind, kind)
+    fn = getattr(library, gen, None)
+    if fn is None:
+        return ()
+    return tuple(p for p in inspect.signature(fn).parameters if p not in ("meas", "measurements", "edge_length", "name"))
+
+
+def check_pattern(scene: Scene, index: int) -> None:
+    """A pattern garment's kind exists in the library and its options are the kind's options."""
+    from stages.garments.library import KINDS
+    g = scene["garments"][index]
+    src = scene.path or "<scene>"
+    if g["kind"] not in KINDS:
+        raise SceneError(f"{src}: garments[{index}].kind: {g['kind']!r} is not in this build's pattern "
+                         f"library; available: {', '.join(KINDS)}")
+    allowed = pattern_options(g["kind"])
+    for key in g["options"]:
+        if key not in allowed:
+            raise SceneError(f"{src}: garments[{index}].options.{key}: not an option of kind {g['kind']!r}; "
+                             f"options: {', '.join(allowed) or 'none'}")
+
+
+def _item(scene: Scene, section: str, index: int) -> str:
+    return f"{section}[{index}] ({scene[section][index]['name']!r})"
+
+
+def load_scene_meshes(scene: Scene) -> dict:
+    """Every mesh file the scene references, read and checked: {(section, index): (x, tri)}. A
+    missing, empty, corrupt or degenerate file is a SceneError naming the scene file, the key
+    path, the item and the mesh file (what `validate` and `run` check before any stage)."""
+    from stages.errors import InputError
+    from stages.garments.importer import import_garment_mesh
+    from stages.obstacles import load_obstacle_mesh
+    from pipeline import where
+    src = scene.path or "<scene>"
+    out = {}
+    for section, load in (("garments", import_garment_mesh), ("obstacles", load_obstacle_mesh)):
+        for i, it in enumerate(scene[section]):
+            if it["type"] != "mesh":
+                continue
+            with where.item(f"{_item(scene, section, i)} mesh file {it['path']}"):
+                try:
+                    out[(section, i)] = load(it["path"], scale=it["scale"], transform=placement_matrix(it))
+                except InputError as err:
+                    raise SceneError(f"{src}: {section}[{i}].path: {err.problem}: {err.source} "
+                                     f"({section[:-1]} {it['name']!r})") from None
+    return out
+
+
+def particle_count(g: dict, meshes: dict, index: int) -> int | None:
+    """How many particles a rectangle, tube or mesh garment has (None for a pattern: known once sized)."""
+    if g["type"] == "rectangle":
+        return g["resolution"][0] * g["resolution"][1]
+    if g["type"] == "tube":
+        return g["n_around"] * g["n_down"]
+    if g["type"] == "mesh" and ("garments", index) in meshes:
+        return len(meshes[("garments", index)][0])
+    return None
+
+
+def check_pins(scene: Scene, meshes: dict) -> None:
+    """Pinned particle indices inside the garment's particle range."""
+    src = scene.path or "<scene>"
+    for i, g in enumerate(scene["garments"]):
+        pin = g.get("pin")
+        n = particle_count(g, meshes, i)
+        if not pin or pin["indices"] is None or n is None:
+            continue
+        for k, idx in enumerate(pin["indices"]):
+            if not 0 <= idx < n:
+                raise SceneError(f"{src}: garments[{i}].pin.indices[{k}] ({g['name']!r}): particle index {idx} "
+                                 f"is out of range: the garment has {n} particles, expected 0 to {n - 1}")
+
+
+def _garment_where(scene: Scene, index: int, character) -> str:
+    g = scene["garments"][index]
+    return f"{scene.path or '<scene>'}: garments[{index}] ({g['name']!r}, kind {g['kind']}) on {character.name!r}"
+
+
+def scene_pattern(scene: Scene, index: int, character, motion, colliders):
+    """The built-in pattern of a pattern garment, sized for the character; a body it cannot be
+    sized for is a SceneError naming the scene file and the garment."""
+    from stages.checks import ContractError
+    from stages.errors import InputError
+    from stages.garments.library import ANCHORS, garment_measurements, library_pattern
+    from stages.rig.humanoid import humanoid_joints
+    g = scene["garments"][index]
+    check_pattern(scene, index)
+    try:
+        humanoid_joints(character).require(ANCHORS.get(g["kind"], ()), f"garment {g['name']!r}")
+    except InputError as err:
+        raise SceneError(f"{_garment_where(scene, index, character)}: {err.problem}") from None
+    try:
+        return library_pattern(g["kind"], garment_measurements(character, colliders, motion),
+                               edge_length=g["edge_length"], name=g["name"],
+                               **{k: float(v) for k, v in g["options"].items()})
+    except (ContractError, InputError) as err:
+        raise SceneError(f"{_garment_where(scene, index, character)}: the pattern cannot be sized for this body: "
+                         f"{err}") from None
+
+
+def place_scene_pattern(scene: Scene, index: int, character, motion, colliders):
+    """Size, triangulate and place a pattern garment without sewing it (what `validate` checks)."""
+    from stages.checks import ContractError
+    from stages.errors import InputError
+    from stages.garments.placement import place_pattern
+    from stages.garments.triangulate import triangulate_pattern
+    pattern = scene_pattern(scene, index, character, motion, colliders)
+    try:
+        return place_pattern(pattern, triangulate_pattern(pattern), character, motion, colliders)
+    except (ContractError, InputError) as err:
+        raise SceneError(f"{_garment_where(scene, index, character)}: cannot place the pattern: {err}") from None
+
+
+def build_pattern_garment(scene: Scene, index: int, character, motion, colliders, maps, progress=None):
+    """A sewn garment from a built-in pattern: (Garment, SewingLog, GarmentBuild). Seams that do
+    not close within the tolerance are a SceneError naming the seam and the gap."""
+    from stages.checks import ContractError
+    from stages.errors import InputError
+    from stages.garments.library import make_garment
+    from stages.garments.sewing import SewParams
+    g = scene["garments"][index]
+    where = _garment_where(scene, index, character)
+    pattern = scene_pattern(scene, index, character, motion, colliders)
+    sw = g["sewing"]
+    sew = SewParams(tolerance=sw["tolerance"], max_iterations=sw["max_iterations"],
+                    gravity_scale=sw["gravity_scale"], iterations=sw["iterations"])
+    try:
+        garment, log, build = make_garment(pattern, character, motion, colliders, maps, sew_params=sew,
+                                           progress=progress)
+    except (ContractError, InputError) as err:
+        raise SceneError(f"{where}: cannot place and sew the pattern: {err}") from None
+    if not log.converged:
+        seam, gap = build.worst_seam()
+        raise SewingError(f"{where}: sewing did not close seam {seam}: {gap * 1000:.1f} mm open after "
+                          f"{log.iterations} iterations (garments[{index}].sewing.tolerance {sw['tolerance'] * 1000:.1f} mm, "
+                          f"max_iterations {sw['max_iterations']})", partial=(garment, log, build))
+    return garment, log, build
+
+
+class SewingError(SceneError):
+    """A pattern garment's seams did not close. partial: (Garment, SewingLog, GarmentBuild) as the
+    sewing left them (what a sweep keeps of a failed job)."""
+
+    def __init__(self, message: str, partial=None):
+        super().__init__(message)
+        self.partial = partial
+
+
+def placement_matrix(item: dict) -> np.ndarray:
+    """(4, 4) transform of a mesh item's `rotate_deg` (XYZ Euler, degrees) then `translate`."""
+    from scipy.spatial.transform import Rotation
+    m = np.eye(4)
+    m[:3, :3] = Rotation.from_euler("xyz", item["rotate_deg"], degrees=True).as_matrix()
+    m[:3, 3] = item["translate"]
+    return m
+
+
+def build_scene_garments(scene: Scene, character, motion, colliders, maps, meshes: dict | None = None,
+                         progress=None):
+    """Garments of the scene, placed in the relative frame at frame 0.
+
+    meshes: the files already read by `load_scene_meshes` (read here when not given).
+    Returns (garments, builds): builds maps a pattern garment's name to (SewingLog, GarmentBuild).
+    progress: optional factory, garment name -> callback(iteration, max_iterations) of its sewing.
+    """
+    from pipeline import where
+    from stages.checks import ContractError
+    from stages.errors import InputError
+    meshes = load_scene_meshes(scene) if meshes is None else meshes
+    out, builds = [], {}
+    for i, g in enumerate(scene["garments"]):
+        with where.item(f"{_item(scene, 'garments', i)}, type {g['type']}"):
+            try:
+                garment, built = _build_scene_garment(scene, i, character, motion, colliders, maps, meshes,
+                                                      progress(g["name"]) if progress is not None else None)
+            except (ContractError, InputError) as err:
+                raise _garment_build_error(scene, i, err) from None
+        out.append(garment)
+        if built is not None:
+            builds[g["name"]] = built
+    return out, builds
+
+
+def _garment_build_error(scene: Scene, index: int, err: Exception) -> SceneError:
+    """A stage's refusal to build a garment, as a SceneError naming the scene file, the key path
+    (`garments[i].pin` for an attachment) and the garment."""
+    key = f"garments[{index}]" + (".pin" if getattr(err, "source", None) == "attachment" else "")
+    problem = err.problem if hasattr(err, "problem") else str(err)
+    return SceneError(f"{scene.path or '<scene>'}: {key} ({scene['garments'][index]['name']!r}): cannot build the "
+                      f"garment: {' '.join(str(problem).split())}")
+
+
+def check_scene_garments(scene: Scene, character, motion, colliders, meshes: dict) -> int:
+    """What `validate` does with the garments: builds every garment as a run does, except that a
+    pattern garment is sized and placed but not sewn. Returns the number of pattern garments."""
+    from pipeline import where
+    from stages.checks import ContractError
+    from stages.errors import InputError
+    patterns = 0
+    for i, g in enumerate(scene["garments"]):
+        with where.item(f"{_item(scene, 'garments', i)}, type {g['type']}"):
+            if g["type"] == "pattern":
+                place_scene_pattern(scene, i, character, motion, colliders)
+                patterns += 1
+                continue
+            try:
+                _build_scene_garment(scene, i, character, motion, colliders, None, meshes)
+            except (ContractError, InputError) as err:
+                raise _garment_build_error(scene, i, err) from None
+    return patterns
+
+
+def _build_scene_garment(scene: Scene, i: int, character, motion, colliders, maps, meshes, progress=None):
+    """One garment: (Garment, (SewingLog, GarmentBuild) of a pattern or None)."""
+    from stages.garments.simple import rectangle_cloth, tube_skirt
+    from stages.garments.types import (COMMON_BONE, attach_indices, attach_near, attach_top_loop, bind_pose,
+                                       build_garment)
+    g = scene["garments"][i]
+    if g["type"] == "pattern":
+        garment, log, build = build_pattern_garment(scene, i, character, motion, colliders, maps, progress)
+        return garment, (log, build)
+    bind = bind_pose(character, motion, colliders)
+    if g["type"] == "mesh":
+        x, tri = meshes[("garments", i)]
+    elif g["type"] == "rectangle":
+        nx, ny = g["resolution"]
+        axis = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}[g["normal"]]
+        x, tri = rectangle_cloth(g["width"], g["height"], nx, ny, center=g["center"], normal=axis)
+    else:  # tube
+        top = np.asarray(g["center"] if g["center"] is not None else
+                         bind.joint_origins[bind.joint_index(g["at_joint"] or character.joint_names[character.root_joint])])
+        x, tri = tube_skirt(g["radius_top"], g["radius_bottom"], g["length"], g["n_around"], g["n_down"],
+                            center=top + np.asarray(g["offset"]))
+    atts = []
+    pin = g["pin"]
+    if pin is not None:
+        if pin["indices"] is not None:
+            atts.append(attach_indices(pin["indices"], pin["collider"]))
+        elif pin["collider"] is not None and pin["boundary"] is None:
+            atts.append(attach_near(pin["collider"], pin["within"]))
+        if pin["boundary"] == "top":
+            # one bone for the whole loop: a waistband pinned to pelvis and thighs is torn between them
+            atts.append(attach_top_loop(pin["collider"] if pin["collider"] is not None else COMMON_BONE))
+    return build_garment(g["name"], x, tri, density=g["density"], attachments=atts, bind=bind), None
+
+
+def build_scene_obstacles(scene: Scene, duration: float, meshes: dict | None = None):
+    """The scene's obstacles (world frame) with their k-DOP trees. meshes: the files already read
+    by `load_scene_meshes` (read here when not given)."""
+    from pipeline import where
+    from stages.checks import ContractError
+    from stages.errors import InputError
+    meshes = load_scene_meshes(scene) if meshes is None else meshes
+    out = []
+    for i, o in enumerate(scene["obstacles"]):
+        with where.item(f"{_item(scene, 'obstacles', i)}, type {o['type']}"):
+            try:
+                out.append(_build_scene_obstacle(o, meshes.get(("obstacles", i)), duration))
+            except (ContractError, InputError) as err:
+                raise SceneError(f"{scene.path or '<scene>'}: {_item(scene, 'obstacles', i)}: cannot build the "
+                                 f"obstacle: {' '.join(str(err).split())}") from None
+    from stages.obstacles import build_obstacle_set
+    with where.item("the obstacle set (k-DOP trees)"):
+        return build_obstacle_set(out)
+
+
+def _build_scene_obstacle(o: dict, file_mesh, duration: float):
+    from stages.obstacles import (ObstacleMotion, box_mesh, cylinder_mesh, make_obstacle, plane_mesh,
+                                  sphere_mesh, table_mesh)
+    t = o["type"]
+    if t == "box":
+        mesh, pivot = box_mesh(o["center"], o["size"]), o["center"]
+    elif t == "table":
+        c = np.asarray(o["center"])
+        mesh = table_mesh(top_center=c + [0.0, o["height"], 0.0], top_size=tuple(o["top_size"]),
+                          top_thickness=o["top_thickness"])
+        pivot = c
+    elif t == "sphere":
+        mesh, pivot = sphere_mesh(o["center"], o["radius"], o["subdivisions"]), o["center"]
+    elif t == "plane":
+        mesh, pivot = plane_mesh(o["point"], o["normal"], (o["size"], o["size"])), o["point"]
+    elif t == "cylinder":
+        mesh, pivot = cylinder_mesh(o["center"], o["radius"], o["height"], o["sections"]), o["center"]
+    else:  # mesh file
+        mesh = file_mesh
+        pivot = o["translate"]
+    motion = None
+    if any(o["velocity"]) or any(o["angular_velocity"]):
+        motion = ObstacleMotion.from_velocity(o["velocity"], o["angular_velocity"], pivot=pivot,
+                                              duration=max(duration, 1e-3) + 1.0)
+    return make_obstacle(o["name"], mesh, thickness=max(o["thickness"], 1e-4), friction=o["friction"],
+                         restitution=o["restitution"], motion=motion)
+
+
+def garment_fits(character, motion, skinned, garments, builds, result) -> list:
+    """stages.garments.fit.GarmentFit of every simulated garment; the floor is the lowest skin point
+    over the frames (world), the fit edges those of the pattern garments' builds."""
+    from stages.coverage import SkinDistance
+    from stages.garments.fit import garment_fit
+    floor_y = float((skinned[..., 1] + motion.root_translation[:, None, 1]).min())
+    body = SkinDistance(character)
+    out = []
+    for g, track in zip(garments, result.garments):
+        build = builds.get(g.name, (None, None))[1]
+        fit_vertices = build.fit_vertices if build is not None else np.zeros(0, np.int64)
+        out.append(garment_fit(character, skinned[0], g.positions, fit_vertices, track, floor_y, skin_distance=body))
+    return out
+
+
+def garment_fit_report(character, motion, skinned, garments, builds, result, fits=None) -> str:
+    """The fit figures of every garment (garment_fits, unless given) as a table; warns about any
+    figure out of range and about garments that start inside the body or a collider."""
+    import warnings
+
+    from stages.garments.fit import fit_table, start_warnings
+    if fits is None:
+        fits = garment_fits(character, motion, skinned, garments, builds, result)
+    for f, track in zip(fits, result.garments):
+        for w in start_warnings(track) + f.warnings():
+            warnings.warn(w, stacklevel=1)
+    return fit_table(fits, {name: build.worst_seam()[1] for name, (_, build) in builds.items()})
