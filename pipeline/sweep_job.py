@@ -329,33 +329,27 @@ def warm_up(spec: dict) -> float:
 
 
 def timeout_row(spec: dict, seconds: float, how: str) -> dict:
-    """The row of a job whose worker was killed (no answer after the timeout and its grace): the
-    parent writes it, renaming the job's temporary recording (whatever the worker had written)."""
-    job_dir = Path(spec["dir"])
-    job_dir.mkdir(parents=True, exist_ok=True)
-    partial = job_dir / f"{spec['id']}.partial.rrd"
-    for tmp in sorted(job_dir.glob(f".{spec['id']}.rrd.tmp-*")):
-        os.replace(tmp, partial)
-    row = {"job": spec["id"], **spec["labels"], "status": "failed", "failure": "timeout",
-           "message": _one_line(f"timeout: {how} after {seconds:.0f} s (the job ran longer than {spec['timeout']:g} s "
-                                f"and did not stop at the deadline: stuck in one long kernel call)"),
-           "frames_done": 0, "recording": os.path.relpath(partial, job_dir) if partial.exists() else "",
-           "exports": "", "wall_s": seconds}
-    _write_json(job_dir / "row.json", row)
-    return row
+    """The row of a job whose worker was killed (no answer after the timeout and its grace)."""
+    return _lost_worker_row(spec, seconds, "timeout", f"timeout: {how} after {seconds:.0f} s (the job ran longer than "
+                            f"{spec['timeout']:g} s and did not stop at the deadline: stuck in one long kernel call)")
 
 
 def crash_row(spec: dict, seconds: float, what: str) -> dict:
+    """The row of a job whose worker died or could not run it."""
+    return _lost_worker_row(spec, seconds, "crash", what)
+
+
+def _lost_worker_row(spec: dict, seconds: float, failure: str, message: str) -> dict:
+    """A failed job's row written by the parent (its worker gave none): the job's temporary recording
+    (whatever the worker had written) becomes its partial one."""
     job_dir = Path(spec["dir"])
     job_dir.mkdir(parents=True, exist_ok=True)
     partial = job_dir / f"{spec['id']}.partial.rrd"
     for tmp in sorted(job_dir.glob(f".{spec['id']}.rrd.tmp-*")):
         os.replace(tmp, partial)
-    row = {"job": spec["id"], **spec["labels"], "status": "failed", "failure": "crash",
-           "message": _one_line(what), "frames_done": 0,
+    row = {"job": spec["id"], **spec["labels"], "status": "failed", "failure": failure,
+           "message": _one_line(message), "frames_done": 0,
            "recording": os.path.relpath(partial, job_dir) if partial.exists() else "", "exports": "",
            "wall_s": seconds}
     _write_json(job_dir / "row.json", row)
     return row
-
-
