@@ -42,7 +42,7 @@ def _failure(err: BaseException) -> str:
     from stages.checks import ContractError
     from stages.errors import InputError
     from stages.sim import SimulationDiverged
-    if isinstance(err, JobTimeout):
+    if _timeout_in(err) is not None:
         return "timeout"
     if isinstance(err, SewingError):
         return "sewing"
@@ -51,6 +51,19 @@ def _failure(err: BaseException) -> str:
     if isinstance(err, (SceneError, InputError, ContractError)):
         return "bad-input"
     return "crash"
+
+
+def _timeout_in(err: BaseException | None) -> JobTimeout | None:
+    """The JobTimeout that stopped the job: `err` itself, or the cause of an error it led to (raised
+    inside numba's object unpickling during a kernel call, it comes out as SystemError "returned a
+    result with an exception set" with the timeout as its cause). None when the deadline did not."""
+    seen = set()
+    while err is not None and id(err) not in seen:
+        if isinstance(err, JobTimeout):
+            return err
+        seen.add(id(err))
+        err = err.__cause__ or err.__context__
+    return None
 
 
 def _one_line(text: str, limit: int = 400) -> str:
@@ -274,7 +287,7 @@ def run_job(spec: dict, warm_up_s: float | None = None) -> dict:
             text = f"{type(err).__name__}: {text} (in stage {stage!r})"
         row.update(status="failed", failure=kind, message=_one_line(text))
         if kind == "timeout":
-            row["message"] = _one_line(f"{text} (stopped in stage {stage!r})")
+            row["message"] = _one_line(f"{_timeout_in(err)} (stopped in stage {stage!r})")
         if scene is not None:
             try:
                 paths, what = _partial_geometry(state, err, job_dir, scene.export["formats"], scene)

@@ -266,3 +266,18 @@ def test_a_job_that_ignores_its_deadline_has_its_worker_killed_and_the_sweep_goe
     for r in rows:
         assert r["failure"] == "timeout" and "killed" in r["message"], r
         assert json.loads((tmp_path / "out" / "jobs" / r["job"] / "row.json").read_text())["failure"] == "timeout"
+
+
+def test_a_timeout_raised_inside_a_kernel_call_is_labelled_timeout():
+    """Numba wraps an exception raised while it unpickles an object during a kernel call in
+    SystemError ("returned a result with an exception set"); the deadline is still the cause."""
+    from pipeline import sweep_job as J
+    try:
+        try:
+            raise J.JobTimeout("the job ran longer than 0.5 s")
+        except J.JobTimeout as inner:
+            raise SystemError("CPUDispatcher(...) returned a result with an exception set") from inner
+    except SystemError as err:
+        wrapped = err
+    assert J._failure(wrapped) == "timeout" and "0.5 s" in str(J._timeout_in(wrapped))
+    assert J._failure(SystemError("something else")) == "crash"
