@@ -147,7 +147,7 @@ def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.
         swept_cores = core_points(character, parts, poses, skinned, body) if core else [None] * len(parts)
         for (j, b, idx), name, c in zip(parts, swept.part_names(character, parts), swept_cores):
             tick(len(hulls) + len(sphere_joints), total)
-            ring, pts = swept.swept_points(character, poses, skinned, b, idx)
+            pts = swept.swept_points(character, poses, skinned, b, idx)
             if not is_hull_ready(pts):
                 sphere_joints.append(j)
                 notes.append(f"flexible region of joint {character.joint_names[j]!r}: too small or flat "

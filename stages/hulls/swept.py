@@ -118,28 +118,25 @@ def part_names(character: Character, parts: list) -> list[str]:
 
 
 def swept_points(character: Character, poses: np.ndarray, skinned: np.ndarray, bone: int,
-                 vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(region vertices with their one-ring, their bone-local positions over every pose and the bind pose)."""
+                 vertices: np.ndarray) -> np.ndarray:
+    """(p, 3) bone-local points a swept hull of `vertices` is fitted to: where they are at every pose
+    and in the bind pose, and where their one-ring is, swept at most RING_REACH from its bind place."""
     ring = one_ring(character.triangles, vertices, character.vertices.shape[0],
                     RING_EDGE * median_edge(character), character.vertices)
     ring = np.union1d(vertices, ring[near_bone(character, ring, bone)])
-    # the ring's own vertices move with other bones: swept here, they would stand off the skin by
-    # their deviation in this bone's frame (centimetres over a walk); at their bind position they
-    # still close the border strip
-    other = np.setdiff1d(ring, vertices)
-    if other.size == 0:
-        other = vertices[:1]                     # a piece without a ring: its first vertex stands in
-    ib = character.inverse_bind[bone]
-    bind = character.vertices[other] @ ib[:3, :3].T + ib[:3, 3]
-    track = local_tracks(character, poses, other, bone, skinned).reshape(-1, other.size, 3) - bind[None]
-    d = np.linalg.norm(track, axis=2, keepdims=True)
-    track *= np.minimum(1.0, RING_REACH / np.maximum(d, 1e-12))
-    pts = np.concatenate([local_tracks(character, poses, vertices, bone, skinned), (bind + track).reshape(-1, 3)])
+    track = local_tracks(character, poses, ring, bone, skinned).reshape(-1, ring.size, 3)   # bind pose first
+    # the ring's own vertices move with other bones: swept here in full, they would stand off the skin
+    # by their deviation in this bone's frame (centimetres over a walk)
+    other = ~np.isin(ring, vertices)
+    move = track[1:, other] - track[0, other]
+    move *= np.minimum(1.0, RING_REACH / np.maximum(np.linalg.norm(move, axis=2, keepdims=True), 1e-12))
+    track[1:, other] = track[0, other] + move
+    pts = track.reshape(-1, 3)
     # poses repeat positions (a held pose, the bind pose): near-duplicates make Qhull slivers
     pts = np.unique(np.round(pts / SNAP), axis=0) * SNAP
     if is_hull_ready(pts):
         pts = pts[ConvexHull(pts).vertices]      # only the extreme points matter to the hull
-    return ring, np.ascontiguousarray(pts)
+    return np.ascontiguousarray(pts)
 
 
 def near_bone(character: Character, vertices: np.ndarray, bone: int) -> np.ndarray:
