@@ -296,6 +296,12 @@ def run_pool(specs: list[dict], workers: int, warm_spec: dict | None, on_row, on
                     if kind == "row":
                         w["spec"] = None
                         on_row(payload)
+                        if payload.get("failure") == "timeout":
+                            # stopped mid-way (perhaps inside numba's lazy imports or registries): the
+                            # process is not trusted with another job
+                            stop(w)
+                            if pending:
+                                start()
                         continue
                 if w["proc"].sentinel in ready or not w["proc"].is_alive():
                     code = w["proc"].exitcode

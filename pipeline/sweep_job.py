@@ -203,7 +203,8 @@ def _worker_name() -> str:
 
 
 # what a run imports, loaded before a job's deadline is armed: a timeout raised inside an import
-# leaves a half-initialised module (numba.core.types) in the worker and every later job crashes
+# leaves a half-initialised module (numba.core.types) behind, and the job could not even write its
+# row (the pool also replaces a worker after a timeout: numba loads registries lazily too)
 RUN_MODULES = ("numba", "rerun", "trimesh", "pipeline.run", "pipeline.logs", "pipeline.export", "pipeline.blueprint",
                "stages.rig.gltf", "stages.rig.bvh", "stages.rig.procedural", "stages.rig.skinning",
                "stages.rig.humanoid", "stages.hulls.fit", "stages.maps", "stages.coverage", "stages.garments.library",
