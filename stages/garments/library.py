@@ -370,7 +370,7 @@ def tshirt(meas: dict, *, ease: float = 0.08, length_below_waist: float | None =
     atts = (PatternAttachment("front", "shoulder_l", joint=COMMON_BONE),
             PatternAttachment("front", "shoulder_r", joint=COMMON_BONE))
     return Pattern(name, tuple(panels), tuple(seams), edge_length, atts,
-                   fit_edges=(SeamSide("front", "neck"), SeamSide("back", "neck")))
+                   fit_edges=(SeamSide("front", "neck"), SeamSide("back", "neck")), fit_band=0.9)
 
 
 def skirt(meas: dict, *, length: float, flare: float, ease: float = 0.2, hip_ease: float | None = None,
@@ -405,7 +405,7 @@ def skirt(meas: dict, *, length: float, flare: float, ease: float = 0.2, hip_eas
              Seam(SeamSide("back", ("side_l_lo", "side_l_hi")), SeamSide("front", ("side_r_hi", "side_r_lo"))))
     atts = (PatternAttachment("front", "waist", joint="root", sewing=True),
             PatternAttachment("back", "waist", joint="root", sewing=True))
-    return Pattern(name, tuple(panels), seams, edge_length, atts, fit_edges=_WAISTBAND)
+    return Pattern(name, tuple(panels), seams, edge_length, atts, fit_edges=_WAISTBAND, fit_band=1.0)
 
 
 def _pants(meas: dict, *, leg_length: float, hem_radius: float, ease: float, hip_ease: float | None,
@@ -554,6 +554,20 @@ def library_pattern(kind: str, measurements: dict, **overrides) -> Pattern:
     raise InputError("garment library", f"unknown kind {kind!r}; kinds: {', '.join(KINDS)}")
 
 
+def _band_rest(tri: np.ndarray, tri_rest: np.ndarray, run: np.ndarray, placed: np.ndarray, factor: float) -> None:
+    """In place: the rest length of every triangle edge joining consecutive vertices of `run` (a
+    fit edge's vertices in order) becomes `factor` times its placed (hugged) length."""
+    n = placed.shape[0]
+    want = {}
+    for a, b in zip(run[:-1], run[1:]):
+        want[min(a, b) * n + max(a, b)] = factor * float(np.linalg.norm(placed[a] - placed[b]))
+    for k in range(3):
+        a, b = tri[:, k], tri[:, (k + 1) % 3]
+        code = np.minimum(a, b) * n + np.maximum(a, b)
+        for t in np.flatnonzero(np.isin(code, list(want))):
+            tri_rest[t, k] = max(want[int(code[t])], 1e-4)
+
+
 def hug_targets(character, origins: np.ndarray, points: np.ndarray, mode: str) -> np.ndarray:
     """(N, 3) where fit-edge points walk to (placement.hug): 'axis', horizontally to the body's
     vertical axis through the root; 'neck', to the base of the neck (a cape's top onto the
@@ -636,6 +650,8 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
             idx = run_vertices(pattern, flat, side)
             placed[idx] = hug(placed[idx], hug_targets(character, origins, placed[idx], pattern.fit_hug), character,
                               skinned0, pose)
+            if pattern.fit_band is not None:
+                _band_rest(tri, tri_rest, idx, placed, pattern.fit_band)
     pins = []
     for a in pattern.attachments:
         if a.sewing:

@@ -267,7 +267,10 @@ class Pattern:
     density: cloth area density, kg/m^2. fit_edges: SeamSide tuple, the edges meant to sit on the
     body (a waistband, a collar): their distance to the skin after sewing is the garment's fit gap;
     before sewing they are brought onto the colliders, walking horizontally to the body's axis
-    (fit_hug 'axis') or towards the base of the neck ('neck').
+    (fit_hug 'axis') or towards the base of the neck ('neck'). fit_band: when set, the fit edges
+    are finished with a band (neckband, waistband ribbing) cut to fit_band times the length of
+    the loop they are hugged onto: their edges' rest lengths are those hugged lengths, so sewing
+    does not spread them back to the flat pattern's longer run.
     """
 
     name: str
@@ -278,6 +281,7 @@ class Pattern:
     density: float = 0.2
     fit_edges: tuple = ()
     fit_hug: str = "axis"
+    fit_band: float | None = None
 
     def __post_init__(self):
         o = f"Pattern[{self.name!r}]"
@@ -287,6 +291,8 @@ class Pattern:
         object.__setattr__(self, "fit_edges", tuple(self.fit_edges))
         if self.fit_hug not in ("axis", "neck"):
             raise ContractError(f"{o}.fit_hug: expected 'axis' or 'neck', got {self.fit_hug!r}")
+        if self.fit_band is not None and not (np.isfinite(self.fit_band) and 0.5 <= self.fit_band <= 1.5):
+            raise ContractError(f"{o}.fit_band: expected a factor in [0.5, 1.5] or None, got {self.fit_band}")
         if not self.panels:
             raise ContractError(f"{o}.panels: needs at least one panel")
         names = [p.name for p in self.panels]
