@@ -656,11 +656,13 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
     for a in pattern.attachments:
         if a.sewing:
             # the middle half of the run: the ends stay free so that the seams there can close even
-            # where the placement had to stretch the band around a collider
+            # where the placement had to stretch the band around a collider; a run without seams (a
+            # cape's top) is pinned whole, else its free ends swing off the shoulders while sewing
             idx, joint = chosen(a)
-            s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv[idx], axis=0), axis=1))])
-            f = s / max(s[-1], 1e-12)
-            idx = np.setdiff1d(idx[(f >= 0.25) & (f <= 0.75)], flat.seam_pairs.ravel())
+            if np.isin(idx, flat.seam_pairs.ravel()).any():
+                s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv[idx], axis=0), axis=1))])
+                f = s / max(s[-1], 1e-12)
+                idx = np.setdiff1d(idx[(f >= 0.25) & (f <= 0.75)], flat.seam_pairs.ravel())
             if idx.size:
                 pins.append(attach_indices(idx, joint))
     sewn, log = sew(pattern.name, placed, tri, tri_rest, flat.seam_pairs, character, motion, colliders, maps, sp,
