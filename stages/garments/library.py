@@ -20,6 +20,7 @@ _WAISTBAND = (SeamSide("front", "waist"), SeamSide("back", "waist"))
 # the humanoid parts (stages.rig.humanoid.HumanoidJoints) each kind is placed on
 ANCHORS = {"tshirt": ("arm_l", "arm_r", "neck"), "shorts": ("leg_l", "leg_r"), "trousers": ("leg_l", "leg_r"),
            "cape": ("neck",)}
+WAIST_EASE = 0.10   # share added to the hugged waist loop (band_top) of shorts and trousers
 KINDS = ("tshirt", "short_skirt", "long_skirt", "shorts", "trousers", "cape", "square")
 
 
@@ -96,7 +97,8 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
     arm_radius: 90th percentile of the upper arm's skin distance from its axis over the middle 70 %
         of the bone, plus the colliders' delta. arm_angle: the upper arm's angle below horizontal, rad.
     thigh_radius: the same for the thigh. crotch_y: lowest point where a leg (or its collider)
-        reaches the body's mid-plane.
+        reaches the body's mid-plane. band_top (with colliders): length of the loop a band at
+        skirt_top makes once hugged onto the colliders and the body (placement.hug).
     """
     from stages.rig.humanoid import humanoid_joints, limb_chain, subtree
     from stages.garments.placement import (_cross_sections, bind_geometry, body_axis,
@@ -215,6 +217,17 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
     out["clear_top"] = float(girth[-1])
     out["clear_skirt"] = float(girth.max())
     out["clear_seat"] = float(girth[ys >= out["crotch_y"]].max(initial=girth[-1]))
+    # band_top: the length of the loop a waistband makes hugged (placement.hug, as make_garment
+    # does) onto the body and colliders at skirt_top: what a snug waistband is cut to
+    if colliders is not None:
+        from stages.garments.placement import hug
+        ang = np.linspace(0.0, 2 * np.pi, 73)[:-1]
+        axis = np.array([root[0], out["skirt_top"], root[2]])
+        # from the ellipse the 'hips' placement wraps the band on at skirt_top
+        ring = axis + np.stack([ab[-1, 0] * np.sin(ang), np.zeros_like(ang), ab[-1, 1] * np.cos(ang)], axis=1)
+        ring = hug(ring, np.broadcast_to(axis, ring.shape), character, skinned,
+                   bind_pose(character, motion, colliders))
+        out["band_top"] = float(np.linalg.norm(ring - np.roll(ring, 1, axis=0), axis=1).sum())
     # leg tubes: the thigh below the crotch (its hull and the knee sphere) and the shin
     for key, k in (("thigh_low_radius", 0), ("shin_radius", 1)):
         ch = limb_chain(character, "leg", "l")
@@ -431,7 +444,10 @@ def _pants(meas: dict, *, leg_length: float, hem_radius: float, ease: float, hip
     G = max(body + (0.06 if hip_ease is None else hip_ease), meas.get("clear_seat", 0.0)) \
         if "clear_seat" in meas else body + (0.32 if hip_ease is None else hip_ease)
     c = G / 4
-    ht = max(meas["waist"] + ease, meas.get("clear_top", 0.0)) / 4
+    # the waist: with colliders, the loop the hugged waistband makes plus WAIST_EASE (cut to the
+    # clearance ellipse it was 13-29 % longer, and the free band ends bulged 1-3 cm off the body)
+    ht = ((1 + WAIST_EASE) * meas["band_top"] if "band_top" in meas
+          else max(meas["waist"] + ease, meas.get("clear_top", 0.0))) / 4
     # inner part: the seat's depth (front centre to back centre) at the crotch, about G / (2 pi)
     # for the seat's elliptic cross-section; longer, the crotch seam bulges up into the body
     lam = c + 0.5 * G / (2 * np.pi)
@@ -482,8 +498,9 @@ def shorts(meas: dict, *, leg_length: float | None = None, ease: float = 0.2, hi
            name: str = "shorts") -> Pattern:
     """Shorts: a seat from the waist to the crotch (front and back panels) and two leg tubes
     (default leg_length: 12 % of the height below the crotch, above the knee), waistband pinned
-    to the pelvis. Sizes: seat girth from hips and clear_seat, waist from waist + ease and
-    clear_top, hem radius thigh_low_radius + leg_ease (see _pants)."""
+    to the pelvis. Sizes: seat girth from hips and clear_seat, waist from the hugged waist loop
+    band_top + WAIST_EASE (without colliders: waist + ease and clear_top), hem radius
+    thigh_low_radius + leg_ease (see _pants)."""
     _need(meas, "height")
     L = 0.12 * meas["height"] if leg_length is None else leg_length
     r = meas.get("thigh_low_radius", 0.055 * meas["height"]) + leg_ease
