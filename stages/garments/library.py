@@ -20,7 +20,7 @@ _WAISTBAND = (SeamSide("front", "waist"), SeamSide("back", "waist"))
 # the humanoid parts (stages.rig.humanoid.HumanoidJoints) each kind is placed on
 ANCHORS = {"tshirt": ("arm_l", "arm_r", "neck"), "shorts": ("leg_l", "leg_r"), "trousers": ("leg_l", "leg_r"),
            "cape": ("neck",)}
-WAIST_EASE = 0.10   # share added to the hugged waist loop (band_top) of shorts and trousers
+WAIST_EASE = 0.05   # share added to the hugged waist loop (band_top) of shorts and trousers
 KINDS = ("tshirt", "short_skirt", "long_skirt", "shorts", "trousers", "cape", "square")
 
 
