@@ -99,7 +99,8 @@ def scene_pattern(scene: Scene, index: int, character, motion, colliders):
     sized for is a SceneError naming the scene file and the garment."""
     from stages.checks import ContractError
     from stages.errors import InputError
-    from stages.garments.library import ANCHORS, garment_measurements, library_pattern
+    from stages.garments.library import ANCHORS, library_pattern
+    from stages.garments.measurements import garment_measurements
     from stages.rig.humanoid import humanoid_joints
     g = scene["garments"][index]
     check_pattern(scene, index)

@@ -3,7 +3,8 @@ clear of the body."""
 import numpy as np
 import pytest
 
-from stages.garments.library import garment_measurements, library_pattern, make_garment
+from stages.garments.library import library_pattern, make_garment
+from stages.garments.measurements import garment_measurements
 from stages.garments.types import boundary_loops
 
 

@@ -3,7 +3,8 @@ two leg hems), waistband pinned to the pelvis, clear of the body before and afte
 import numpy as np
 import pytest
 
-from stages.garments.library import KINDS, garment_measurements, library_pattern
+from stages.garments.library import KINDS, library_pattern
+from stages.garments.measurements import garment_measurements
 from stages.garments.sewing import merge_pairs
 from stages.garments.triangulate import triangulate_pattern
 from stages.garments.types import boundary_loops

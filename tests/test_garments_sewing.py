@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from stages.garments.library import garment_measurements, library_pattern, make_garment
+from stages.garments.library import library_pattern, make_garment
+from stages.garments.measurements import garment_measurements
 from stages.garments.sewing import merge_pairs
 from stages.garments.types import STRETCH, boundary_loops
 
