@@ -18,12 +18,12 @@ Fitting (`fit_balls`), over the check poses (every `every`-th pose of the motion
 - greedy set cover: the ball holding most targets not yet held, until none is left (or no ball
   holds any of those left: listed in `BallSet.unheld`).
 
-Measured as `bench coverage` measures hulls (tools/balls_probe.py: 60-frame walk, delta 1 cm,
-flexible regions as balls, rigid regions as today's hulls, slack 7.5 mm), coverage min / excess p95 /
-max / shell: built-in 99.78 % / 1.66 / 2.90 cm / 38 % (90 balls), CesiumMan 99.56 % / 1.58 / 2.82 cm /
-32 % (309), CMU BVH skin 99.95 % / 1.63 / 2.46 cm / 46 % (290); swept hulls on the same walks:
-99.71 / 1.68 / 3.4 / 39, 99.91 / 3.53 / 8.30 / 57, 99.95 / 2.93 / 6.89 / 59. Slack 5 mm on CesiumMan:
-99.43 %, 1.38 / 2.82 cm, 30 %, 393 balls; slack 0: 98.72 %, 1.23 / 2.82 cm, 22 %, 695 balls.
+Measured by `python -m pipeline bench coverage` (60-frame walk, delta 1 cm, slack 1 cm, rigid
+regions as hulls), coverage min / excess p95 / max / shell: built-in 99.78 % / 1.8 / 2.9 cm / 40 % (82
+balls), CesiumMan 99.76 % / 1.8 / 2.8 cm / 37 % (250), CMU BVH skin 99.98 % / 1.8 / 2.5 cm / 51 % (233);
+swept hulls on the same walks: 99.71 / 1.7 / 3.4 / 39, 99.91 / 3.5 / 8.3 / 57, 99.95 / 2.9 / 6.9 / 59.
+Slack trades coverage for excess (CesiumMan, tools/balls_probe.py): 0 -> 98.72 % / 1.23 cm / 22 %
+(695 balls), 7.5 mm -> 99.56 % / 1.58 cm / 32 % (309), 1 cm -> 99.78 % / 1.80 cm / 37 % (250).
 """
 from __future__ import annotations
 
@@ -37,7 +37,7 @@ from stages.checks import ContractError, check_array
 from stages.rig.types import Character, RegionSplit
 
 BALL_SPACING = 0.01    # m: candidate centres on a grid inside the bind-pose body
-BALL_SLACK = 0.0075    # m: a ball may stand this far out of the skin at its worst check pose
+BALL_SLACK = 0.01      # m: a ball may stand this far out of the skin at its worst check pose
 BALL_COVER = 0.6       # a target is held within radius - (1 - BALL_COVER) * delta of the centre
 MIN_DEPTH = 0.005      # m: candidates shallower than this at some check pose are dropped
 NEAR_FLEXIBLE = 0.06   # m: candidates farther than this from every flexible vertex are dropped
