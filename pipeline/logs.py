@@ -124,6 +124,19 @@ def _convex_mesh(rec, entity: str, mesh, color) -> None:
                               triangle_indices=mesh.faces.astype(np.uint32), albedo_factor=color), static=True)
 
 
+def _log_balls(rec: rr.RecordingStream, character: Character, motion: Motion, colliders, colors) -> None:
+    """The skinned balls as one ellipsoid batch per frame (their centres move with the skin), in the
+    relative frame like the body."""
+    b = colliders.balls
+    centers = b.centers(character.inverse_bind, motion.joint_world) + motion.root_translation[:, None, :]  # (F, B, 3) world
+    half = np.repeat(b.radius[:, None], 3, axis=1).astype(np.float32)
+    col = np.array([(*(int(x) for x in colors[j][:3]), 120) for j in b.joint], np.uint8)
+    rec.log("colliders/balls", rr.Ellipsoids3D.from_fields(half_sizes=half, colors=col, fill_mode="solid"), static=True)
+    nf, nb = centers.shape[:2]
+    rec.send_columns("colliders/balls", indexes=time_columns(motion.times), columns=rr.Ellipsoids3D.columns(
+        centers=centers.reshape(-1, 3).astype(np.float32)).partition(np.full(nf, nb)))
+
+
 def log_colliders(rec: rr.RecordingStream, character: Character, motion: Motion, colliders) -> str:
     """Hulls (raw / inflated / simplified) and spheres in bone frames under per-frame transforms.
 
@@ -154,7 +167,9 @@ def log_colliders(rec: rr.RecordingStream, character: Character, motion: Motion,
         rows.append(f"| {h.name}{' (swept)' if h.kind == 'swept' else ''} | {r.faces_raw} / {r.faces_inflated} / {r.faces_simplified} | "
                     f"{r.volume_raw * 1e6:.1f} | {r.excess_volume * 1e6:.1f} | {r.hausdorff * 1e3:.2f} | "
                     f"{'yes' if r.contains_region else 'NO'} | {r.worst_violation * 1e3:.3f} |")
-    for sp in colliders.spheres:
+    if colliders.balls is not None and colliders.balls.radius.size:
+        _log_balls(rec, character, motion, colliders, colors)
+    for sp in (s for s in colliders.spheres if s.frame < 0):
         base = f"colliders/spheres/{sp.name}"
         log_transform_series(rec, base, world[:, sp.joint], motion.times)
         c = tuple(int(x) for x in colors[sp.joint][:3])

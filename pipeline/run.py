@@ -348,7 +348,9 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             faces = [h.report.faces_simplified for h in colliders.hulls]
             r.sizes.update(split=split.method, rigid_hulls=len(split.hull_bones),
                            swept_hulls=sum(h.kind == "swept" for h in colliders.hulls),
-                           spheres=len(colliders.spheres), faces=int(np.sum(faces)))
+                           spheres=sum(sp.frame < 0 for sp in colliders.spheres),
+                           **({"balls": int(colliders.balls.radius.size)} if colliders.balls is not None else {}),
+                           faces=int(np.sum(faces)))
         logs.log_rig(rec, character, split, motion, skinned)
         summary.tables["collider fit"] = logs.log_colliders(rec, character, motion, colliders)
         if s["colliders"]["report_every"] > 0:

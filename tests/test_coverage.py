@@ -46,11 +46,27 @@ def test_tree_distance_equals_every_triangle_and_trimesh(seed, angle):
     assert np.allclose(tree, ref, rtol=0, atol=5e-5)
 
 
-def _reference_inside(points, colliders, pose):
-    """(P, C) inside flags by plain numpy: hull planes / sphere distance in the posed bone frame."""
+def _reference_ball_centres(colliders, character, pose):
+    """(B, 3) skinned ball centres, one weighted bone transform at a time (plain Python)."""
+    b = colliders.balls
+    out = np.zeros((b.radius.size, 3))
+    for k in range(b.radius.size):
+        for j, w in zip(b.joints[k], b.weights[k]):
+            m = pose[j] @ character.inverse_bind[j]
+            out[k] += w * (m[:3, :3] @ b.bind_center[k] + m[:3, 3])
+    return out
+
+
+def _reference_inside(points, colliders, pose, character=None):
+    """(P, C) inside flags by plain numpy: hull planes / sphere distance in the posed bone frame
+    (a skinned ball: distance to its centre skinned by _reference_ball_centres)."""
     cols = [(h.bone, h.simplified.planes, None) for h in colliders.hulls] + \
-           [(s.joint, None, (s.center, s.radius)) for s in colliders.spheres]
-    out = np.zeros((points.shape[0], len(cols)), bool)
+           [(s.joint, None, (s.center, s.radius)) for s in colliders.spheres if s.frame < 0]
+    out = np.zeros((points.shape[0], len(cols) + sum(s.frame >= 0 for s in colliders.spheres)), bool)
+    if colliders.balls is not None:
+        centres = _reference_ball_centres(colliders, character, pose)
+        for k in range(centres.shape[0]):
+            out[:, len(cols) + k] = np.linalg.norm(points - centres[k], axis=1) <= colliders.balls.radius[k]
     for c, (bone, planes, sphere) in enumerate(cols):
         inv = np.linalg.inv(pose[bone])
         q = points @ inv[:3, :3].T + inv[:3, 3]
@@ -61,19 +77,23 @@ def _reference_inside(points, colliders, pose):
     return out
 
 
-@pytest.mark.parametrize("mode", [("motion", "swept"), ("weights", "sphere")])
+MODES = [("motion", "swept"), ("weights", "sphere"), ("motion", "balls")]
+
+
+@pytest.mark.parametrize("mode", MODES)
 def test_inside_colliders_equals_plain_numpy(tube, mode):
     c, motion = tube
     _, cs = fit_character(c, motion.joint_world, split=mode[0], flexible=mode[1])
+    assert (cs.balls is not None and cs.balls.radius.size > 0) == (mode[1] == "balls")
     arrays = collider_arrays(cs)
     rng = np.random.default_rng(1)
     for f in range(motion.n_frames):
         p = rng.uniform([-0.4, -0.1, -0.2], [0.4, 0.8, 0.2], size=(4000, 3))
-        got = inside_matrix(p, arrays, motion.joint_world[f]).astype(bool)
-        assert (got == _reference_inside(p, cs, motion.joint_world[f])).all()
+        got = inside_matrix(p, arrays, cs.frame_poses(c.inverse_bind, motion.joint_world[f])).astype(bool)
+        assert (got == _reference_inside(p, cs, motion.joint_world[f], c)).all()
 
 
-@pytest.mark.parametrize("mode", [("motion", "swept"), ("weights", "sphere")])
+@pytest.mark.parametrize("mode", MODES)
 def test_reported_figures_equal_a_brute_force_recount(tube, mode):
     """Coverage, shell and excess recomputed from the same samples with exact winding numbers
     (every triangle), plain-numpy collider tests and trimesh's closest points."""
@@ -89,11 +109,11 @@ def test_reported_figures_equal_a_brute_force_recount(tube, mode):
         in_body = w >= 0.5
         assert (in_body == s["in_body"]).all()
         assert in_body.sum() >= 3000
-        any_col = _reference_inside(s["grid"], cs, motion.joint_world[f]).any(axis=1)
+        any_col = _reference_inside(s["grid"], cs, motion.joint_world[f], c).any(axis=1)
         assert rep.coverage[k] == pytest.approx((in_body & any_col).sum() / in_body.sum(), abs=1e-12)
         assert rep.shell_share[k] == pytest.approx((~in_body & any_col).sum() / in_body.sum(), abs=1e-12)
         # excess: surface samples not inside another collider, outside the body, distance to the skin
-        ins = _reference_inside(s["surface"], cs, motion.joint_world[f])
+        ins = _reference_inside(s["surface"], cs, motion.joint_world[f], c)
         ins[np.arange(ins.shape[0]), s["owner"]] = False
         ws = np.empty(s["surface"].shape[0])
         winding_numbers_brute(s["surface"], v, c.triangles, ws)

@@ -221,3 +221,25 @@ colliders: {split: weights, flexible: sphere, max_offset: null, report_every: 5}
     assert "| sphere |" in report                             # spheres listed per collider
     # the paper's spheres stand farther off the skin than the default colliders (README table)
     assert max(v[0] for _, v in got) > 3.0
+
+
+def test_skinned_balls_run_hold_the_cloth_and_are_logged_where_the_skin_moves_them(tmp_path):
+    """colliders.flexible: balls through the whole pipeline: the recording's ball centres are the
+    BallSet's centres skinned at every frame (plus the root translation), no particle ends inside a
+    collider, and the summary counts the balls."""
+    from pipeline.run import split_and_fit
+    scene = parse_scene_text((REPO / "scenes" / "default.yaml").read_text().replace(
+        "  delta: 0.01\n", "  delta: 0.01\n  flexible: balls\n  report_every: 5\n"), source="balls.yaml")
+    out = tmp_path / "balls.rrd"
+    summary = run_scene(scene, output=out, frames=FRAMES, progress=False)
+    sizes = summary.stages[1].sizes
+    assert sizes["swept_hulls"] == 0 and sizes["spheres"] == 0 and sizes["balls"] > 0
+    assert "inside colliders (max / mean per frame, frame 0 excluded): 0 /" in summary.text()
+    character = load_character(scene)
+    motion = sample_scene_motion(scene, character, frame_times(scene, FRAMES))
+    _, colliders = split_and_fit(scene, character, motion)
+    want = colliders.balls.centers(character.inverse_bind, motion.joint_world) + motion.root_translation[:, None]
+    got = rows(out, "colliders/balls", "Ellipsoids3D:centers")
+    assert [f for f, _ in got] == list(range(FRAMES))
+    for f, c in got:
+        assert np.allclose(np.asarray(c).reshape(-1, 3), want[f], atol=1e-5)

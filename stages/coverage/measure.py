@@ -148,7 +148,7 @@ def collider_arrays(colliders: ColliderSet) -> ColliderArrays:
         names.append(h.name)
         kinds.append(h.kind)
     for s in colliders.spheres:
-        joint.append(s.joint)
+        joint.append(s.pose_index)
         kind.append(K.KIND_SPHERE)
         bc.append(s.center)
         br.append(s.radius * (1 + 1e-9) + 1e-9)
@@ -287,7 +287,7 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
     kept = []
     for k, f in enumerate(frames):
         v = skinned[k]
-        pose = motion.joint_world[f]
+        pose = colliders.frame_poses(character.inverse_bind, motion.joint_world[f])
         body.refit(v)
         box = _world_boxes(arrays, colliders, pose) if nc else np.array([v.min(0), v.max(0)])
         box = np.array([np.minimum(box[0], v.min(0)), np.maximum(box[1], v.max(0))])

@@ -85,14 +85,14 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
     """
     from stages.rig.humanoid import humanoid_joints, limb_chain, subtree
     from stages.garments.placement import (_cross_sections, bind_geometry, body_axis,
-                                           collider_points, part_joints)
+                                           collider_points, frame_poses0, part_joints)
     from stages.rig.skinning import rest_motion
     if motion is None:
         motion = rest_motion(character, 1, 1.0 / 30.0)
     skinned, origins, dominant = bind_geometry(character, motion)
     pts = [skinned]
     owner = [dominant]
-    for j, p in collider_points(colliders, motion.joint_world[0]):
+    for j, p in collider_points(colliders, frame_poses0(colliders, character, motion)):
         pts.append(p)
         owner.append(np.full(len(p), j))
     pts, owner = np.concatenate(pts), np.concatenate(owner)

@@ -154,7 +154,7 @@ def collider_points(colliders, joint_world0: np.ndarray):
     th = np.pi * (1 + 5 ** 0.5) * k
     dirs = np.stack([np.cos(th) * np.sin(phi), np.cos(phi), np.sin(th) * np.sin(phi)], axis=1)
     for sp in colliders.spheres:
-        m = joint_world0[sp.joint]
+        m = joint_world0[sp.pose_index]    # joint_world0: ColliderSet.frame_poses at frame 0 (J + balls)
         out.append((sp.joint, (sp.center + sp.radius * dirs) @ m[:3, :3].T + m[:3, 3]))
     return out
 
@@ -333,6 +333,12 @@ def _fold_over(out: np.ndarray, uv: np.ndarray, pl: Placement, axis: BodyAxis) -
     return out
 
 
+def frame_poses0(colliders, character, motion) -> np.ndarray:
+    """Collider frames at frame 0: the joints' transforms, then the skinned balls' (if any)."""
+    jw = motion.joint_world[0]
+    return jw if colliders is None else colliders.frame_poses(character.inverse_bind, jw)
+
+
 def bind_geometry(character, motion):
     """(skinned vertices at frame 0 (V, 3), joint origins at frame 0 (J, 3), dominant joint (V,))."""
     from stages.rig.skinning import skin
@@ -360,7 +366,7 @@ def place_pattern(pattern: Pattern, flat: FlatPattern, character, motion, collid
     from dataclasses import replace
 
     skinned, origins, dominant = bind_geometry(character, motion)
-    cp = collider_points(colliders, motion.joint_world[0])
+    cp = collider_points(colliders, frame_poses0(colliders, character, motion))
     out, used = [], {}
     for panel, fp in zip(pattern.panels, flat.panels):
         pl = panel.placement

@@ -167,6 +167,8 @@ class BindPose:
     poses: optional (F, J, 4, 4) float64, Motion.joint_world at every frame: attachments are checked
         against the colliders of the other bones over these frames (`swept_attachments`).
     parents: optional (J,) int32, the joint hierarchy (-1 = root; for Attachment joint COMMON_BONE).
+    collider_frames: optional (F, J + B, 4, 4) float64, ColliderSet.frame_poses over the poses (the
+        joints, then the skinned balls); None when the colliders have no balls (= poses).
     """
 
     joint_world: np.ndarray
@@ -175,6 +177,18 @@ class BindPose:
     colliders: object = None
     poses: np.ndarray | None = None
     parents: np.ndarray | None = None
+    collider_frames: np.ndarray | None = None
+
+    def frames_of_colliders(self) -> np.ndarray | None:
+        """(F, J + B, 4, 4) the transforms colliders are posed by (ColliderSet pose_index), or None."""
+        return self.collider_frames if self.collider_frames is not None else self.poses
+
+    def collider_to_local(self, pose_index: int, points: np.ndarray) -> np.ndarray:
+        """Relative-frame points (frame 0) in the frame of the collider posed by `pose_index`."""
+        if self.collider_frames is None:
+            return self.to_local(pose_index, points)
+        m = np.linalg.inv(self.collider_frames[0, pose_index])
+        return points @ m[:3, :3].T + m[:3, 3]
 
     def __post_init__(self):
         j = len(self.joint_names)
@@ -201,9 +215,12 @@ class BindPose:
 def bind_pose(character, motion, colliders=None) -> BindPose:
     """The bind pose of attachments: frame 0 of `motion` (relative frame), with all its poses."""
     jw = np.ascontiguousarray(motion.joint_world[0], dtype=np.float64)  # bone-local -> relative frame
+    frames = None
+    if colliders is not None and getattr(colliders, "balls", None) is not None:
+        frames = np.ascontiguousarray(colliders.frame_poses(character.inverse_bind, motion.joint_world))
     return BindPose(jw, np.ascontiguousarray(jw[:, :3, 3]), tuple(character.joint_names), colliders,
                     np.ascontiguousarray(motion.joint_world, dtype=np.float64),
-                    np.ascontiguousarray(character.parents, dtype=np.int32))
+                    np.ascontiguousarray(character.parents, dtype=np.int32), frames)
 
 
 def swept_attachments(bind: BindPose, local: np.ndarray, joints: np.ndarray, depth: float):
@@ -219,12 +236,12 @@ def swept_attachments(bind: BindPose, local: np.ndarray, joints: np.ndarray, dep
         return hit, names
     m = bind.poses[:, joints]
     x = np.einsum("fmij,mj->fmi", m[..., :3, :3], local) + m[..., :3, 3]   # (F, M, 3) relative frame
-    inv = np.linalg.inv(bind.poses)
-    for bone, name, collider in _colliders(bind.colliders):
+    inv = np.linalg.inv(bind.frames_of_colliders())
+    for bone, name, collider, frame in _colliders(bind.colliders):
         other = np.flatnonzero(joints != bone)
         if other.size == 0:
             continue
-        w = inv[:, bone]
+        w = inv[:, frame]
         p = np.einsum("fij,fmj->fmi", w[:, :3, :3], x[:, other]) + w[:, None, :3, 3]
         deep = (_signed_distance(collider, p) < -depth).any(axis=0)
         if deep.any():
@@ -244,8 +261,9 @@ def _signed_distance(collider, p: np.ndarray) -> np.ndarray:
 
 
 def _colliders(cs) -> list:
-    """(bone, name, collider) of every hull, then every sphere."""
-    return [(h.bone, h.name, h) for h in cs.hulls] + [(s.joint, s.name, s) for s in cs.spheres]
+    """(bone, name, collider, pose index) of every hull, then every sphere (a skinned ball: its
+    dominant joint as the bone, its own frame as the pose index)."""
+    return [(h.bone, h.name, h, h.bone) for h in cs.hulls] + [(s.joint, s.name, s, s.pose_index) for s in cs.spheres]
 
 
 def _collider_distances(bind: BindPose, points: np.ndarray):
@@ -254,8 +272,8 @@ def _collider_distances(bind: BindPose, points: np.ndarray):
     cols = _colliders(bind.colliders)
     if not cols:
         return np.zeros((0, points.shape[0])), np.zeros(0, np.int32), []
-    d = np.array([_signed_distance(c, bind.to_local(bone, points)) for bone, _, c in cols])
-    return d, np.array([b for b, _, _ in cols], np.int32), [n for _, n, _ in cols]
+    d = np.array([_signed_distance(c, bind.collider_to_local(frame, points)) for _, _, c, frame in cols])
+    return d, np.array([b for b, _, _, _ in cols], np.int32), [n for _, n, _, _ in cols]
 
 
 def _nearest_bone(bind: BindPose, points: np.ndarray) -> np.ndarray:

@@ -100,10 +100,10 @@ def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.
     if split.dominant_joint.shape[0] != character.vertices.shape[0]:
         raise ContractError(f"fit_colliders: split has {split.dominant_joint.shape[0]} vertices, "
                             f"character {character.vertices.shape[0]}")
-    if flexible not in ("sphere", "swept"):
-        raise ContractError(f"fit_colliders: flexible must be 'sphere' or 'swept', got {flexible!r}")
-    if flexible == "swept" and poses is None:
-        raise ContractError("fit_colliders: flexible='swept' needs the poses of the motion sample")
+    if flexible not in ("sphere", "swept", "balls"):
+        raise ContractError(f"fit_colliders: flexible must be 'sphere', 'swept' or 'balls', got {flexible!r}")
+    if flexible in ("swept", "balls") and poses is None:
+        raise ContractError(f"fit_colliders: flexible={flexible!r} needs the poses of the motion sample")
 
     def hull(bone, name, idx, pts, kind="rigid", joint=-1):
         raw, inflated, simplified, report = fit_hull(pts, delta, min_triangles, source=f"hull {name!r}",
@@ -135,6 +135,9 @@ def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.
         hulls.append(hull(b, character.joint_names[b], idx, with_core(b, idx, pts)))
         tick(len(hulls), total)
     sphere_joints, notes = list(split.sphere_joints), []
+    if flexible == "balls":
+        return _with_balls(character, split, poses, hulls, delta=delta, min_triangles=min_triangles,
+                           body=body if core else None)
     if flexible == "swept" and sphere_joints:
         from stages.rig.motion_range import bone_deviation
         from stages.rig.skinning import skin_poses
@@ -173,6 +176,25 @@ def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.
                                       region_vertices=idx.astype(np.int64)))
     return ColliderSet(hulls=tuple(hulls), spheres=tuple(spheres), delta=float(delta),
                        min_triangles=int(min_triangles), flexible=flexible, notes=tuple(notes))
+
+
+def _with_balls(character: Character, split: RegionSplit, poses: np.ndarray, hulls: list, *, delta: float,
+                min_triangles: int, body) -> ColliderSet:
+    """The rigid hulls plus skinned balls for every flexible vertex (stages/hulls/balls.py)."""
+    from stages.hulls.balls import fit_balls
+    from stages.rig.skinning import skin_poses
+    if body is None:
+        from stages.coverage.measure import SkinDistance
+        body = SkinDistance(character)
+    balls = fit_balls(character, split, poses, skin_poses(character, poses), body, delta=delta)
+    j = character.n_joints
+    names = character.joint_names
+    spheres = tuple(SphereCollider(joint=int(balls.joint[k]), name=f"{names[balls.joint[k]]}_ball{k}", center=np.zeros(3),
+                                   radius=float(balls.radius[k]), region_points=np.zeros((0, 3)), frame=j + k)
+                    for k in range(balls.radius.size))
+    notes = (f"{balls.unheld.size} flexible vertices held by no ball at every pose checked",) if balls.unheld.size else ()
+    return ColliderSet(hulls=tuple(hulls), spheres=spheres, delta=float(delta), min_triangles=int(min_triangles),
+                       flexible="balls", notes=notes, balls=balls)
 
 
 CORE_POSES = 60   # poses a swept hull's core points are checked at (evenly spread over the motion)
@@ -227,7 +249,7 @@ def fit_character(character: Character, poses: np.ndarray | None, *, split: str 
     from stages.rig.motion_range import bone_deviation
     from stages.rig.regions import split_by_motion, split_regions
     deviation = None
-    if split == "motion" or flexible == "swept":
+    if split == "motion" or flexible in ("swept", "balls"):
         if poses is None:
             raise ContractError(f"fit_character: split={split!r} / flexible={flexible!r} need the motion's poses")
         deviation = bone_deviation(character, poses)

@@ -94,10 +94,13 @@ class HullCollider:
 
 @dataclass(frozen=True)
 class SphereCollider:
-    """The collider of one flexible region: a sphere at the joint.
+    """The collider of one flexible region: a sphere at the joint (paper A), or one skinned ball.
 
-    joint: joint index; center: (3,) float64, bone-local frame of `joint` (the joint origin);
-    radius: metres, farthest region vertex + delta. region_points: (p, 3) bone-local.
+    joint: joint index; center: (3,) float64, in the collider frame (the joint origin in `joint`'s
+    bone-local frame; 0 for a ball); radius: metres, farthest region vertex + delta (a ball: its depth
+    + slack + delta). region_points: (p, 3) in the collider frame.
+    frame: the collider frame it is posed by, an index into ColliderSet.frame_poses (-1: `joint`; a
+    ball k of B: J + k, a frame that moves with the skinned ball centre).
     """
 
     joint: int
@@ -106,6 +109,12 @@ class SphereCollider:
     radius: float
     region_points: np.ndarray
     region_vertices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    frame: int = -1
+
+    @property
+    def pose_index(self) -> int:
+        """Index of the transform posing it in ColliderSet.frame_poses (J joints, then the balls)."""
+        return self.frame if self.frame >= 0 else self.joint
 
     def __post_init__(self):
         o = f"SphereCollider[{self.name!r}]"
@@ -121,8 +130,10 @@ class ColliderSet:
     """Every collider of a character, plus the parameters they were fitted with.
 
     hulls: rigid hulls (at most one per bone) and swept hulls of flexible regions, names unique.
-    spheres: joint spheres (at most one per joint). flexible: how flexible regions were fitted,
-    'sphere' (paper A) or 'swept'. notes: fallbacks taken (e.g. a region too flat for a hull).
+    spheres: joint spheres (at most one per joint), then the skinned balls (flexible 'balls').
+    flexible: how flexible regions were fitted, 'sphere' (paper A), 'swept' or 'balls'.
+    balls: the skinned balls (stages/hulls/balls.py) the ball spheres are posed by, else None.
+    notes: fallbacks taken (e.g. a region too flat for a hull).
     """
 
     hulls: tuple[HullCollider, ...]
@@ -131,6 +142,18 @@ class ColliderSet:
     min_triangles: int        # simplification floor
     flexible: str = "sphere"
     notes: tuple[str, ...] = ()
+    balls: object = None     # stages.hulls.balls.BallSet | None
+
+    def frame_poses(self, inverse_bind: np.ndarray, joint_world: np.ndarray) -> np.ndarray:
+        """(..., J + B, 4, 4): the joint transforms (..., J, 4, 4), then one per skinned ball (no
+        rotation, its centre skinned like a vertex). Colliders are posed by `pose_index` into it."""
+        if self.balls is None or self.balls.radius.size == 0:
+            return joint_world
+        c = self.balls.centers(inverse_bind, joint_world)
+        m = np.zeros((*c.shape[:-1], 4, 4))
+        m[..., 0, 0] = m[..., 1, 1] = m[..., 2, 2] = m[..., 3, 3] = 1.0
+        m[..., :3, 3] = c
+        return np.concatenate([joint_world, m], axis=-3)
 
     def __post_init__(self):
         bones = [h.bone for h in self.hulls if h.kind == "rigid"]
@@ -139,9 +162,12 @@ class ColliderSet:
         names = [h.name for h in self.hulls]
         if len(set(names)) != len(names):
             raise ContractError("ColliderSet.hulls: hull names must be unique")
-        if self.flexible not in ("sphere", "swept"):
-            raise ContractError(f"ColliderSet.flexible: expected 'sphere' or 'swept', got {self.flexible!r}")
-        joints = [s.joint for s in self.spheres]
+        if self.flexible not in ("sphere", "swept", "balls"):
+            raise ContractError(f"ColliderSet.flexible: expected 'sphere', 'swept' or 'balls', got {self.flexible!r}")
+        n_balls = 0 if self.balls is None else self.balls.radius.size
+        if sum(s.frame >= 0 for s in self.spheres) != n_balls:
+            raise ContractError(f"ColliderSet.spheres: {n_balls} balls but {sum(s.frame >= 0 for s in self.spheres)} ball spheres")
+        joints = [s.joint for s in self.spheres if s.frame < 0]
         if len(set(joints)) != len(joints):
             raise ContractError("ColliderSet.spheres: at most one sphere per joint")
         if not (np.isfinite(self.delta) and self.delta >= 0):

@@ -242,7 +242,7 @@ class _Colliders:
             bc.append(c)
             br.append(np.linalg.norm(v - c, axis=1).max() * (1 + 1e-9) + 1e-9)
         for k, s in enumerate(spheres):
-            joint.append(s.joint)
+            joint.append(s.pose_index)
             kind.append(collider_grid.KIND_SPHERE)
             index.append(k)
             bc.append(s.center)
@@ -449,6 +449,12 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
         if not np.allclose(dts, params.dt, rtol=1e-6, atol=1e-9):
             raise ContractError(f"simulate: motion frames are {dts.min():.6g}..{dts.max():.6g} s apart, "
                                 f"SimParams.dt is {params.dt:.6g} s")
+    body_motion = motion           # the skin (audits); `motion` below also poses the colliders
+    if colliders is not None and colliders.balls is not None:
+        # the skinned balls' frames follow the joints (collider index = pose index; attachments use joints only)
+        from dataclasses import replace
+        motion = replace(motion, joint_world=np.ascontiguousarray(
+            colliders.frame_poses(character.inverse_bind, motion.joint_world)))
     sysm = _System(garments, motion.joint_world[0], params)
     col = _Colliders(colliders, maps)
     sysm.set_colliders(col.joint.size)
@@ -466,7 +472,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     timers = np.zeros(step.N_TIMERS, np.int64)
     timings = {"poses": 0.0, "integrate": 0.0, "constraints": 0.0, "collisions": 0.0, "obstacles": 0.0,
                "audit": 0.0}
-    cphase = ClothPhase.for_simulation(sysm, layers, params, character, motion) if params.cloth_collision else None
+    cphase = ClothPhase.for_simulation(sysm, layers, params, character, body_motion) if params.cloth_collision else None
 
     root = motion.root_translation
     ocol = None
@@ -501,7 +507,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
         if audit is None:
             return
         t0 = time.perf_counter()
-        verts = skin(character, motion, frames=list(range(f0, f1)))
+        verts = skin(character, body_motion, frames=list(range(f0, f1)))
         for k, f in enumerate(range(f0, f1)):
             ins = audit.inside(verts[k], rel[f])
             pen_body[f] = [int(a.sum()) for a in sysm.split(ins)]
