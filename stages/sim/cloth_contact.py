@@ -45,6 +45,7 @@ from stages.checks import ContractError, check_array, check_index, check_positiv
 from stages.obstacles.kdop import DEFAULT_K, build_tree, kdop_directions, merge_forest, triangle_bounds
 from stages.obstacles.types import KdopTree
 from stages.sim import cloth_contact_kernels as CK
+from stages.sim.cloth_contact_cull import node_borders, patch_nodes
 
 DEFAULT_THICKNESS = 0.003  # m: about two layers of shirt fabric
 SETTLE_FRAMES = 3          # frames at the frame-0 pose before frame 1 that sort garments starting interpenetrating
@@ -110,6 +111,8 @@ class ClothContact:
     nrm_min: np.ndarray
     nrm_max: np.ndarray
     node_patch: np.ndarray
+    border_start: np.ndarray
+    border_vert: np.ndarray
     axis_order: np.ndarray
     stack: np.ndarray
     moved: np.ndarray
@@ -170,6 +173,10 @@ class ClothContact:
         check_array(o, "nrm_min", self.nrm_min, (nn, h), np.float64, finite=False)
         check_array(o, "nrm_max", self.nrm_max, (nn, h), np.float64, finite=False)
         check_array(o, "node_patch", self.node_patch, (nn,), np.uint8)
+        bs = check_array(o, "border_start", self.border_start, (nn + 1,), np.int64)
+        bv = check_array(o, "border_vert", self.border_vert, (None,), np.int32)
+        if bs[0] != 0 or bs[-1] != bv.shape[0] or np.any(np.diff(bs) < 0):
+            raise ContractError(f"{o}.border_start: expected offsets rising from 0 to {bv.shape[0]}")
         ao = check_array(o, "axis_order", self.axis_order, (h,), np.int32)
         if sorted(ao.tolist()) != list(range(h)):
             raise ContractError(f"{o}.axis_order: expected a permutation of 0..{h - 1}")
@@ -207,7 +214,7 @@ class ClothContact:
                 self.tri_garment, self.edge_garment, self.garment_layer, self.garment_outward)
         tree = (tr.directions, self.axis_order, tr.tree_offsets, tr.node_min, tr.node_max, tr.children, tr.leaf_prim,
                 self.node_dirty, self.tri_min, self.tri_max, self.pt_min, self.pt_max, self.nrm_min, self.nrm_max,
-                self.node_patch, self.stack)
+                self.node_patch, self.stack, self.border_start, self.border_vert)
         work = (self.moved, self.corrected, self.c_kind, self.c_feat, self.c_idx, self.c_w, self.c_dir)
         prm = (float(self.thickness), float(self.layer_depth), int(self.rounds), int(self.failsafe_rounds),
                bool(self.cull))
@@ -342,6 +349,7 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
         trees.append(KdopTree(directions=d, node_min=tg.node_min, node_max=tg.node_max, children=tg.children,
                               leaf_prim=leaf, depth=tg.depth, tree_offsets=tg.tree_offsets, margin=tg.margin))
     tree = merge_forest(trees)
+    borders = node_borders(tree.children, tree.leaf_prim, tris, n, int(tree.max_depth))
     cap = contact_capacity if contact_capacity is not None else max(1024, 8 * n)
     layers = np.zeros(g, np.int32) if layers is None else np.asarray(layers, np.int32)
     outward = np.ones(g) if outward is None else np.asarray(outward, np.float64)
@@ -352,7 +360,8 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
         garment_outward=outward, tree=tree, node_dirty=np.ones(tree.node_min.shape[0], np.uint8),
         tri_min=tmin, tri_max=tmax, pt_min=np.zeros((n, h)), pt_max=np.zeros((n, h)),
         nrm_min=np.zeros((tree.node_min.shape[0], h)), nrm_max=np.zeros((tree.node_min.shape[0], h)),
-        node_patch=CK.patch_nodes(tree.children, tree.leaf_prim, tris, tri_garment.astype(np.int32), n),
+        node_patch=patch_nodes(tree.children, tree.leaf_prim, tris, tri_garment.astype(np.int32), n),
+        border_start=borders[0], border_vert=borders[1],
         axis_order=np.arange(h, dtype=np.int32),
         stack=np.zeros((8 * tree.max_depth + 32 + tree.n_trees ** 2, 2), np.int32),
         moved=np.ones(n, np.uint8), corrected=np.zeros(n, np.uint8),
