@@ -20,29 +20,37 @@ from numba import njit
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 
 FLAT_COS = 0.05      # a patch is flat when its unit normals project beyond this on one direction
+UNION_COS = 0.5      # two neighbouring nodes together: a narrower cone (under 60 degrees), so a
+                     # fold made of two triangle strips turning 90 degrees each is still tested
+
+
+def flat_cos_for(rotation: float) -> float:
+    """The threshold that keeps a patch flat at FLAT_COS after each normal turns by up to
+    `rotation` radians (culling decided once for a candidate list's lifetime)."""
+    return float(np.cos(np.arccos(FLAT_COS) - rotation))
 
 
 @njit(cache=True)
-def flat_patch(nrm_min, nrm_max, node_patch, a):
+def flat_patch(nrm_min, nrm_max, node_patch, a, flat_cos):
     """Node a is one connected patch whose normal cone is under 90 degrees (nrm_min / nrm_max:
-    bounds of its unit normals' projections on the k-DOP directions)."""
+    bounds of its unit normals' projections on the k-DOP directions, beyond flat_cos on one)."""
     if not node_patch[a]:
         return False
     for i in range(nrm_min.shape[1]):
-        if nrm_min[a, i] > FLAT_COS or nrm_max[a, i] < -FLAT_COS:
+        if nrm_min[a, i] > flat_cos or nrm_max[a, i] < -flat_cos:
             return True
     return False
 
 
 @njit(cache=True)
-def flat_union(nrm_min, nrm_max, node_patch, border_start, border_vert, a, b):
+def flat_union(nrm_min, nrm_max, node_patch, border_start, border_vert, a, b, flat_cos):
     """Nodes a and b (disjoint triangles) together form one flat patch: each is a patch, they share
     a vertex, and their normals together lie on one side of a plane."""
     if not (node_patch[a] and node_patch[b]):
         return False
     flat = False
     for i in range(nrm_min.shape[1]):
-        if min(nrm_min[a, i], nrm_min[b, i]) > FLAT_COS or max(nrm_max[a, i], nrm_max[b, i]) < -FLAT_COS:
+        if min(nrm_min[a, i], nrm_min[b, i]) > flat_cos or max(nrm_max[a, i], nrm_max[b, i]) < -flat_cos:
             flat = True
             break
     if not flat:

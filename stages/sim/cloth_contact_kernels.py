@@ -23,20 +23,23 @@ from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.obstacles.kdop import refit_range
-from stages.sim.cloth_contact_cull import flat_patch, flat_union, patch_nodes  # noqa: F401
+from stages.sim.cloth_contact_cull import FLAT_COS, UNION_COS, flat_patch, flat_union, patch_nodes  # noqa: F401
 from stages.sim.cloth_contact_ccd import (EE_CROSS, EE_NEAR, VF_CROSS, VF_NEAR,  # noqa: F401
                                           count_edge_triangle_crossings, cubic_roots01,
                                           segment_crosses_triangle, test_edge_edge, test_vertex_face,
                                           triple_cubic)
-from stages.sim.cloth_contact_pairs import (N_CONTACTS, N_CORRECTED, N_COUNTERS, N_LEFT,  # noqa: F401
-                                            N_NODE_PAIRS, N_OVERFLOW, N_REVERTED, N_ROUNDS, N_TESTS,
-                                            N_UNRESOLVED, brute_force_contacts, test_ee_pair,
-                                            test_triangle_pair, test_vf_pair)
+from stages.sim.cloth_contact_pairs import (N_BUILDS, N_CAND_OVERFLOW, N_CONTACTS, N_CORRECTED,  # noqa: F401
+                                            N_COUNTERS, N_LEFT, N_NODE_PAIRS, N_OVERFLOW, N_REVERTED, N_ROUNDS,
+                                            N_TESTS, N_UNRESOLVED, brute_force_contacts, edges_apart_bounds,
+                                            point_off_triangle, test_ee_pair, test_triangle_pair, test_vf_pair)
 
 # kernels below compile in code from these modules: their edits must invalidate the disk cache
 NUMBA_CACHE_DEPENDS = ("stages.obstacles.kdop", "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_cull",
                        "stages.sim.cloth_contact_pairs")
 
+STEPS_AHEAD = 8      # a candidate list is built wide enough for this many steps at each particle's speed,
+MAX_MOTION_STEPS = 4  # but at most this many times the motion margin
+MIN_TURN = 0.2       # rad: a candidate list culls only patches whose normals can turn this far and stay flat
 PUSH_OVER = 1.02     # responses push to 1.02 h so a contact just resolved is not found again at h
 SWEEPS = 3           # Gauss-Seidel sweeps over a round's contacts before the next detection
 
@@ -44,13 +47,8 @@ SWEEPS = 3           # Gauss-Seidel sweeps over a round's contacts before the ne
 # tree: refit and self-traversal
 
 @njit(cache=True, _nrt=False)
-def refit_cloth_tree(xs, xe, topo, tree, moved, margin):
-    """Leaves bound each triangle over the step (xs and xe) inflated by `margin`; a node is dirty
-    when a particle of its triangles moved since the last detection (moved[p] != 0); nrm_min/max
-    bound the projections of its triangles' unit normals (at xs and at xe) on the directions."""
-    triangles = topo[0]
-    (directions, axis_order, roots, node_min, node_max, children, leaf_prim, node_dirty, tri_min, tri_max, pt_min,
-     pt_max, nrm_min, nrm_max, node_patch, stack, border_start, border_vert) = tree
+def _segment_bounds(xs, xe, directions, margin, pt_min, pt_max):
+    """Each particle's k-DOP over its step xs -> xe, inflated by `margin`."""
     h = directions.shape[0]
     for p in range(xs.shape[0]):
         for i in range(h):
@@ -58,34 +56,40 @@ def refit_cloth_tree(xs, xe, topo, tree, moved, margin):
             b = xe[p, 0] * directions[i, 0] + xe[p, 1] * directions[i, 1] + xe[p, 2] * directions[i, 2]
             pt_min[p, i] = min(a, b) - margin
             pt_max[p, i] = max(a, b) + margin
-    # a triangle's bounds from its corners' (as stages.obstacles.kdop.triangle_bounds, exactly:
-    # min(p - m, q - m) == min(p, q) - m), 3 times fewer projections
+
+
+@njit(cache=True, _nrt=False)
+def _triangle_bounds(triangles, pt_min, pt_max, tri_min, tri_max):
+    """A triangle's bounds from its corners' (as stages.obstacles.kdop.triangle_bounds, exactly:
+    min(p - m, q - m) == min(p, q) - m), 3 times fewer projections."""
     for t in range(triangles.shape[0]):
         a = triangles[t, 0]
         b = triangles[t, 1]
         c = triangles[t, 2]
-        for i in range(h):
+        for i in range(pt_min.shape[1]):
             tri_min[t, i] = min(pt_min[a, i], min(pt_min[b, i], pt_min[c, i]))
             tri_max[t, i] = max(pt_max[a, i], max(pt_max[b, i], pt_max[c, i]))
+
+
+@njit(cache=True, _nrt=False)
+def _refit_nodes(xs, xe, topo, tree, moved, all_dirty):
+    """Node bounds from tri_min / tri_max; node_dirty (every node with all_dirty); nrm_min/max bound
+    the projections of the node's triangles' unit normals (at xs and at xe) on the directions."""
+    triangles = topo[0]
+    (directions, axis_order, roots, node_min, node_max, children, leaf_prim, node_dirty, tri_min, tri_max, pt_min,
+     pt_max, nrm_min, nrm_max, node_patch, stack, border_start, border_vert) = tree[:18]
+    h = directions.shape[0]
     refit_range(node_min, node_max, children, leaf_prim, tri_min, tri_max, 0, node_min.shape[0])
     for node in range(node_min.shape[0] - 1, -1, -1):
         t = leaf_prim[node]
         if t >= 0:
-            node_dirty[node] = moved[triangles[t, 0]] | moved[triangles[t, 1]] | moved[triangles[t, 2]]
+            dirty = moved[triangles[t, 0]] | moved[triangles[t, 1]] | moved[triangles[t, 2]]
+            node_dirty[node] = 1 if all_dirty else dirty
             for i in range(h):
                 nrm_min[node, i] = np.inf
                 nrm_max[node, i] = -np.inf
             for xx in (xs, xe):
-                a = triangles[t, 0]
-                e1x = xx[triangles[t, 1], 0] - xx[a, 0]
-                e1y = xx[triangles[t, 1], 1] - xx[a, 1]
-                e1z = xx[triangles[t, 1], 2] - xx[a, 2]
-                e2x = xx[triangles[t, 2], 0] - xx[a, 0]
-                e2y = xx[triangles[t, 2], 1] - xx[a, 1]
-                e2z = xx[triangles[t, 2], 2] - xx[a, 2]
-                nx = e1y * e2z - e1z * e2y
-                ny = e1z * e2x - e1x * e2z
-                nz = e1x * e2y - e1y * e2x
+                nx, ny, nz = _normal(xx, triangles, t)
                 ln = np.sqrt(nx * nx + ny * ny + nz * nz)
                 if ln == 0.0:
                     ln = 1.0  # a degenerate triangle: normal 0 makes no cone flat
@@ -103,6 +107,31 @@ def refit_cloth_tree(xs, xe, topo, tree, moved, margin):
 
 
 @njit(cache=True)
+def _normal(xx, triangles, t):
+    """(b - a) x (c - a) of triangle t at positions xx."""
+    a = triangles[t, 0]
+    b = triangles[t, 1]
+    c = triangles[t, 2]
+    e1x = xx[b, 0] - xx[a, 0]
+    e1y = xx[b, 1] - xx[a, 1]
+    e1z = xx[b, 2] - xx[a, 2]
+    e2x = xx[c, 0] - xx[a, 0]
+    e2y = xx[c, 1] - xx[a, 1]
+    e2z = xx[c, 2] - xx[a, 2]
+    return e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+
+
+@njit(cache=True, _nrt=False)
+def refit_cloth_tree(xs, xe, topo, tree, moved, margin):
+    """Leaves bound each triangle over the step (xs and xe) inflated by `margin`; a node is dirty
+    when a particle of its triangles moved since the last detection (moved[p] != 0); nrm_min/max
+    bound the projections of its triangles' unit normals (at xs and at xe) on the directions."""
+    _segment_bounds(xs, xe, tree[0], margin, tree[10], tree[11])
+    _triangle_bounds(topo[0], tree[10], tree[11], tree[8], tree[9])
+    _refit_nodes(xs, xe, topo, tree, moved, False)
+
+
+@njit(cache=True)
 def _disjoint(node_min, node_max, a, b, axis_order):
     for j in range(axis_order.shape[0]):
         i = axis_order[j]
@@ -111,14 +140,34 @@ def _disjoint(node_min, node_max, a, b, axis_order):
     return False
 
 
+@njit(cache=True)
+def _note_cull(tree, a, b):
+    """Nodes a and b (a == b: one node) were culled as one flat patch: note in node_slack (tree[25])
+    how far (rad) their normals may turn and keep it flat, the margin of their normal cone."""
+    nrm_min = tree[12]
+    nrm_max = tree[13]
+    node_slack = tree[25]
+    c = -1.0
+    for i in range(nrm_min.shape[1]):
+        c = max(c, min(nrm_min[a, i], nrm_min[b, i]), -max(nrm_max[a, i], nrm_max[b, i]))
+    slack = np.arccos(FLAT_COS if a == b else UNION_COS) - np.arccos(min(c, 1.0))
+    node_slack[a] = min(node_slack[a], slack)
+    node_slack[b] = min(node_slack[b], slack)
+
+
 @njit(cache=True, _nrt=False)
-def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters):
+def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters, collect=False, turn=0.0):
     """Self-traversal of the (refit) cloth tree: every pair of overlapping leaves with at least one
     dirty side is tested exactly (`test_triangle_pair`); with `cull`, a subtree that is a flat
     patch (`flat_patch`) is not tested against itself, nor two neighbouring nodes that together are one
-    (`flat_union`, stages.sim.cloth_contact_cull). Returns the number of contacts stored."""
+    (`flat_union`, stages.sim.cloth_contact_cull; with room for the normals to turn by `turn` rad).
+    Returns the number of contacts stored; with
+    `collect`, the feature pairs are appended to the candidate lists instead and each culled node
+    notes how far its normals may turn and keep it flat (`_note_cull`)."""
     (directions, axis_order, roots, node_min, node_max, children, leaf_prim, node_dirty, tri_min, tri_max, pt_min,
-     pt_max, nrm_min, nrm_max, node_patch, stack, border_start, border_vert) = tree
+     pt_max, nrm_min, nrm_max, node_patch, stack, border_start, border_vert) = tree[:18]
+    flat_cos = np.cos(np.arccos(FLAT_COS) - turn)
+    union_cos = np.cos(np.arccos(UNION_COS) - turn)
     n = 0
     # every garment's tree against itself and against every later one (roots: tree offsets)
     top = 0
@@ -138,7 +187,9 @@ def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters)
             # a subtree against itself: its two halves against themselves and each other
             if leaf_prim[a] >= 0 or not node_dirty[a]:
                 continue
-            if cull and flat_patch(nrm_min, nrm_max, node_patch, a):
+            if cull and flat_patch(nrm_min, nrm_max, node_patch, a, flat_cos):
+                if collect:
+                    _note_cull(tree, a, a)
                 continue
             if top + 3 > cap:
                 counters[N_OVERFLOW] += 1
@@ -157,13 +208,15 @@ def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters)
             continue
         if _disjoint(node_min, node_max, a, b, axis_order):
             continue
-        if cull and flat_union(nrm_min, nrm_max, node_patch, border_start, border_vert, a, b):
+        if cull and flat_union(nrm_min, nrm_max, node_patch, border_start, border_vert, a, b, union_cos):
+            if collect:
+                _note_cull(tree, a, b)
             continue   # neighbouring nodes of one garment that together are a flat patch
         la = leaf_prim[a] >= 0
         lb = leaf_prim[b] >= 0
         if la and lb:
             n = test_triangle_pair(xs, xe, leaf_prim[a], leaf_prim[b], topo, tree, h, layer_depth, only_cross,
-                                   work, n, counters)
+                                   work, n, counters, collect)
             continue
         if top + 2 > cap:
             counters[N_OVERFLOW] += 1
@@ -187,6 +240,222 @@ def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters)
         top += 2
     counters[N_NODE_PAIRS] += visited
     return n
+
+
+# ---------------------------------------------------------------------------------------------
+# candidate lists: the tree search once for several steps, only the exact tests every step.
+# tree[18:25] = (cand_vf (Cv, 2) (particle, triangle), cand_ee (Ce, 2) (edge, edge), cand_n (4,)
+# i8 (VF count, EE count, overflowed, state: 0 invalid, 1 valid, 2 valid with the build's bounds in
+# pt_min ...), cand_f (2,) f8 (margin, motion built with), box_lo / box_hi (N, 4) each particle's box
+# at the build (box_lo[:, 3]: how far it may move from it), nrm_ref (T, 4) unit normals at the build
+# and the cosine of how far each may turn, node_slack (n,) f8 the culled nodes' turn margins)
+
+@njit(cache=True, _nrt=False)
+def build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, counters):
+    """Candidate lists for every step while each particle stays within `motion` (m) of the box it
+    spans from xs to xe, and each triangle's normal close enough to its normal at xe to keep every
+    culled patch it is in flat (at most `rotation` rad; `candidates_valid`): the tree search over
+    those boxes widened by margin + motion collects every feature pair whose bounds overlap there,
+    a superset of what it would test at any such step."""
+    triangles = topo[0]
+    directions = tree[0]
+    pt_min = tree[10]
+    pt_max = tree[11]
+    cand_n = tree[20]
+    cand_f = tree[21]
+    box_lo = tree[22]
+    box_hi = tree[23]
+    nrm_ref = tree[24]
+    for p in range(xs.shape[0]):
+        step2 = 0.0
+        for k in range(3):
+            box_lo[p, k] = min(xs[p, k], xe[p, k])
+            box_hi[p, k] = max(xs[p, k], xe[p, k])
+            step2 += (xe[p, k] - xs[p, k]) ** 2
+        # how far the particle may go: `motion`, more for one moving fast now (its step x STEPS_AHEAD)
+        box_lo[p, 3] = max(motion, min(STEPS_AHEAD * np.sqrt(step2), MAX_MOTION_STEPS * motion))
+        grow = margin + box_lo[p, 3]
+        for i in range(directions.shape[0]):
+            lo = 0.0
+            hi = 0.0
+            for k in range(3):   # the box's extent along a direction: its extreme corners
+                d = directions[i, k]
+                if d >= 0.0:
+                    lo += d * box_lo[p, k]
+                    hi += d * box_hi[p, k]
+                else:
+                    lo += d * box_hi[p, k]
+                    hi += d * box_lo[p, k]
+            pt_min[p, i] = lo - grow
+            pt_max[p, i] = hi + grow
+    _triangle_bounds(triangles, pt_min, pt_max, tree[8], tree[9])
+    _refit_nodes(xs, xe, topo, tree, work[0], True)
+    for t in range(triangles.shape[0]):
+        nx, ny, nz = _normal(xe, triangles, t)
+        ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+        ln = 1.0 / ln if ln > 0.0 else 0.0   # degenerate: its nodes are not flat (no limit below)
+        nrm_ref[t, 0] = nx * ln
+        nrm_ref[t, 1] = ny * ln
+        nrm_ref[t, 2] = nz * ln
+    cand_n[0] = 0
+    cand_n[1] = 0
+    cand_n[2] = 0
+    node_slack = tree[25]
+    children = tree[5]
+    leaf_prim = tree[6]
+    node_slack[:] = np.inf
+    # culled only with room to turn (MIN_TURN), else a list would last a step
+    detect(xs, xe, topo, tree, work, 0.0, 0.0, False, cull, counters, True, MIN_TURN)
+    # a triangle may turn as far as the tightest culled node above it allows (at most `rotation`);
+    # nrm_ref[:, 3] the cosine of that, -2 under no culled node (no limit)
+    for node in range(children.shape[0]):   # parents before children
+        if leaf_prim[node] >= 0:
+            t = leaf_prim[node]
+            turn = min(node_slack[node], rotation)
+            nrm_ref[t, 3] = np.cos(turn) if node_slack[node] < np.inf else -2.0
+            continue
+        for j in range(2):
+            ch = children[node, j]
+            node_slack[ch] = min(node_slack[ch], node_slack[node])
+    cand_n[3] = 2   # valid, the bounds now the build's
+    cand_f[0] = margin
+    cand_f[1] = motion
+    counters[N_BUILDS] += 1
+    counters[N_CAND_OVERFLOW] += cand_n[2]
+
+
+@njit(cache=True, _nrt=False)
+def candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation):
+    """The candidate lists cover the step xs -> xe: built for this margin and motion, every particle
+    within its motion radius (box_lo[:, 3]) of its box at the build (at xs and at xe; its straight
+    path between them then too) and every triangle's normal within its allowed turn of its normal
+    at the build (nrm_ref[:, 3]: the cosine; the build's culled patches then stay flat). Checked for the particles moved since the last check (work[0]) and their triangles."""
+    triangles = topo[0]
+    cand_n = tree[20]
+    cand_f = tree[21]
+    box_lo = tree[22]
+    box_hi = tree[23]
+    nrm_ref = tree[24]
+    if cand_n[3] == 0 or cand_f[0] != margin or cand_f[1] != motion:
+        return False
+    moved = work[0]
+    for p in range(xs.shape[0]):
+        if not moved[p]:
+            continue   # where it was at the last check
+        m2 = box_lo[p, 3] * box_lo[p, 3]
+        for xx in (xs, xe):
+            d2 = 0.0
+            for k in range(3):
+                v = xx[p, k]
+                if v < box_lo[p, k]:
+                    d2 += (box_lo[p, k] - v) ** 2
+                elif v > box_hi[p, k]:
+                    d2 += (v - box_hi[p, k]) ** 2
+            if d2 > m2:
+                return False
+    for t in range(triangles.shape[0]):
+        cr = nrm_ref[t, 3]
+        if cr < -1.5 or not (moved[triangles[t, 0]] | moved[triangles[t, 1]] | moved[triangles[t, 2]]):
+            continue
+        for xx in (xs, xe):
+            nx, ny, nz = _normal(xx, triangles, t)
+            dot = nx * nrm_ref[t, 0] + ny * nrm_ref[t, 1] + nz * nrm_ref[t, 2]
+            if dot < cr * np.sqrt(nx * nx + ny * ny + nz * nz):
+                return False
+    return True
+
+
+@njit(cache=True, _nrt=False)
+def narrow(xs, xe, topo, tree, work, margin, h, layer_depth, only_cross, counters, full):
+    """The tree search's tests over the candidate lists: every candidate with a particle moved since
+    the last detection (work[0]) whose features' bounds over xs -> xe, inflated by `margin`, overlap
+    (the same filter as the tree search's) is tested exactly. Returns the number of contacts stored."""
+    triangles = topo[0]
+    edges = topo[1]
+    moved = work[0]
+    tri_min = tree[8]
+    tri_max = tree[9]
+    pt_min = tree[10]
+    pt_max = tree[11]
+    cand_vf = tree[18]
+    cand_ee = tree[19]
+    cand_n = tree[20]
+    if full:
+        _segment_bounds(xs, xe, tree[0], margin, pt_min, pt_max)
+        _triangle_bounds(triangles, pt_min, pt_max, tri_min, tri_max)
+    else:   # the others' bounds are the last call's (same xs, and xe where it was)
+        _moved_bounds(xs, xe, topo, tree, moved, margin)
+    n = 0
+    for k in range(cand_n[0]):
+        p = cand_vf[k, 0]
+        t = cand_vf[k, 1]
+        if not (moved[p] | moved[triangles[t, 0]] | moved[triangles[t, 1]] | moved[triangles[t, 2]]):
+            continue
+        if point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t):
+            continue
+        n = test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters)
+    for k in range(cand_n[1]):
+        e = cand_ee[k, 0]
+        f = cand_ee[k, 1]
+        a = edges[e, 0]
+        b = edges[e, 1]
+        c = edges[f, 0]
+        d = edges[f, 1]
+        if not (moved[a] | moved[b] | moved[c] | moved[d]):
+            continue
+        if edges_apart_bounds(pt_min, pt_max, a, b, c, d):
+            continue
+        n = test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
+    return n
+
+
+@njit(cache=True, _nrt=False)
+def _moved_bounds(xs, xe, topo, tree, moved, margin):
+    """_segment_bounds and _triangle_bounds for the moved particles and their triangles only."""
+    triangles = topo[0]
+    directions = tree[0]
+    tri_min = tree[8]
+    tri_max = tree[9]
+    pt_min = tree[10]
+    pt_max = tree[11]
+    h = directions.shape[0]
+    for p in range(xs.shape[0]):
+        if not moved[p]:
+            continue
+        for i in range(h):
+            a = xs[p, 0] * directions[i, 0] + xs[p, 1] * directions[i, 1] + xs[p, 2] * directions[i, 2]
+            b = xe[p, 0] * directions[i, 0] + xe[p, 1] * directions[i, 1] + xe[p, 2] * directions[i, 2]
+            pt_min[p, i] = min(a, b) - margin
+            pt_max[p, i] = max(a, b) + margin
+    for t in range(triangles.shape[0]):
+        a = triangles[t, 0]
+        b = triangles[t, 1]
+        c = triangles[t, 2]
+        if not (moved[a] | moved[b] | moved[c]):
+            continue
+        for i in range(h):
+            tri_min[t, i] = min(pt_min[a, i], min(pt_min[b, i], pt_min[c, i]))
+            tri_max[t, i] = max(pt_max[a, i], max(pt_max[b, i], pt_max[c, i]))
+
+
+@njit(cache=True, _nrt=False)
+def find_contacts(xs, xe, topo, tree, work, prm, only_cross, counters):
+    """One detection over xs -> xe into the contact buffer: over the candidate lists (rebuilt when
+    they no longer cover the step) when prm's motion margin is > 0, else by the tree search."""
+    thickness, layer_depth, rounds, failsafe_rounds, cull, motion, rotation = prm
+    margin = 0.5 * max(thickness, layer_depth)
+    if motion > 0.0:
+        # the bounds narrow() keeps are stale after a build or a tree search: then all afresh
+        full = tree[20][3] == 0 or tree[20][3] == 2
+        if not candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation):
+            build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, counters)
+            full = True
+        if tree[20][2] == 0:
+            tree[20][3] = 1
+            return narrow(xs, xe, topo, tree, work, margin, thickness, layer_depth, only_cross, counters, full)
+        tree[20][3] = 0   # overflowed: the tree search this time, a new build next time
+    refit_cloth_tree(xs, xe, topo, tree, work[0], margin)
+    return detect(xs, xe, topo, tree, work, thickness, layer_depth, only_cross, cull, counters)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -253,28 +522,29 @@ def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
            cloth triangle and no cloth edge through a cloth edge on the way x_prev -> x.
     inv_mass (N,) f8: 0 = pinned, never moved here.
     topo, tree, work: tuples of arrays from `ClothContact.kernel_args()` (stages.sim.cloth_contact).
-    prm: (thickness m, layer_depth m, rounds, failsafe_rounds, cull): cull = normal-cone culling of
-           flat patches in the self test (stages.sim.cloth_contact_cull).
+    prm: (thickness m, layer_depth m, rounds, failsafe_rounds, cull, motion m, rotation rad): cull =
+           normal-cone culling of flat patches in the self test (stages.sim.cloth_contact_cull);
+           motion > 0: detection over candidate lists kept while particles stay within `motion`
+           and normals within what keeps the culled patches flat (at most `rotation`) of where the
+           lists were built (`find_contacts`).
     counters (N_COUNTERS,) i8: accumulated (+=), see N_* above.
 
-    Rounds: refit the tree over x_prev -> x, find contacts (all pairs in round 1, then only pairs
+    Rounds: refit the tree over x_prev -> x (or check the candidate lists), find contacts (all pairs in round 1, then only pairs
     with a particle the previous round moved), project them; stop when a round finds none. If the
     rounds run out, the fail-safe finds the pairs that still pass through (CROSS) and puts their
     movable particles back at x_prev, repeated until none is left: as x_prev has no crossing, the
     worst case is the whole cloth at rest, which has none.
     """
-    thickness, layer_depth, rounds, failsafe_rounds, cull = prm
+    thickness, layer_depth, rounds, failsafe_rounds, cull, motion, rotation = prm
     moved = work[0]
     corrected = work[1]
-    margin = 0.5 * max(thickness, layer_depth)
     target = PUSH_OVER * thickness
     moved[:] = 1
     corrected[:] = 0
     clean = False
     for _ in range(rounds):
         dropped = counters[N_OVERFLOW]
-        refit_cloth_tree(x_prev, x, topo, tree, moved, margin)
-        n = detect(x_prev, x, topo, tree, work, thickness, layer_depth, False, cull, counters)
+        n = find_contacts(x_prev, x, topo, tree, work, prm, False, counters)
         counters[N_ROUNDS] += 1
         counters[N_CONTACTS] += n
         if n == 0 and counters[N_OVERFLOW] == dropped:
@@ -288,8 +558,7 @@ def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
     if not clean:
         for it in range(failsafe_rounds + 1):
             dropped = counters[N_OVERFLOW]
-            refit_cloth_tree(x_prev, x, topo, tree, moved, margin)
-            n = detect(x_prev, x, topo, tree, work, thickness, layer_depth, True, cull, counters)
+            n = find_contacts(x_prev, x, topo, tree, work, prm, True, counters)
             if it == 0:
                 counters[N_UNRESOLVED] += n
             if n == 0 and counters[N_OVERFLOW] == dropped:

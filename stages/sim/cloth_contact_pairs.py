@@ -26,7 +26,9 @@ N_ROUNDS = 5       # response rounds run
 N_NODE_PAIRS = 6   # tree node pairs visited
 N_TESTS = 7        # exact feature-pair tests
 N_OVERFLOW = 8     # contacts dropped because the contact buffer was full
-N_COUNTERS = 9
+N_BUILDS = 9       # candidate lists built (stages.sim.cloth_contact_kernels.build_candidates)
+N_CAND_OVERFLOW = 10  # candidate lists that overflowed their buffers (the tree search ran instead)
+N_COUNTERS = 11
 
 # ---------------------------------------------------------------------------------------------
 # feature pairs of two triangles, the contact buffer
@@ -145,7 +147,7 @@ def _in_triangle(triangles, p, t):
 
 
 @njit(cache=True)
-def _point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t):
+def point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t):
     """The particle's and the triangle's inflated swept k-DOPs are disjoint."""
     for i in range(pt_min.shape[1]):
         if pt_max[p, i] < tri_min[t, i] or tri_max[t, i] < pt_min[p, i]:
@@ -154,7 +156,7 @@ def _point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t):
 
 
 @njit(cache=True)
-def _edges_apart(pt_min, pt_max, a, b, c, d):
+def edges_apart_bounds(pt_min, pt_max, a, b, c, d):
     """The two edges' inflated swept k-DOPs (unions of their particles') are disjoint."""
     for i in range(pt_min.shape[1]):
         if max(pt_max[a, i], pt_max[b, i]) < min(pt_min[c, i], pt_min[d, i]):
@@ -165,9 +167,44 @@ def _edges_apart(pt_min, pt_max, a, b, c, d):
 
 
 @njit(cache=True)
-def test_triangle_pair(xs, xe, t1, t2, topo, tree, h, layer_depth, only_cross, work, n, counters):
+def _vf(xs, xe, p, t, topo, tree, h, layer_depth, only_cross, work, n, counters, collect):
+    """Test the pair, or with `collect` append it to the candidate list (tree[18], counts tree[20])."""
+    if not collect:
+        return test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters)
+    cand_vf = tree[18]
+    cand_n = tree[20]
+    k = cand_n[0]
+    if k >= cand_vf.shape[0]:
+        cand_n[2] = 1
+        return n
+    cand_vf[k, 0] = p
+    cand_vf[k, 1] = t
+    cand_n[0] = k + 1
+    return n
+
+
+@njit(cache=True)
+def _ee(xs, xe, e, f, topo, tree, h, layer_depth, only_cross, work, n, counters, collect):
+    """Test the pair (e < f), or with `collect` append it to the candidate list (tree[19])."""
+    if not collect:
+        return test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
+    cand_ee = tree[19]
+    cand_n = tree[20]
+    k = cand_n[1]
+    if k >= cand_ee.shape[0]:
+        cand_n[2] = 1
+        return n
+    cand_ee[k, 0] = e
+    cand_ee[k, 1] = f
+    cand_n[1] = k + 1
+    return n
+
+
+@njit(cache=True)
+def test_triangle_pair(xs, xe, t1, t2, topo, tree, h, layer_depth, only_cross, work, n, counters, collect):
     """Every pair of features owned by the two triangles that share no vertex themselves (see the
-    module doc), after a k-DOP check of the two features' own bounds (refit_cloth_tree)."""
+    module doc), after a k-DOP check of the two features' own bounds (refit_cloth_tree): tested,
+    or with `collect` appended to the candidate lists (the bounds then span the lists' lifetime)."""
     triangles = topo[0]
     edges = topo[1]
     tri_edges = topo[2]
@@ -181,12 +218,12 @@ def test_triangle_pair(xs, xe, t1, t2, topo, tree, h, layer_depth, only_cross, w
     for k in range(3):
         if o1 & (1 << k):
             p = triangles[t1, k]
-            if not _in_triangle(triangles, p, t2) and not _point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t2):
-                n = test_vf_pair(xs, xe, p, t2, topo, h, layer_depth, only_cross, work, n, counters)
+            if not _in_triangle(triangles, p, t2) and not point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t2):
+                n = _vf(xs, xe, p, t2, topo, tree, h, layer_depth, only_cross, work, n, counters, collect)
         if o2 & (1 << k):
             p = triangles[t2, k]
-            if not _in_triangle(triangles, p, t1) and not _point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t1):
-                n = test_vf_pair(xs, xe, p, t1, topo, h, layer_depth, only_cross, work, n, counters)
+            if not _in_triangle(triangles, p, t1) and not point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t1):
+                n = _vf(xs, xe, p, t1, topo, tree, h, layer_depth, only_cross, work, n, counters, collect)
     for i in range(3):
         if not (o1 & (8 << i)):
             continue
@@ -198,12 +235,12 @@ def test_triangle_pair(xs, xe, t1, t2, topo, tree, h, layer_depth, only_cross, w
             if (edges[e, 0] == edges[f, 0] or edges[e, 0] == edges[f, 1] or edges[e, 1] == edges[f, 0]
                     or edges[e, 1] == edges[f, 1]):
                 continue
-            if _edges_apart(pt_min, pt_max, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1]):
+            if edges_apart_bounds(pt_min, pt_max, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1]):
                 continue
             if e < f:
-                n = test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
+                n = _ee(xs, xe, e, f, topo, tree, h, layer_depth, only_cross, work, n, counters, collect)
             else:
-                n = test_ee_pair(xs, xe, f, e, topo, h, layer_depth, only_cross, work, n, counters)
+                n = _ee(xs, xe, f, e, topo, tree, h, layer_depth, only_cross, work, n, counters, collect)
     return n
 
 
