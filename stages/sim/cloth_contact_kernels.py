@@ -39,7 +39,7 @@ NUMBA_CACHE_DEPENDS = ("stages.obstacles.kdop", "stages.sim.cloth_contact_ccd", 
 
 STEPS_AHEAD = 8      # a candidate list is built wide enough for this many steps at each particle's speed,
 MAX_MOTION_STEPS = 4  # but at most this many times the motion margin
-MIN_TURN = 0.2       # rad: a candidate list culls only patches whose normals can turn this far and stay flat
+MIN_TURN = 0.5       # rad: a candidate list culls only patches whose normals can turn this far and stay flat
 PUSH_OVER = 1.02     # responses push to 1.02 h so a contact just resolved is not found again at h
 SWEEPS = 3           # Gauss-Seidel sweeps over a round's contacts before the next detection
 
