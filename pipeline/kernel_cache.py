@@ -30,10 +30,11 @@ STAGE_PACKAGES = {
     "obstacles": ("obstacles",),
     # sewing runs the simulation, without the cloth audit or cloth collision
     "garments": ("sim", "-sim/audit_kernels", "-sim/cloth_contact_kernels", "-sim/cloth_contact_ccd",
-                 "-sim/cloth_contact_bench"),
+                 "-sim/cloth_contact_pairs", "-sim/cloth_contact_cull", "-sim/cloth_contact_bench"),
     "simulation": ("sim", "-sim/audit_kernels", "-sim/cloth_contact_kernels", "-sim/cloth_contact_ccd",
-                   "-sim/cloth_contact_bench"),
-    "cloth collision": ("sim/cloth_contact_kernels", "sim/cloth_contact_ccd"),   # only scenes that turn it on
+                   "-sim/cloth_contact_pairs", "-sim/cloth_contact_cull", "-sim/cloth_contact_bench"),
+    "cloth collision": ("sim/cloth_contact_kernels", "sim/cloth_contact_ccd", "sim/cloth_contact_pairs",
+                        "sim/cloth_contact_cull"),   # only scenes that turn it on
     "cloth audit": ("sim/audit_kernels",),
 }
 ESTIMATE_S = {"rig": 1, "colliders": 18, "collider coverage": 3, "obstacles": 5, "garments": 16,

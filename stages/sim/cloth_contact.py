@@ -10,10 +10,12 @@ How the step loop uses it (stages.sim.step.run_steps / run_frames; `ClothPhase` 
 Once per scene, with the simulation's concatenated garments (System.x, System.tris, System.offsets):
 
     cc = build_cloth_contact(x, tris, offsets, layers=[layer of each garment], thickness=0.003,
-                             outward=outward_signs(x, tris, tri_garment, G, body_vertices))
+                             outward=outward_signs(x, tris, tri_garment, G, body_vertices),
+                             motion_margin=DEFAULT_MOTION)   # 0: the tree search every round
     topo, tree, work, prm = cc.kernel_args()      # tuples of arrays + (thickness, layer_depth,
-                                                  #  rounds, failsafe_rounds, cull): pass them into
-                                                  #  run_frames next to `cloth` / `cols`
+                                                  #  rounds, failsafe_rounds, cull, motion_margin,
+                                                  #  rotation): pass them into run_frames next to
+                                                  #  `cloth` / `cols`
     x_start = np.empty_like(x); counters = np.zeros(N_COUNTERS, np.int64)
 
 Phase order: forces, Verlet, springs and tethers, body colliders, obstacles, then cloth-cloth LAST,
@@ -45,8 +47,12 @@ from stages.checks import ContractError, check_array, check_index, check_positiv
 from stages.obstacles.kdop import DEFAULT_K, build_tree, kdop_directions, merge_forest, triangle_bounds
 from stages.obstacles.types import KdopTree
 from stages.sim import cloth_contact_kernels as CK
+from stages.sim.cloth_contact_cull import node_borders, patch_nodes
 
 DEFAULT_THICKNESS = 0.003  # m: about two layers of shirt fabric
+DEFAULT_MOTION = 0.005     # m: how far particles may move before the candidate lists are rebuilt
+DEFAULT_ROTATION = 1.5     # rad: the most a normal may turn before they are rebuilt (less where a culled
+                           # patch would stop being flat)
 SETTLE_FRAMES = 3          # frames at the frame-0 pose before frame 1 that sort garments starting interpenetrating
 
 
@@ -89,6 +95,15 @@ class ClothContact:
     rounds: >= 1 response rounds; failsafe_rounds: >= 1 revert rounds.
     cull: normal-cone culling of flat patches in the self test (off: every pair is tested, as the
       brute-force reference does).
+    Candidate lists (motion_margin > 0; stages.sim.cloth_contact_kernels.find_contacts): the tree
+      search runs once for as many steps as every particle stays within motion_margin (m) of the
+      box it spanned at the build and every normal within what keeps the culled patches flat (at
+      most `rotation` rad) of its direction then;
+      each step tests only the listed pairs. cand_vf (Cv, 2) int32 (particle, triangle), cand_ee
+      (Ce, 2) int32 (edge, edge), cand_n (4,) int64 (VF count, EE count, overflowed, valid),
+      cand_f (2,) float64 (margin, motion built with), box_lo / box_hi (N, 4) (the boxes, and in
+      box_lo[:, 3] how far each particle may move: motion_margin or more when it moves fast), nrm_ref
+      (T, 4) (unit normals, cosine of the allowed turn), node_slack (n,) (the culled nodes' turn margins).
     """
 
     triangles: np.ndarray
@@ -110,6 +125,8 @@ class ClothContact:
     nrm_min: np.ndarray
     nrm_max: np.ndarray
     node_patch: np.ndarray
+    border_start: np.ndarray
+    border_vert: np.ndarray
     axis_order: np.ndarray
     stack: np.ndarray
     moved: np.ndarray
@@ -119,11 +136,21 @@ class ClothContact:
     c_idx: np.ndarray
     c_w: np.ndarray
     c_dir: np.ndarray
+    cand_vf: np.ndarray
+    cand_ee: np.ndarray
+    cand_n: np.ndarray
+    cand_f: np.ndarray
+    box_lo: np.ndarray
+    box_hi: np.ndarray
+    nrm_ref: np.ndarray
+    node_slack: np.ndarray
     thickness: float = DEFAULT_THICKNESS
     layer_depth: float = DEFAULT_THICKNESS
     rounds: int = 4
     failsafe_rounds: int = 8
     cull: bool = True
+    motion_margin: float = 0.0
+    rotation: float = DEFAULT_ROTATION
 
     def __post_init__(self):
         o = "ClothContact"
@@ -170,6 +197,10 @@ class ClothContact:
         check_array(o, "nrm_min", self.nrm_min, (nn, h), np.float64, finite=False)
         check_array(o, "nrm_max", self.nrm_max, (nn, h), np.float64, finite=False)
         check_array(o, "node_patch", self.node_patch, (nn,), np.uint8)
+        bs = check_array(o, "border_start", self.border_start, (nn + 1,), np.int64)
+        bv = check_array(o, "border_vert", self.border_vert, (None,), np.int32)
+        if bs[0] != 0 or bs[-1] != bv.shape[0] or np.any(np.diff(bs) < 0):
+            raise ContractError(f"{o}.border_start: expected offsets rising from 0 to {bv.shape[0]}")
         ao = check_array(o, "axis_order", self.axis_order, (h,), np.int32)
         if sorted(ao.tolist()) != list(range(h)):
             raise ContractError(f"{o}.axis_order: expected a permutation of 0..{h - 1}")
@@ -184,6 +215,17 @@ class ClothContact:
         check_array(o, "c_idx", self.c_idx, (c, 4), np.int32)
         check_array(o, "c_w", self.c_w, (c, 4), np.float64, finite=False)
         check_array(o, "c_dir", self.c_dir, (c, 3), np.float64, finite=False)
+        cv = check_array(o, "cand_vf", self.cand_vf, (None, 2), np.int32)
+        check_array(o, "cand_ee", self.cand_ee, (cv.shape[0], 2), np.int32)
+        check_array(o, "cand_n", self.cand_n, (4,), np.int64)
+        check_array(o, "cand_f", self.cand_f, (2,), np.float64)
+        check_array(o, "box_lo", self.box_lo, (n, 4), np.float64, finite=False)
+        check_array(o, "box_hi", self.box_hi, (n, 4), np.float64, finite=False)
+        check_array(o, "nrm_ref", self.nrm_ref, (t, 4), np.float64, finite=False)
+        check_array(o, "node_slack", self.node_slack, (nn,), np.float64, finite=False)
+        if not (float(self.motion_margin) >= 0.0 and 0.0 < float(self.rotation) < float(np.arccos(CK.FLAT_COS))):
+            raise ContractError(f"{o}: motion_margin must be >= 0 and rotation in (0, {np.arccos(CK.FLAT_COS):.3f}) rad, "
+                                f"got {self.motion_margin}, {self.rotation}")
         check_positive(o, "thickness", float(self.thickness))
         if not float(self.layer_depth) >= float(self.thickness):
             raise ContractError(f"{o}.layer_depth: expected >= thickness ({self.thickness}), got {self.layer_depth}")
@@ -207,10 +249,11 @@ class ClothContact:
                 self.tri_garment, self.edge_garment, self.garment_layer, self.garment_outward)
         tree = (tr.directions, self.axis_order, tr.tree_offsets, tr.node_min, tr.node_max, tr.children, tr.leaf_prim,
                 self.node_dirty, self.tri_min, self.tri_max, self.pt_min, self.pt_max, self.nrm_min, self.nrm_max,
-                self.node_patch, self.stack)
+                self.node_patch, self.stack, self.border_start, self.border_vert, self.cand_vf, self.cand_ee,
+                self.cand_n, self.cand_f, self.box_lo, self.box_hi, self.nrm_ref, self.node_slack)
         work = (self.moved, self.corrected, self.c_kind, self.c_feat, self.c_idx, self.c_w, self.c_dir)
         prm = (float(self.thickness), float(self.layer_depth), int(self.rounds), int(self.failsafe_rounds),
-               bool(self.cull))
+               bool(self.cull), float(self.motion_margin), float(self.rotation))
         return topo, tree, work, prm
 
     def collide(self, x_prev: np.ndarray, x: np.ndarray, inv_mass: np.ndarray,
@@ -222,19 +265,22 @@ class ClothContact:
         return counters
 
     def contacts(self, x_prev: np.ndarray, x: np.ndarray, only_cross: bool = False,
-                 brute_force: bool = False) -> tuple[np.ndarray, np.ndarray]:
+                 brute_force: bool = False, counters: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Detection only (no response): (kind (m,) int8, feature pair (m, 2) int32: VF (particle,
-        triangle), EE (edge, edge) lower id first) of every contact between x_prev and x, sorted; by
-        the tree (default, with this object's `cull`) or by brute force over all pairs."""
+        triangle), EE (edge, edge) lower id first) of every contact between x_prev and x, sorted; as
+        collide_cloth finds them (the tree search, or the candidate lists kept from earlier calls
+        with motion_margin > 0; with this object's `cull`) or by brute force over all pairs.
+        counters (N_COUNTERS,) int64: accumulated if given."""
         topo, tree, work, prm = self.kernel_args()
-        counters = np.zeros(CK.N_COUNTERS, np.int64)
+        if counters is None:
+            counters = np.zeros(CK.N_COUNTERS, np.int64)
+        dropped = counters[CK.N_OVERFLOW]
         if brute_force:
             n = CK.brute_force_contacts(x_prev, x, topo, prm[0], prm[1], only_cross, work, counters)
         else:
             self.moved[:] = 1
-            CK.refit_cloth_tree(x_prev, x, topo, tree, self.moved, 0.5 * max(prm[0], prm[1]))
-            n = CK.detect(x_prev, x, topo, tree, work, prm[0], prm[1], only_cross, prm[4], counters)
-        if counters[CK.N_OVERFLOW]:
+            n = CK.find_contacts(x_prev, x, topo, tree, work, prm, only_cross, counters)
+        if counters[CK.N_OVERFLOW] != dropped:
             raise ContractError(f"ClothContact.contacts: contact buffer of {self.c_kind.shape[0]} overflowed")
         kind = self.c_kind[:n].copy()
         feat = self.c_feat[:n].copy()
@@ -299,7 +345,8 @@ def outward_signs(x: np.ndarray, triangles: np.ndarray, tri_garment: np.ndarray,
 def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, layers=None, outward=None,
                         thickness: float = DEFAULT_THICKNESS, layer_depth: float | None = None,
                         k: int = DEFAULT_K, rounds: int = 4, failsafe_rounds: int = 8, cull: bool = True,
-                        contact_capacity: int | None = None) -> ClothContact:
+                        contact_capacity: int | None = None, motion_margin: float = 0.0,
+                        rotation: float = DEFAULT_ROTATION, candidate_capacity: int | None = None) -> ClothContact:
     """The cloth contact phase for garments concatenated as in the simulation.
 
     x: (N, 3) float64 positions (world, m) the tree topology is built from (the setup pose).
@@ -342,7 +389,9 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
         trees.append(KdopTree(directions=d, node_min=tg.node_min, node_max=tg.node_max, children=tg.children,
                               leaf_prim=leaf, depth=tg.depth, tree_offsets=tg.tree_offsets, margin=tg.margin))
     tree = merge_forest(trees)
+    borders = node_borders(tree.children, tree.leaf_prim, tris, n, int(tree.max_depth))
     cap = contact_capacity if contact_capacity is not None else max(1024, 8 * n)
+    ccap = candidate_capacity if candidate_capacity is not None else max(4096, 64 * n)
     layers = np.zeros(g, np.int32) if layers is None else np.asarray(layers, np.int32)
     outward = np.ones(g) if outward is None else np.asarray(outward, np.float64)
     return ClothContact(
@@ -352,14 +401,19 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
         garment_outward=outward, tree=tree, node_dirty=np.ones(tree.node_min.shape[0], np.uint8),
         tri_min=tmin, tri_max=tmax, pt_min=np.zeros((n, h)), pt_max=np.zeros((n, h)),
         nrm_min=np.zeros((tree.node_min.shape[0], h)), nrm_max=np.zeros((tree.node_min.shape[0], h)),
-        node_patch=CK.patch_nodes(tree.children, tree.leaf_prim, tris, tri_garment.astype(np.int32), n),
+        node_patch=patch_nodes(tree.children, tree.leaf_prim, tris, tri_garment.astype(np.int32), n),
+        border_start=borders[0], border_vert=borders[1],
         axis_order=np.arange(h, dtype=np.int32),
         stack=np.zeros((8 * tree.max_depth + 32 + tree.n_trees ** 2, 2), np.int32),
         moved=np.ones(n, np.uint8), corrected=np.zeros(n, np.uint8),
         c_kind=np.zeros(cap, np.int8), c_feat=np.zeros((cap, 2), np.int32), c_idx=np.zeros((cap, 4), np.int32),
         c_w=np.zeros((cap, 4)), c_dir=np.zeros((cap, 3)),
         thickness=float(thickness), layer_depth=float(layer_depth if layer_depth is not None else thickness),
-        rounds=int(rounds), failsafe_rounds=int(failsafe_rounds), cull=bool(cull))
+        rounds=int(rounds), failsafe_rounds=int(failsafe_rounds), cull=bool(cull),
+        cand_vf=np.zeros((ccap, 2), np.int32), cand_ee=np.zeros((ccap, 2), np.int32), cand_n=np.zeros(4, np.int64),
+        cand_f=np.zeros(2), box_lo=np.zeros((n, 4)), box_hi=np.zeros((n, 4)), nrm_ref=np.zeros((tris.shape[0], 4)),
+        node_slack=np.zeros(tree.node_min.shape[0]),
+        motion_margin=float(motion_margin), rotation=float(rotation))
 
 
 class ClothPhase:
@@ -375,21 +429,25 @@ class ClothPhase:
     """
 
     def __init__(self, x, triangles, offsets, cinv, layers, body_points, thickness: float, every: int,
-                 layer_depth0: float):
+                 layer_depth0: float, motion_margin: float | None = None):
         g = len(offsets) - 1
         tri_garment = (np.searchsorted(np.asarray(offsets), np.asarray(triangles)[:, 0], side="right") - 1)
         outward = (outward_signs(x, triangles, tri_garment, g, body_points) if body_points is not None
                    and body_points.shape[0] else np.ones(g))
         self.cc = build_cloth_contact(x, triangles, offsets, layers=layers, outward=outward, thickness=thickness,
-                                      layer_depth=max(layer_depth0, thickness))
+                                      layer_depth=max(layer_depth0, thickness),
+                                      motion_margin=DEFAULT_MOTION if motion_margin is None else motion_margin,
+                                      rotation=DEFAULT_ROTATION)
         topo, tree, work, prm = self.cc.kernel_args()
         self.counters = np.zeros(CK.N_COUNTERS, np.int64)
         n = x.shape[0]
         self.x_start = np.zeros((n, 3))
         self.x_before = np.zeros((n, 3))
         self.cinv = np.ascontiguousarray(cinv, np.float64)
-        first = prm
-        rest = (prm[0], float(thickness), prm[2], prm[3], prm[4])
+        # sorting garments that start interpenetrating: the tree search (candidate lists as deep
+        # as layer_depth0 would hold most of the two garments)
+        first = (prm[0], prm[1], prm[2], prm[3], prm[4], 0.0, prm[6])
+        rest = (prm[0], float(thickness), prm[2], prm[3], prm[4], prm[5], prm[6])
         self.first = (self.x_start, self.x_before, self.cinv, topo, tree, work, first, self.counters, int(every))
         self.rest = (self.x_start, self.x_before, self.cinv, topo, tree, work, rest, self.counters, int(every))
         self.settle_frames = SETTLE_FRAMES
@@ -433,5 +491,6 @@ class ClothPhase:
                 "unresolved": int(c[CK.N_UNRESOLVED]), "reverted": int(c[CK.N_REVERTED]),
                 "left": int(c[CK.N_LEFT]), "rounds": int(c[CK.N_ROUNDS]), "node_pairs": int(c[CK.N_NODE_PAIRS]),
                 "tests": int(c[CK.N_TESTS]), "overflow": int(c[CK.N_OVERFLOW]),
+                "candidate_builds": int(c[CK.N_BUILDS]), "candidate_overflow": int(c[CK.N_CAND_OVERFLOW]),
                 "layers": [int(v) for v in self.cc.garment_layer],
                 "outward": [int(v) for v in self.cc.garment_outward]}

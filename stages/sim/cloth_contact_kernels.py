@@ -22,224 +22,33 @@ import numpy as np
 from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
-from stages.obstacles.kdop import refit_range, triangle_bounds
+from stages.obstacles.kdop import refit_range
+from stages.sim.cloth_contact_cull import FLAT_COS, UNION_COS, flat_patch, flat_union, patch_nodes  # noqa: F401
 from stages.sim.cloth_contact_ccd import (EE_CROSS, EE_NEAR, VF_CROSS, VF_NEAR,  # noqa: F401
                                           count_edge_triangle_crossings, cubic_roots01,
                                           segment_crosses_triangle, test_edge_edge, test_vertex_face,
                                           triple_cubic)
+from stages.sim.cloth_contact_pairs import (N_BUILDS, N_CAND_OVERFLOW, N_CONTACTS, N_CORRECTED,  # noqa: F401
+                                            N_COUNTERS, N_LEFT, N_NODE_PAIRS, N_OVERFLOW, N_REVERTED, N_ROUNDS,
+                                            N_TESTS, N_UNRESOLVED, brute_force_contacts, edges_apart_bounds,
+                                            point_off_triangle, test_ee_pair, test_triangle_pair, test_vf_pair)
 
 # kernels below compile in code from these modules: their edits must invalidate the disk cache
-NUMBA_CACHE_DEPENDS = ("stages.obstacles.kdop", "stages.sim.cloth_contact_ccd")
+NUMBA_CACHE_DEPENDS = ("stages.obstacles.kdop", "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_cull",
+                       "stages.sim.cloth_contact_pairs")
 
+STEPS_AHEAD = 8      # a candidate list is built wide enough for this many steps at each particle's speed,
+MAX_MOTION_STEPS = 4  # but at most this many times the motion margin
+MIN_TURN = 0.5       # rad: a candidate list culls only patches whose normals can turn this far and stay flat
 PUSH_OVER = 1.02     # responses push to 1.02 h so a contact just resolved is not found again at h
 SWEEPS = 3           # Gauss-Seidel sweeps over a round's contacts before the next detection
-FLAT_COS = 0.05      # a patch is flat when its unit normals project beyond this on one direction
-
-# counters (int64, accumulated with +=; the caller zeroes them)
-N_CONTACTS = 0     # contacts found over all rounds
-N_CORRECTED = 1    # particles moved by a response or the fail-safe (once per call each)
-N_UNRESOLVED = 2   # CROSS contacts left after the response rounds (handed to the fail-safe)
-N_REVERTED = 3     # particles the fail-safe put back to x_prev
-N_LEFT = 4         # CROSS left after the fail-safe: 0 unless pinned particles force them, x_prev
-                   # already had crossings, or failsafe_rounds ran out
-N_ROUNDS = 5       # response rounds run
-N_NODE_PAIRS = 6   # tree node pairs visited
-N_TESTS = 7        # exact feature-pair tests
-N_OVERFLOW = 8     # contacts dropped because the contact buffer was full
-N_COUNTERS = 9
-
-
-# ---------------------------------------------------------------------------------------------
-# feature pairs of two triangles, the contact buffer
-
-@njit(cache=True)
-def _vf_forced(p, t, particle_garment, tri_garment, garment_layer, garment_outward):
-    """The side the layers prescribe for particle p against triangle t (0: none)."""
-    gp = particle_garment[p]
-    gt = tri_garment[t]
-    if garment_layer[gp] > garment_layer[gt]:
-        return int(garment_outward[gt])   # p is outer: along t's outward normal
-    if garment_layer[gp] < garment_layer[gt]:
-        return -int(garment_outward[gt])  # p is inner: against the outer triangle's outward normal
-    return 0
-
-
-@njit(cache=True)
-def _edge_outward(xe, e, edge_tris, triangles, tri_garment, garment_outward):
-    """Outward normal of edge e at the end of the step: the sum of its triangles' outward normals."""
-    ox = 0.0
-    oy = 0.0
-    oz = 0.0
-    for j in range(2):
-        t = edge_tris[e, j]
-        if t < 0:
-            continue
-        a = triangles[t, 0]
-        b = triangles[t, 1]
-        c = triangles[t, 2]
-        e1x = xe[b, 0] - xe[a, 0]
-        e1y = xe[b, 1] - xe[a, 1]
-        e1z = xe[b, 2] - xe[a, 2]
-        e2x = xe[c, 0] - xe[a, 0]
-        e2y = xe[c, 1] - xe[a, 1]
-        e2z = xe[c, 2] - xe[a, 2]
-        nx = e1y * e2z - e1z * e2y
-        ny = e1z * e2x - e1x * e2z
-        nz = e1x * e2y - e1y * e2x
-        ln = np.sqrt(nx * nx + ny * ny + nz * nz)
-        if ln > 0.0:
-            sg = garment_outward[tri_garment[t]] / ln
-            ox += sg * nx
-            oy += sg * ny
-            oz += sg * nz
-    return ox, oy, oz
-
-
-@njit(cache=True)
-def _store(work, n, kind, f0, f1, i0, i1, i2, i3, w0, w1, w2, w3, dx, dy, dz, counters):
-    moved, corrected, c_kind, c_feat, c_idx, c_w, c_dir = work
-    if n >= c_kind.shape[0]:
-        counters[N_OVERFLOW] += 1
-        return n
-    c_kind[n] = kind
-    c_feat[n, 0] = f0
-    c_feat[n, 1] = f1
-    c_idx[n, 0] = i0
-    c_idx[n, 1] = i1
-    c_idx[n, 2] = i2
-    c_idx[n, 3] = i3
-    c_w[n, 0] = w0
-    c_w[n, 1] = w1
-    c_w[n, 2] = w2
-    c_w[n, 3] = w3
-    c_dir[n, 0] = dx
-    c_dir[n, 1] = dy
-    c_dir[n, 2] = dz
-    return n + 1
-
-
-@njit(cache=True)
-def test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters):
-    """Exact test of particle p against triangle t; stores a contact in the buffer. Returns n."""
-    (triangles, edges, tri_edges, tri_owns, edge_tris, particle_garment, tri_garment, edge_garment,
-     garment_layer, garment_outward) = topo
-    a = triangles[t, 0]
-    b = triangles[t, 1]
-    c = triangles[t, 2]
-    forced = _vf_forced(p, t, particle_garment, tri_garment, garment_layer, garment_outward)
-    counters[N_TESTS] += 1
-    kind, wa, wb, wc, dx, dy, dz = test_vertex_face(xs, xe, p, a, b, c, forced, h, layer_depth)
-    if kind < 0 or (only_cross and kind != VF_CROSS):
-        return n
-    return _store(work, n, kind, p, t, p, a, b, c, 1.0, -wa, -wb, -wc, dx, dy, dz, counters)
-
-
-@njit(cache=True)
-def test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters):
-    """Exact test of edge e against edge f (e < f); stores a contact in the buffer. Returns n."""
-    (triangles, edges, tri_edges, tri_owns, edge_tris, particle_garment, tri_garment, edge_garment,
-     garment_layer, garment_outward) = topo
-    a = edges[e, 0]
-    b = edges[e, 1]
-    c = edges[f, 0]
-    d = edges[f, 1]
-    forced = 0
-    ox = 0.0
-    oy = 0.0
-    oz = 0.0
-    le = garment_layer[edge_garment[e]]
-    lf = garment_layer[edge_garment[f]]
-    if le != lf:
-        inner = e if le < lf else f
-        forced = 1 if le < lf else -1
-        ox, oy, oz = _edge_outward(xe, inner, edge_tris, triangles, tri_garment, garment_outward)
-    counters[N_TESTS] += 1
-    kind, v, u, _, dx, dy, dz = test_edge_edge(xs, xe, a, b, c, d, forced, ox, oy, oz, h, layer_depth)
-    if kind < 0 or (only_cross and kind != EE_CROSS):
-        return n
-    return _store(work, n, kind, e, f, a, b, c, d, v - 1.0, -v, 1.0 - u, u, dx, dy, dz, counters)
-
-
-@njit(cache=True)
-def _in_triangle(triangles, p, t):
-    return p == triangles[t, 0] or p == triangles[t, 1] or p == triangles[t, 2]
-
-
-@njit(cache=True)
-def _point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t):
-    """The particle's and the triangle's inflated swept k-DOPs are disjoint."""
-    for i in range(pt_min.shape[1]):
-        if pt_max[p, i] < tri_min[t, i] or tri_max[t, i] < pt_min[p, i]:
-            return True
-    return False
-
-
-@njit(cache=True)
-def _edges_apart(pt_min, pt_max, a, b, c, d):
-    """The two edges' inflated swept k-DOPs (unions of their particles') are disjoint."""
-    for i in range(pt_min.shape[1]):
-        if max(pt_max[a, i], pt_max[b, i]) < min(pt_min[c, i], pt_min[d, i]):
-            return True
-        if max(pt_max[c, i], pt_max[d, i]) < min(pt_min[a, i], pt_min[b, i]):
-            return True
-    return False
-
-
-@njit(cache=True)
-def test_triangle_pair(xs, xe, t1, t2, topo, tree, h, layer_depth, only_cross, work, n, counters):
-    """Every pair of features owned by the two triangles that share no vertex themselves (see the
-    module doc), after a k-DOP check of the two features' own bounds (refit_cloth_tree)."""
-    triangles = topo[0]
-    edges = topo[1]
-    tri_edges = topo[2]
-    tri_owns = topo[3]
-    tri_min = tree[8]
-    tri_max = tree[9]
-    pt_min = tree[10]
-    pt_max = tree[11]
-    o1 = tri_owns[t1]
-    o2 = tri_owns[t2]
-    for k in range(3):
-        if o1 & (1 << k):
-            p = triangles[t1, k]
-            if not _in_triangle(triangles, p, t2) and not _point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t2):
-                n = test_vf_pair(xs, xe, p, t2, topo, h, layer_depth, only_cross, work, n, counters)
-        if o2 & (1 << k):
-            p = triangles[t2, k]
-            if not _in_triangle(triangles, p, t1) and not _point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t1):
-                n = test_vf_pair(xs, xe, p, t1, topo, h, layer_depth, only_cross, work, n, counters)
-    for i in range(3):
-        if not (o1 & (8 << i)):
-            continue
-        for j in range(3):
-            if not (o2 & (8 << j)):
-                continue
-            e = tri_edges[t1, i]
-            f = tri_edges[t2, j]
-            if (edges[e, 0] == edges[f, 0] or edges[e, 0] == edges[f, 1] or edges[e, 1] == edges[f, 0]
-                    or edges[e, 1] == edges[f, 1]):
-                continue
-            if _edges_apart(pt_min, pt_max, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1]):
-                continue
-            if e < f:
-                n = test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
-            else:
-                n = test_ee_pair(xs, xe, f, e, topo, h, layer_depth, only_cross, work, n, counters)
-    return n
-
 
 # ---------------------------------------------------------------------------------------------
 # tree: refit and self-traversal
 
 @njit(cache=True, _nrt=False)
-def refit_cloth_tree(xs, xe, topo, tree, moved, margin):
-    """Leaves bound each triangle over the step (xs and xe) inflated by `margin`; a node is dirty
-    when a particle of its triangles moved since the last detection (moved[p] != 0); nrm_min/max
-    bound the projections of its triangles' unit normals (at xs and at xe) on the directions."""
-    triangles = topo[0]
-    (directions, axis_order, roots, node_min, node_max, children, leaf_prim, node_dirty, tri_min, tri_max, pt_min,
-     pt_max, nrm_min, nrm_max, node_patch, stack) = tree
-    triangle_bounds(directions, xs, xe, triangles, margin, tri_min, tri_max)
+def _segment_bounds(xs, xe, directions, margin, pt_min, pt_max):
+    """Each particle's k-DOP over its step xs -> xe, inflated by `margin`."""
     h = directions.shape[0]
     for p in range(xs.shape[0]):
         for i in range(h):
@@ -247,25 +56,40 @@ def refit_cloth_tree(xs, xe, topo, tree, moved, margin):
             b = xe[p, 0] * directions[i, 0] + xe[p, 1] * directions[i, 1] + xe[p, 2] * directions[i, 2]
             pt_min[p, i] = min(a, b) - margin
             pt_max[p, i] = max(a, b) + margin
+
+
+@njit(cache=True, _nrt=False)
+def _triangle_bounds(triangles, pt_min, pt_max, tri_min, tri_max):
+    """A triangle's bounds from its corners' (as stages.obstacles.kdop.triangle_bounds, exactly:
+    min(p - m, q - m) == min(p, q) - m), 3 times fewer projections."""
+    for t in range(triangles.shape[0]):
+        a = triangles[t, 0]
+        b = triangles[t, 1]
+        c = triangles[t, 2]
+        for i in range(pt_min.shape[1]):
+            tri_min[t, i] = min(pt_min[a, i], min(pt_min[b, i], pt_min[c, i]))
+            tri_max[t, i] = max(pt_max[a, i], max(pt_max[b, i], pt_max[c, i]))
+
+
+@njit(cache=True, _nrt=False)
+def _refit_nodes(xs, xe, topo, tree, moved, all_dirty):
+    """Node bounds from tri_min / tri_max; node_dirty (every node with all_dirty); nrm_min/max bound
+    the projections of the node's triangles' unit normals (at xs and at xe) on the directions."""
+    triangles = topo[0]
+    (directions, axis_order, roots, node_min, node_max, children, leaf_prim, node_dirty, tri_min, tri_max, pt_min,
+     pt_max, nrm_min, nrm_max, node_patch, stack, border_start, border_vert) = tree[:18]
+    h = directions.shape[0]
     refit_range(node_min, node_max, children, leaf_prim, tri_min, tri_max, 0, node_min.shape[0])
     for node in range(node_min.shape[0] - 1, -1, -1):
         t = leaf_prim[node]
         if t >= 0:
-            node_dirty[node] = moved[triangles[t, 0]] | moved[triangles[t, 1]] | moved[triangles[t, 2]]
+            dirty = moved[triangles[t, 0]] | moved[triangles[t, 1]] | moved[triangles[t, 2]]
+            node_dirty[node] = 1 if all_dirty else dirty
             for i in range(h):
                 nrm_min[node, i] = np.inf
                 nrm_max[node, i] = -np.inf
             for xx in (xs, xe):
-                a = triangles[t, 0]
-                e1x = xx[triangles[t, 1], 0] - xx[a, 0]
-                e1y = xx[triangles[t, 1], 1] - xx[a, 1]
-                e1z = xx[triangles[t, 1], 2] - xx[a, 2]
-                e2x = xx[triangles[t, 2], 0] - xx[a, 0]
-                e2y = xx[triangles[t, 2], 1] - xx[a, 1]
-                e2z = xx[triangles[t, 2], 2] - xx[a, 2]
-                nx = e1y * e2z - e1z * e2y
-                ny = e1z * e2x - e1x * e2z
-                nz = e1x * e2y - e1y * e2x
+                nx, ny, nz = _normal(xx, triangles, t)
                 ln = np.sqrt(nx * nx + ny * ny + nz * nz)
                 if ln == 0.0:
                     ln = 1.0  # a degenerate triangle: normal 0 makes no cone flat
@@ -283,6 +107,31 @@ def refit_cloth_tree(xs, xe, topo, tree, moved, margin):
 
 
 @njit(cache=True)
+def _normal(xx, triangles, t):
+    """(b - a) x (c - a) of triangle t at positions xx."""
+    a = triangles[t, 0]
+    b = triangles[t, 1]
+    c = triangles[t, 2]
+    e1x = xx[b, 0] - xx[a, 0]
+    e1y = xx[b, 1] - xx[a, 1]
+    e1z = xx[b, 2] - xx[a, 2]
+    e2x = xx[c, 0] - xx[a, 0]
+    e2y = xx[c, 1] - xx[a, 1]
+    e2z = xx[c, 2] - xx[a, 2]
+    return e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+
+
+@njit(cache=True, _nrt=False)
+def refit_cloth_tree(xs, xe, topo, tree, moved, margin):
+    """Leaves bound each triangle over the step (xs and xe) inflated by `margin`; a node is dirty
+    when a particle of its triangles moved since the last detection (moved[p] != 0); nrm_min/max
+    bound the projections of its triangles' unit normals (at xs and at xe) on the directions."""
+    _segment_bounds(xs, xe, tree[0], margin, tree[10], tree[11])
+    _triangle_bounds(topo[0], tree[10], tree[11], tree[8], tree[9])
+    _refit_nodes(xs, xe, topo, tree, moved, False)
+
+
+@njit(cache=True)
 def _disjoint(node_min, node_max, a, b, axis_order):
     for j in range(axis_order.shape[0]):
         i = axis_order[j]
@@ -292,26 +141,33 @@ def _disjoint(node_min, node_max, a, b, axis_order):
 
 
 @njit(cache=True)
-def _flat_patch(nrm_min, nrm_max, node_patch, a):
-    """Normal-cone culling (Volino & Magnenat-Thalmann 1994): one edge-connected patch whose
-    normals all lie strictly on one side of a plane through the origin cannot fold onto itself.
-    (Their contour test, that the patch's outline does not overlap itself in projection, is left
-    out: a median-split patch of a cloth mesh is compact.)"""
-    if not node_patch[a]:
-        return False
+def _note_cull(tree, a, b):
+    """Nodes a and b (a == b: one node) were culled as one flat patch: note in node_slack (tree[25])
+    how far (rad) their normals may turn and keep it flat, the margin of their normal cone."""
+    nrm_min = tree[12]
+    nrm_max = tree[13]
+    node_slack = tree[25]
+    c = -1.0
     for i in range(nrm_min.shape[1]):
-        if nrm_min[a, i] > FLAT_COS or nrm_max[a, i] < -FLAT_COS:
-            return True
-    return False
+        c = max(c, min(nrm_min[a, i], nrm_min[b, i]), -max(nrm_max[a, i], nrm_max[b, i]))
+    slack = np.arccos(FLAT_COS if a == b else UNION_COS) - np.arccos(min(c, 1.0))
+    node_slack[a] = min(node_slack[a], slack)
+    node_slack[b] = min(node_slack[b], slack)
 
 
 @njit(cache=True, _nrt=False)
-def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters):
+def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters, collect=False, turn=0.0):
     """Self-traversal of the (refit) cloth tree: every pair of overlapping leaves with at least one
     dirty side is tested exactly (`test_triangle_pair`); with `cull`, a subtree that is a flat
-    patch (`_flat_patch`) is not tested against itself. Returns the number of contacts stored."""
+    patch (`flat_patch`) is not tested against itself, nor two neighbouring nodes that together are one
+    (`flat_union`, stages.sim.cloth_contact_cull; with room for the normals to turn by `turn` rad).
+    Returns the number of contacts stored; with
+    `collect`, the feature pairs are appended to the candidate lists instead and each culled node
+    notes how far its normals may turn and keep it flat (`_note_cull`)."""
     (directions, axis_order, roots, node_min, node_max, children, leaf_prim, node_dirty, tri_min, tri_max, pt_min,
-     pt_max, nrm_min, nrm_max, node_patch, stack) = tree
+     pt_max, nrm_min, nrm_max, node_patch, stack, border_start, border_vert) = tree[:18]
+    flat_cos = np.cos(np.arccos(FLAT_COS) - turn)
+    union_cos = np.cos(np.arccos(UNION_COS) - turn)
     n = 0
     # every garment's tree against itself and against every later one (roots: tree offsets)
     top = 0
@@ -331,7 +187,9 @@ def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters)
             # a subtree against itself: its two halves against themselves and each other
             if leaf_prim[a] >= 0 or not node_dirty[a]:
                 continue
-            if cull and _flat_patch(nrm_min, nrm_max, node_patch, a):
+            if cull and flat_patch(nrm_min, nrm_max, node_patch, a, flat_cos):
+                if collect:
+                    _note_cull(tree, a, a)
                 continue
             if top + 3 > cap:
                 counters[N_OVERFLOW] += 1
@@ -350,11 +208,15 @@ def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters)
             continue
         if _disjoint(node_min, node_max, a, b, axis_order):
             continue
+        if cull and flat_union(nrm_min, nrm_max, node_patch, border_start, border_vert, a, b, union_cos):
+            if collect:
+                _note_cull(tree, a, b)
+            continue   # neighbouring nodes of one garment that together are a flat patch
         la = leaf_prim[a] >= 0
         lb = leaf_prim[b] >= 0
         if la and lb:
             n = test_triangle_pair(xs, xe, leaf_prim[a], leaf_prim[b], topo, tree, h, layer_depth, only_cross,
-                                   work, n, counters)
+                                   work, n, counters, collect)
             continue
         if top + 2 > cap:
             counters[N_OVERFLOW] += 1
@@ -378,6 +240,222 @@ def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters)
         top += 2
     counters[N_NODE_PAIRS] += visited
     return n
+
+
+# ---------------------------------------------------------------------------------------------
+# candidate lists: the tree search once for several steps, only the exact tests every step.
+# tree[18:25] = (cand_vf (Cv, 2) (particle, triangle), cand_ee (Ce, 2) (edge, edge), cand_n (4,)
+# i8 (VF count, EE count, overflowed, state: 0 invalid, 1 valid, 2 valid with the build's bounds in
+# pt_min ...), cand_f (2,) f8 (margin, motion built with), box_lo / box_hi (N, 4) each particle's box
+# at the build (box_lo[:, 3]: how far it may move from it), nrm_ref (T, 4) unit normals at the build
+# and the cosine of how far each may turn, node_slack (n,) f8 the culled nodes' turn margins)
+
+@njit(cache=True, _nrt=False)
+def build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, counters):
+    """Candidate lists for every step while each particle stays within `motion` (m) of the box it
+    spans from xs to xe, and each triangle's normal close enough to its normal at xe to keep every
+    culled patch it is in flat (at most `rotation` rad; `candidates_valid`): the tree search over
+    those boxes widened by margin + motion collects every feature pair whose bounds overlap there,
+    a superset of what it would test at any such step."""
+    triangles = topo[0]
+    directions = tree[0]
+    pt_min = tree[10]
+    pt_max = tree[11]
+    cand_n = tree[20]
+    cand_f = tree[21]
+    box_lo = tree[22]
+    box_hi = tree[23]
+    nrm_ref = tree[24]
+    for p in range(xs.shape[0]):
+        step2 = 0.0
+        for k in range(3):
+            box_lo[p, k] = min(xs[p, k], xe[p, k])
+            box_hi[p, k] = max(xs[p, k], xe[p, k])
+            step2 += (xe[p, k] - xs[p, k]) ** 2
+        # how far the particle may go: `motion`, more for one moving fast now (its step x STEPS_AHEAD)
+        box_lo[p, 3] = max(motion, min(STEPS_AHEAD * np.sqrt(step2), MAX_MOTION_STEPS * motion))
+        grow = margin + box_lo[p, 3]
+        for i in range(directions.shape[0]):
+            lo = 0.0
+            hi = 0.0
+            for k in range(3):   # the box's extent along a direction: its extreme corners
+                d = directions[i, k]
+                if d >= 0.0:
+                    lo += d * box_lo[p, k]
+                    hi += d * box_hi[p, k]
+                else:
+                    lo += d * box_hi[p, k]
+                    hi += d * box_lo[p, k]
+            pt_min[p, i] = lo - grow
+            pt_max[p, i] = hi + grow
+    _triangle_bounds(triangles, pt_min, pt_max, tree[8], tree[9])
+    _refit_nodes(xs, xe, topo, tree, work[0], True)
+    for t in range(triangles.shape[0]):
+        nx, ny, nz = _normal(xe, triangles, t)
+        ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+        ln = 1.0 / ln if ln > 0.0 else 0.0   # degenerate: its nodes are not flat (no limit below)
+        nrm_ref[t, 0] = nx * ln
+        nrm_ref[t, 1] = ny * ln
+        nrm_ref[t, 2] = nz * ln
+    cand_n[0] = 0
+    cand_n[1] = 0
+    cand_n[2] = 0
+    node_slack = tree[25]
+    children = tree[5]
+    leaf_prim = tree[6]
+    node_slack[:] = np.inf
+    # culled only with room to turn (MIN_TURN), else a list would last a step
+    detect(xs, xe, topo, tree, work, 0.0, 0.0, False, cull, counters, True, MIN_TURN)
+    # a triangle may turn as far as the tightest culled node above it allows (at most `rotation`);
+    # nrm_ref[:, 3] the cosine of that, -2 under no culled node (no limit)
+    for node in range(children.shape[0]):   # parents before children
+        if leaf_prim[node] >= 0:
+            t = leaf_prim[node]
+            turn = min(node_slack[node], rotation)
+            nrm_ref[t, 3] = np.cos(turn) if node_slack[node] < np.inf else -2.0
+            continue
+        for j in range(2):
+            ch = children[node, j]
+            node_slack[ch] = min(node_slack[ch], node_slack[node])
+    cand_n[3] = 2   # valid, the bounds now the build's
+    cand_f[0] = margin
+    cand_f[1] = motion
+    counters[N_BUILDS] += 1
+    counters[N_CAND_OVERFLOW] += cand_n[2]
+
+
+@njit(cache=True, _nrt=False)
+def candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation):
+    """The candidate lists cover the step xs -> xe: built for this margin and motion, every particle
+    within its motion radius (box_lo[:, 3]) of its box at the build (at xs and at xe; its straight
+    path between them then too) and every triangle's normal within its allowed turn of its normal
+    at the build (nrm_ref[:, 3]: the cosine; the build's culled patches then stay flat). Checked for the particles moved since the last check (work[0]) and their triangles."""
+    triangles = topo[0]
+    cand_n = tree[20]
+    cand_f = tree[21]
+    box_lo = tree[22]
+    box_hi = tree[23]
+    nrm_ref = tree[24]
+    if cand_n[3] == 0 or cand_f[0] != margin or cand_f[1] != motion:
+        return False
+    moved = work[0]
+    for p in range(xs.shape[0]):
+        if not moved[p]:
+            continue   # where it was at the last check
+        m2 = box_lo[p, 3] * box_lo[p, 3]
+        for xx in (xs, xe):
+            d2 = 0.0
+            for k in range(3):
+                v = xx[p, k]
+                if v < box_lo[p, k]:
+                    d2 += (box_lo[p, k] - v) ** 2
+                elif v > box_hi[p, k]:
+                    d2 += (v - box_hi[p, k]) ** 2
+            if d2 > m2:
+                return False
+    for t in range(triangles.shape[0]):
+        cr = nrm_ref[t, 3]
+        if cr < -1.5 or not (moved[triangles[t, 0]] | moved[triangles[t, 1]] | moved[triangles[t, 2]]):
+            continue
+        for xx in (xs, xe):
+            nx, ny, nz = _normal(xx, triangles, t)
+            dot = nx * nrm_ref[t, 0] + ny * nrm_ref[t, 1] + nz * nrm_ref[t, 2]
+            if dot < cr * np.sqrt(nx * nx + ny * ny + nz * nz):
+                return False
+    return True
+
+
+@njit(cache=True, _nrt=False)
+def narrow(xs, xe, topo, tree, work, margin, h, layer_depth, only_cross, counters, full):
+    """The tree search's tests over the candidate lists: every candidate with a particle moved since
+    the last detection (work[0]) whose features' bounds over xs -> xe, inflated by `margin`, overlap
+    (the same filter as the tree search's) is tested exactly. Returns the number of contacts stored."""
+    triangles = topo[0]
+    edges = topo[1]
+    moved = work[0]
+    tri_min = tree[8]
+    tri_max = tree[9]
+    pt_min = tree[10]
+    pt_max = tree[11]
+    cand_vf = tree[18]
+    cand_ee = tree[19]
+    cand_n = tree[20]
+    if full:
+        _segment_bounds(xs, xe, tree[0], margin, pt_min, pt_max)
+        _triangle_bounds(triangles, pt_min, pt_max, tri_min, tri_max)
+    else:   # the others' bounds are the last call's (same xs, and xe where it was)
+        _moved_bounds(xs, xe, topo, tree, moved, margin)
+    n = 0
+    for k in range(cand_n[0]):
+        p = cand_vf[k, 0]
+        t = cand_vf[k, 1]
+        if not (moved[p] | moved[triangles[t, 0]] | moved[triangles[t, 1]] | moved[triangles[t, 2]]):
+            continue
+        if point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t):
+            continue
+        n = test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters)
+    for k in range(cand_n[1]):
+        e = cand_ee[k, 0]
+        f = cand_ee[k, 1]
+        a = edges[e, 0]
+        b = edges[e, 1]
+        c = edges[f, 0]
+        d = edges[f, 1]
+        if not (moved[a] | moved[b] | moved[c] | moved[d]):
+            continue
+        if edges_apart_bounds(pt_min, pt_max, a, b, c, d):
+            continue
+        n = test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
+    return n
+
+
+@njit(cache=True, _nrt=False)
+def _moved_bounds(xs, xe, topo, tree, moved, margin):
+    """_segment_bounds and _triangle_bounds for the moved particles and their triangles only."""
+    triangles = topo[0]
+    directions = tree[0]
+    tri_min = tree[8]
+    tri_max = tree[9]
+    pt_min = tree[10]
+    pt_max = tree[11]
+    h = directions.shape[0]
+    for p in range(xs.shape[0]):
+        if not moved[p]:
+            continue
+        for i in range(h):
+            a = xs[p, 0] * directions[i, 0] + xs[p, 1] * directions[i, 1] + xs[p, 2] * directions[i, 2]
+            b = xe[p, 0] * directions[i, 0] + xe[p, 1] * directions[i, 1] + xe[p, 2] * directions[i, 2]
+            pt_min[p, i] = min(a, b) - margin
+            pt_max[p, i] = max(a, b) + margin
+    for t in range(triangles.shape[0]):
+        a = triangles[t, 0]
+        b = triangles[t, 1]
+        c = triangles[t, 2]
+        if not (moved[a] | moved[b] | moved[c]):
+            continue
+        for i in range(h):
+            tri_min[t, i] = min(pt_min[a, i], min(pt_min[b, i], pt_min[c, i]))
+            tri_max[t, i] = max(pt_max[a, i], max(pt_max[b, i], pt_max[c, i]))
+
+
+@njit(cache=True, _nrt=False)
+def find_contacts(xs, xe, topo, tree, work, prm, only_cross, counters):
+    """One detection over xs -> xe into the contact buffer: over the candidate lists (rebuilt when
+    they no longer cover the step) when prm's motion margin is > 0, else by the tree search."""
+    thickness, layer_depth, rounds, failsafe_rounds, cull, motion, rotation = prm
+    margin = 0.5 * max(thickness, layer_depth)
+    if motion > 0.0:
+        # the bounds narrow() keeps are stale after a build or a tree search: then all afresh
+        full = tree[20][3] == 0 or tree[20][3] == 2
+        if not candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation):
+            build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, counters)
+            full = True
+        if tree[20][2] == 0:
+            tree[20][3] = 1
+            return narrow(xs, xe, topo, tree, work, margin, thickness, layer_depth, only_cross, counters, full)
+        tree[20][3] = 0   # overflowed: the tree search this time, a new build next time
+    refit_cloth_tree(xs, xe, topo, tree, work[0], margin)
+    return detect(xs, xe, topo, tree, work, thickness, layer_depth, only_cross, cull, counters)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -444,28 +522,29 @@ def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
            cloth triangle and no cloth edge through a cloth edge on the way x_prev -> x.
     inv_mass (N,) f8: 0 = pinned, never moved here.
     topo, tree, work: tuples of arrays from `ClothContact.kernel_args()` (stages.sim.cloth_contact).
-    prm: (thickness m, layer_depth m, rounds, failsafe_rounds, cull): cull = normal-cone culling of
-           flat patches in the self test (`_flat_patch`).
+    prm: (thickness m, layer_depth m, rounds, failsafe_rounds, cull, motion m, rotation rad): cull =
+           normal-cone culling of flat patches in the self test (stages.sim.cloth_contact_cull);
+           motion > 0: detection over candidate lists kept while particles stay within `motion`
+           and normals within what keeps the culled patches flat (at most `rotation`) of where the
+           lists were built (`find_contacts`).
     counters (N_COUNTERS,) i8: accumulated (+=), see N_* above.
 
-    Rounds: refit the tree over x_prev -> x, find contacts (all pairs in round 1, then only pairs
+    Rounds: refit the tree over x_prev -> x (or check the candidate lists), find contacts (all pairs in round 1, then only pairs
     with a particle the previous round moved), project them; stop when a round finds none. If the
     rounds run out, the fail-safe finds the pairs that still pass through (CROSS) and puts their
     movable particles back at x_prev, repeated until none is left: as x_prev has no crossing, the
     worst case is the whole cloth at rest, which has none.
     """
-    thickness, layer_depth, rounds, failsafe_rounds, cull = prm
+    thickness, layer_depth, rounds, failsafe_rounds, cull, motion, rotation = prm
     moved = work[0]
     corrected = work[1]
-    margin = 0.5 * max(thickness, layer_depth)
     target = PUSH_OVER * thickness
     moved[:] = 1
     corrected[:] = 0
     clean = False
     for _ in range(rounds):
         dropped = counters[N_OVERFLOW]
-        refit_cloth_tree(x_prev, x, topo, tree, moved, margin)
-        n = detect(x_prev, x, topo, tree, work, thickness, layer_depth, False, cull, counters)
+        n = find_contacts(x_prev, x, topo, tree, work, prm, False, counters)
         counters[N_ROUNDS] += 1
         counters[N_CONTACTS] += n
         if n == 0 and counters[N_OVERFLOW] == dropped:
@@ -479,8 +558,7 @@ def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
     if not clean:
         for it in range(failsafe_rounds + 1):
             dropped = counters[N_OVERFLOW]
-            refit_cloth_tree(x_prev, x, topo, tree, moved, margin)
-            n = detect(x_prev, x, topo, tree, work, thickness, layer_depth, True, cull, counters)
+            n = find_contacts(x_prev, x, topo, tree, work, prm, True, counters)
             if it == 0:
                 counters[N_UNRESOLVED] += n
             if n == 0 and counters[N_OVERFLOW] == dropped:
@@ -504,84 +582,6 @@ def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
 
 # ---------------------------------------------------------------------------------------------
 # brute force (references for the tests and a static audit)
-
-@njit(cache=True)
-def brute_force_contacts(xs, xe, topo, h, layer_depth, only_cross, work, counters):
-    """Every vertex-face and edge-edge pair that shares no vertex, tested exactly: O(P T + E E).
-    Same buffer as `detect` (order differs). Returns the number of contacts stored."""
-    (triangles, edges, tri_edges, tri_owns, edge_tris, particle_garment, tri_garment, edge_garment,
-     garment_layer, garment_outward) = topo
-    used = np.zeros(xs.shape[0], dtype=np.bool_)
-    for t in range(triangles.shape[0]):
-        for k in range(3):
-            used[triangles[t, k]] = True
-    n = 0
-    for p in range(xs.shape[0]):
-        if not used[p]:
-            continue
-        for t in range(triangles.shape[0]):
-            if not _in_triangle(triangles, p, t):
-                n = test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters)
-    for e in range(edges.shape[0]):
-        for f in range(e + 1, edges.shape[0]):
-            a = edges[e, 0]
-            b = edges[e, 1]
-            if a != edges[f, 0] and a != edges[f, 1] and b != edges[f, 0] and b != edges[f, 1]:
-                n = test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
-    return n
-
-
-@njit(cache=True)
-def _find(parent, v):
-    while parent[v] != v:
-        parent[v] = parent[parent[v]]
-        v = parent[v]
-    return v
-
-
-@njit(cache=True)
-def patch_nodes(children, leaf_prim, triangles, tri_garment, n_particles):
-    """(n,) uint8: 1 where a node's triangles form one connected patch (through shared vertices) of
-    one garment. Setup only."""
-    n = children.shape[0]
-    out = np.zeros(n, dtype=np.uint8)
-    parent = np.arange(n_particles)
-    tris = np.empty(triangles.shape[0], dtype=np.int64)
-    stack = np.empty(n, dtype=np.int64)
-    for node in range(n):
-        m = 0
-        stack[0] = node
-        top = 1
-        while top > 0:
-            top -= 1
-            q = stack[top]
-            if leaf_prim[q] >= 0:
-                tris[m] = leaf_prim[q]
-                m += 1
-            else:
-                stack[top] = children[q, 0]
-                stack[top + 1] = children[q, 1]
-                top += 2
-        ok = True
-        for j in range(m):
-            t = tris[j]
-            if tri_garment[t] != tri_garment[tris[0]]:
-                ok = False
-            for k in range(1, 3):
-                ra = _find(parent, triangles[t, 0])
-                rb = _find(parent, triangles[t, k])
-                if ra != rb:
-                    parent[max(ra, rb)] = min(ra, rb)
-        root = _find(parent, triangles[tris[0], 0])
-        for j in range(m):
-            if _find(parent, triangles[tris[j], 0]) != root:
-                ok = False
-        out[node] = 1 if ok else 0
-        for j in range(m):  # reset the touched vertices
-            for k in range(3):
-                parent[triangles[tris[j], k]] = triangles[tris[j], k]
-    return out
-
 
 @njit(cache=True, _nrt=False)
 def contact_velocity(x_before, x, xp, corrected):

@@ -1,0 +1,270 @@
+"""Cloth x cloth feature pairs: the exact test of one vertex-face or edge-edge pair with the layer
+rule (stages.sim.cloth_contact_ccd does the geometry), the contact buffer, the features two
+triangles own (each vertex and edge is owned by one incident triangle, `tri_owns`, so each feature
+pair is tested once), and the brute-force reference over all pairs.
+
+Arrays as in stages.sim.cloth_contact.ClothContact; `topo`, `tree`, `work` are its kernel_args tuples.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.sim.cloth_contact_ccd import EE_CROSS, VF_CROSS, test_edge_edge, test_vertex_face
+
+NUMBA_CACHE_DEPENDS = ("stages.sim.cloth_contact_ccd",)
+
+# counters (int64, accumulated with +=; the caller zeroes them)
+N_CONTACTS = 0     # contacts found over all rounds
+N_CORRECTED = 1    # particles moved by a response or the fail-safe (once per call each)
+N_UNRESOLVED = 2   # CROSS contacts left after the response rounds (handed to the fail-safe)
+N_REVERTED = 3     # particles the fail-safe put back to x_prev
+N_LEFT = 4         # CROSS left after the fail-safe: 0 unless pinned particles force them, x_prev
+                   # already had crossings, or failsafe_rounds ran out
+N_ROUNDS = 5       # response rounds run
+N_NODE_PAIRS = 6   # tree node pairs visited
+N_TESTS = 7        # exact feature-pair tests
+N_OVERFLOW = 8     # contacts dropped because the contact buffer was full
+N_BUILDS = 9       # candidate lists built (stages.sim.cloth_contact_kernels.build_candidates)
+N_CAND_OVERFLOW = 10  # candidate lists that overflowed their buffers (the tree search ran instead)
+N_COUNTERS = 11
+
+# ---------------------------------------------------------------------------------------------
+# feature pairs of two triangles, the contact buffer
+
+@njit(cache=True)
+def _vf_forced(p, t, particle_garment, tri_garment, garment_layer, garment_outward):
+    """The side the layers prescribe for particle p against triangle t (0: none)."""
+    gp = particle_garment[p]
+    gt = tri_garment[t]
+    if garment_layer[gp] > garment_layer[gt]:
+        return int(garment_outward[gt])   # p is outer: along t's outward normal
+    if garment_layer[gp] < garment_layer[gt]:
+        return -int(garment_outward[gt])  # p is inner: against the outer triangle's outward normal
+    return 0
+
+
+@njit(cache=True)
+def _edge_outward(xe, e, edge_tris, triangles, tri_garment, garment_outward):
+    """Outward normal of edge e at the end of the step: the sum of its triangles' outward normals."""
+    ox = 0.0
+    oy = 0.0
+    oz = 0.0
+    for j in range(2):
+        t = edge_tris[e, j]
+        if t < 0:
+            continue
+        a = triangles[t, 0]
+        b = triangles[t, 1]
+        c = triangles[t, 2]
+        e1x = xe[b, 0] - xe[a, 0]
+        e1y = xe[b, 1] - xe[a, 1]
+        e1z = xe[b, 2] - xe[a, 2]
+        e2x = xe[c, 0] - xe[a, 0]
+        e2y = xe[c, 1] - xe[a, 1]
+        e2z = xe[c, 2] - xe[a, 2]
+        nx = e1y * e2z - e1z * e2y
+        ny = e1z * e2x - e1x * e2z
+        nz = e1x * e2y - e1y * e2x
+        ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if ln > 0.0:
+            sg = garment_outward[tri_garment[t]] / ln
+            ox += sg * nx
+            oy += sg * ny
+            oz += sg * nz
+    return ox, oy, oz
+
+
+@njit(cache=True)
+def _store(work, n, kind, f0, f1, i0, i1, i2, i3, w0, w1, w2, w3, dx, dy, dz, counters):
+    moved, corrected, c_kind, c_feat, c_idx, c_w, c_dir = work
+    if n >= c_kind.shape[0]:
+        counters[N_OVERFLOW] += 1
+        return n
+    c_kind[n] = kind
+    c_feat[n, 0] = f0
+    c_feat[n, 1] = f1
+    c_idx[n, 0] = i0
+    c_idx[n, 1] = i1
+    c_idx[n, 2] = i2
+    c_idx[n, 3] = i3
+    c_w[n, 0] = w0
+    c_w[n, 1] = w1
+    c_w[n, 2] = w2
+    c_w[n, 3] = w3
+    c_dir[n, 0] = dx
+    c_dir[n, 1] = dy
+    c_dir[n, 2] = dz
+    return n + 1
+
+
+@njit(cache=True)
+def test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters):
+    """Exact test of particle p against triangle t; stores a contact in the buffer. Returns n."""
+    (triangles, edges, tri_edges, tri_owns, edge_tris, particle_garment, tri_garment, edge_garment,
+     garment_layer, garment_outward) = topo
+    a = triangles[t, 0]
+    b = triangles[t, 1]
+    c = triangles[t, 2]
+    forced = _vf_forced(p, t, particle_garment, tri_garment, garment_layer, garment_outward)
+    counters[N_TESTS] += 1
+    kind, wa, wb, wc, dx, dy, dz = test_vertex_face(xs, xe, p, a, b, c, forced, h, layer_depth)
+    if kind < 0 or (only_cross and kind != VF_CROSS):
+        return n
+    return _store(work, n, kind, p, t, p, a, b, c, 1.0, -wa, -wb, -wc, dx, dy, dz, counters)
+
+
+@njit(cache=True)
+def test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters):
+    """Exact test of edge e against edge f (e < f); stores a contact in the buffer. Returns n."""
+    (triangles, edges, tri_edges, tri_owns, edge_tris, particle_garment, tri_garment, edge_garment,
+     garment_layer, garment_outward) = topo
+    a = edges[e, 0]
+    b = edges[e, 1]
+    c = edges[f, 0]
+    d = edges[f, 1]
+    forced = 0
+    ox = 0.0
+    oy = 0.0
+    oz = 0.0
+    le = garment_layer[edge_garment[e]]
+    lf = garment_layer[edge_garment[f]]
+    if le != lf:
+        inner = e if le < lf else f
+        forced = 1 if le < lf else -1
+        ox, oy, oz = _edge_outward(xe, inner, edge_tris, triangles, tri_garment, garment_outward)
+    counters[N_TESTS] += 1
+    kind, v, u, _, dx, dy, dz = test_edge_edge(xs, xe, a, b, c, d, forced, ox, oy, oz, h, layer_depth)
+    if kind < 0 or (only_cross and kind != EE_CROSS):
+        return n
+    return _store(work, n, kind, e, f, a, b, c, d, v - 1.0, -v, 1.0 - u, u, dx, dy, dz, counters)
+
+
+@njit(cache=True)
+def _in_triangle(triangles, p, t):
+    return p == triangles[t, 0] or p == triangles[t, 1] or p == triangles[t, 2]
+
+
+@njit(cache=True)
+def point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t):
+    """The particle's and the triangle's inflated swept k-DOPs are disjoint."""
+    for i in range(pt_min.shape[1]):
+        if pt_max[p, i] < tri_min[t, i] or tri_max[t, i] < pt_min[p, i]:
+            return True
+    return False
+
+
+@njit(cache=True)
+def edges_apart_bounds(pt_min, pt_max, a, b, c, d):
+    """The two edges' inflated swept k-DOPs (unions of their particles') are disjoint."""
+    for i in range(pt_min.shape[1]):
+        if max(pt_max[a, i], pt_max[b, i]) < min(pt_min[c, i], pt_min[d, i]):
+            return True
+        if max(pt_max[c, i], pt_max[d, i]) < min(pt_min[a, i], pt_min[b, i]):
+            return True
+    return False
+
+
+@njit(cache=True)
+def _vf(xs, xe, p, t, topo, tree, h, layer_depth, only_cross, work, n, counters, collect):
+    """Test the pair, or with `collect` append it to the candidate list (tree[18], counts tree[20])."""
+    if not collect:
+        return test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters)
+    cand_vf = tree[18]
+    cand_n = tree[20]
+    k = cand_n[0]
+    if k >= cand_vf.shape[0]:
+        cand_n[2] = 1
+        return n
+    cand_vf[k, 0] = p
+    cand_vf[k, 1] = t
+    cand_n[0] = k + 1
+    return n
+
+
+@njit(cache=True)
+def _ee(xs, xe, e, f, topo, tree, h, layer_depth, only_cross, work, n, counters, collect):
+    """Test the pair (e < f), or with `collect` append it to the candidate list (tree[19])."""
+    if not collect:
+        return test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
+    cand_ee = tree[19]
+    cand_n = tree[20]
+    k = cand_n[1]
+    if k >= cand_ee.shape[0]:
+        cand_n[2] = 1
+        return n
+    cand_ee[k, 0] = e
+    cand_ee[k, 1] = f
+    cand_n[1] = k + 1
+    return n
+
+
+@njit(cache=True)
+def test_triangle_pair(xs, xe, t1, t2, topo, tree, h, layer_depth, only_cross, work, n, counters, collect):
+    """Every pair of features owned by the two triangles that share no vertex themselves (see the
+    module doc), after a k-DOP check of the two features' own bounds (refit_cloth_tree): tested,
+    or with `collect` appended to the candidate lists (the bounds then span the lists' lifetime)."""
+    triangles = topo[0]
+    edges = topo[1]
+    tri_edges = topo[2]
+    tri_owns = topo[3]
+    tri_min = tree[8]
+    tri_max = tree[9]
+    pt_min = tree[10]
+    pt_max = tree[11]
+    o1 = tri_owns[t1]
+    o2 = tri_owns[t2]
+    for k in range(3):
+        if o1 & (1 << k):
+            p = triangles[t1, k]
+            if not _in_triangle(triangles, p, t2) and not point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t2):
+                n = _vf(xs, xe, p, t2, topo, tree, h, layer_depth, only_cross, work, n, counters, collect)
+        if o2 & (1 << k):
+            p = triangles[t2, k]
+            if not _in_triangle(triangles, p, t1) and not point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t1):
+                n = _vf(xs, xe, p, t1, topo, tree, h, layer_depth, only_cross, work, n, counters, collect)
+    for i in range(3):
+        if not (o1 & (8 << i)):
+            continue
+        for j in range(3):
+            if not (o2 & (8 << j)):
+                continue
+            e = tri_edges[t1, i]
+            f = tri_edges[t2, j]
+            if (edges[e, 0] == edges[f, 0] or edges[e, 0] == edges[f, 1] or edges[e, 1] == edges[f, 0]
+                    or edges[e, 1] == edges[f, 1]):
+                continue
+            if edges_apart_bounds(pt_min, pt_max, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1]):
+                continue
+            if e < f:
+                n = _ee(xs, xe, e, f, topo, tree, h, layer_depth, only_cross, work, n, counters, collect)
+            else:
+                n = _ee(xs, xe, f, e, topo, tree, h, layer_depth, only_cross, work, n, counters, collect)
+    return n
+
+
+@njit(cache=True)
+def brute_force_contacts(xs, xe, topo, h, layer_depth, only_cross, work, counters):
+    """Every vertex-face and edge-edge pair that shares no vertex, tested exactly: O(P T + E E).
+    Same buffer as `detect` (order differs). Returns the number of contacts stored."""
+    (triangles, edges, tri_edges, tri_owns, edge_tris, particle_garment, tri_garment, edge_garment,
+     garment_layer, garment_outward) = topo
+    used = np.zeros(xs.shape[0], dtype=np.bool_)
+    for t in range(triangles.shape[0]):
+        for k in range(3):
+            used[triangles[t, k]] = True
+    n = 0
+    for p in range(xs.shape[0]):
+        if not used[p]:
+            continue
+        for t in range(triangles.shape[0]):
+            if not _in_triangle(triangles, p, t):
+                n = test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters)
+    for e in range(edges.shape[0]):
+        for f in range(e + 1, edges.shape[0]):
+            a = edges[e, 0]
+            b = edges[e, 1]
+            if a != edges[f, 0] and a != edges[f, 1] and b != edges[f, 0] and b != edges[f, 1]:
+                n = test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
+    return n
