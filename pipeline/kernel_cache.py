@@ -49,11 +49,10 @@ def kernel_modules(package: str) -> tuple[Path, ...]:
 
 
 def _cache_dirs(module: Path) -> list[Path]:
-    dirs = [module.parent / "__pycache__"]
     user = os.environ.get("NUMBA_CACHE_DIR")
-    if user:   # numba mirrors the source folder under it
-        dirs.append(Path(user) / module.parent.resolve().relative_to(module.parent.resolve().anchor))
-    return dirs
+    if user:   # numba then uses only that folder, mirroring the source folder under it
+        return [Path(user) / module.parent.resolve().relative_to(module.parent.resolve().anchor)]
+    return [module.parent / "__pycache__"]
 
 
 def is_compiled(module: Path) -> bool:

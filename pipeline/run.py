@@ -266,10 +266,24 @@ def blueprint_of(scene: Scene, character, motion, skinned, colliders, coverage_r
         spheres=[sp.name for sp in colliders.spheres], coverage=coverage_ran))
 
 
+def background_warmup(scene: Scene, enabled: bool):
+    """The BackgroundCompile of the scene's simulation kernels (pipeline.kernel_warmup); it starts
+    nothing unless `enabled`, the scene has garments and the kernels are not cached yet."""
+    from pipeline.kernel_cache import ESTIMATE_S
+    from pipeline.kernel_warmup import BackgroundCompile
+    sp = scene["simulation"]
+    params = sim_params(scene)
+    request = dict(params=params, threads=sp["threads"], cloth_audit=sp["cloth_audit"],
+                   vertex_strain=sp["strain_colors"],
+                   layers=garment_layers(scene) if params.cloth_collision else None)
+    return BackgroundCompile(request if enabled and scene["garments"] else None,
+                             estimate_s=ESTIMATE_S["garments"] + ESTIMATE_S["cloth audit"])
+
+
 def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = None,
               progress: bool = True, on_stage=None, deterministic: bool = False,
               export: tuple | None = None, state: dict | None = None,
-              keep_partial: Path | None = None) -> RunSummary:
+              keep_partial: Path | None = None, background_compile: bool = False) -> RunSummary:
     """Check the inputs that need no character (`preflight`), run every stage the scene needs and
     write the recording atomically.
 
@@ -285,6 +299,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     (pipeline.sweep) can measure the run and keep what exists when it fails.
     keep_partial: where a failed run's recording goes (whatever was logged before the failure)
     instead of being deleted.
+    background_compile: on a first run (empty numba cache), compile the sewing, simulation and
+    cloth audit kernels in a second process while the earlier stages run (pipeline.kernel_warmup).
     """
     from pipeline import logs, style, where
     from pipeline.kernel_cache import compile_note
@@ -319,8 +335,11 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     s = scene.settings
     # every stage's parallel kernels run on simulation.threads threads (1: their serial variants,
     # compiled several times faster: stages.jit)
+    warm = background_warmup(scene, background_compile)
     with atomic_recording(out, scene_name=scene.name, scene_text=scene.text, seed=s["seed"],
-                          keep_failed=keep_partial) as rec, numba_threads(s["simulation"]["threads"]):
+                          keep_failed=keep_partial) as rec, numba_threads(s["simulation"]["threads"]), warm:
+        if warm.started:
+            announce(f"compiling the simulation's kernels in a second process ({compile_note('simulation')})")
         say("rig")
         with _Timer(summary, "rig") as r:
             with where.item(character_item(scene)):
@@ -399,6 +418,10 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             logs.log_obstacles(rec, obstacles, times)
 
         if s["garments"]:
+            if warm.running():   # sewing is the first stage to call the simulation's kernels
+                announce(f"garments (waiting for the second process compiling kernels: about "
+                         f"{warm.seconds_left():.0f} s)")
+            warm.wait()
             say("garments")
             with _Timer(summary, "garments") as r:
                 sewing_bars = []

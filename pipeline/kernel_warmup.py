@@ -1,0 +1,154 @@
+"""Compile the simulation's kernels in a second process while the first stages run (first run only).
+
+On an empty numba cache the kernels of sewing, the simulation and the cloth audit take about half of
+the first run's compiling, and the stages before them (rig, colliders, coverage, maps) keep one core
+busy with their own. `BackgroundCompile` starts `python -m pipeline.kernel_warmup`, which simulates
+a tiny scene (a 4 x 4 cloth over one convex hull, 2 frames) with the scene's simulation settings:
+that compiles the same kernels with the same argument types and numba writes them to its cache.
+The run waits for it before sewing, and its own calls then load them from the cache.
+
+- Nothing starts when the simulation's kernel modules already have cache files (a warm run), or
+  for a scene without garments.
+- Results do not change: the cache holds what the run would have compiled itself (same source,
+  flags and types); a kernel the tiny scene did not reach is compiled by the run as before.
+- Cache files: numba replaces each file atomically; stages.jit serialises its index updates
+  across processes (two processes adding signatures of one kernel at once).
+- The child exits when the run does: the run terminates it on any exit (error, Ctrl-C), and the
+  child stops itself when its parent is gone (a killed run).
+"""
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+# kernel groups (pipeline.kernel_cache) the tiny scene compiles
+GROUPS = ("simulation", "cloth audit")
+WATCH_PARENT_S = 0.5
+
+
+def warm_simulation(params, threads: int = 1, cloth_audit: bool = True, vertex_strain: bool = False,
+                    layers=None) -> None:
+    """Simulate a tiny scene with `params` on `threads` numba threads (and audit it): every kernel a
+    scene's sewing, simulation and cloth audit call from Python, with the argument types they get."""
+    import numpy as np
+
+    from stages.garments.simple import rectangle_cloth
+    from stages.garments.types import build_garment
+    from stages.jit import numba_threads
+    from stages.maps.build import build_maps
+    from stages.sim import simulate
+    from stages.sim.scenes import convex_mesh, fibonacci_points, hull_set, toy_character, toy_motion
+
+    mesh = convex_mesh(fibonacci_points(12, (0.2, 0.2, 0.2)))
+    character = toy_character(mesh.vertices, mesh.faces)
+    colliders = hull_set(mesh)
+    maps = build_maps(colliders)
+    x, tri = rectangle_cloth(0.3, 0.3, 4, 4, center=(0.0, 0.25, 0.0))
+    cloths = [build_garment(f"cloth{i}", x + [0.0, 0.02 * i, 0.0], tri) for i in range(len(layers or [0]))]
+    with numba_threads(threads):
+        result = simulate(character, toy_motion(2), colliders, maps, cloths, params, threads=threads,
+                          layers=None if layers is None else np.asarray(layers))
+        if cloth_audit:
+            from stages.sim.audit import audit_cloth
+            audit_cloth(result, cloths, vertex_strain=vertex_strain)
+
+
+def _exit_with_parent(parent: int) -> None:
+    """A daemon thread ending this process once `parent` is gone (a killed run leaves no compile behind)."""
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(WATCH_PARENT_S)
+        os._exit(3)
+    threading.Thread(target=watch, daemon=True).start()
+
+
+def main() -> int:
+    request = pickle.load(sys.stdin.buffer)
+    _exit_with_parent(request.pop("parent"))
+    # the run terminates this process on Ctrl-C (SIGINT reaches the whole process group as well)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    warm_simulation(**request)
+    return 0
+
+
+def needed() -> bool:
+    """Whether the simulation's kernel modules have no numba cache yet (a first run)."""
+    if os.environ.get("NUMBA_DISABLE_JIT") == "1":
+        return False
+    from pipeline.kernel_cache import uncompiled
+    return uncompiled("simulation")[0] > 0
+
+
+class BackgroundCompile:
+    """`with BackgroundCompile(request) as bg:` ... `bg.wait()` before the first stage using the
+    simulation's kernels. request: warm_simulation's keyword arguments. Starts nothing when
+    `needed()` is false; `bg.started` says whether it did."""
+
+    def __init__(self, request: dict, estimate_s: float = 0.0):
+        self.request, self.estimate_s = request, estimate_s
+        self.proc = None
+        self.log = None
+        self.t0 = time.perf_counter()
+
+    @property
+    def started(self) -> bool:
+        return self.proc is not None
+
+    def __enter__(self):
+        if self.request is None or not needed():
+            return self
+        root = str(Path(__file__).resolve().parent.parent)   # the tree this pipeline runs from
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p))
+        self.log = tempfile.TemporaryFile()
+        self.proc = subprocess.Popen([sys.executable, "-m", "pipeline.kernel_warmup"], stdin=subprocess.PIPE,
+                                     stdout=subprocess.DEVNULL, stderr=self.log, env=env, cwd=root)
+        try:
+            self.proc.stdin.write(pickle.dumps(dict(self.request, parent=os.getpid())))
+            self.proc.stdin.close()
+        except OSError:     # the child died at start: the run compiles for itself
+            pass
+        self.t0 = time.perf_counter()
+        return self
+
+    def running(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def seconds_left(self) -> float:
+        return max(1.0, self.estimate_s - (time.perf_counter() - self.t0))
+
+    def wait(self) -> int | None:
+        """Wait for the compile; its exit code (None: none started). A failure is not an error: the
+        run compiles what is missing itself, and a warning shows the child's last line."""
+        if self.proc is None:
+            return None
+        rc = self.proc.wait()
+        if rc != 0:
+            import warnings
+            self.log.seek(0)
+            last = (self.log.read().decode(errors="replace").strip().splitlines() or ["no output"])[-1]
+            warnings.warn(f"the background kernel compile failed (exit {rc}: {last}); the run compiles "
+                          "its kernels itself", RuntimeWarning, stacklevel=2)
+        return rc
+
+    def __exit__(self, *exc):
+        if self.running():
+            self.proc.terminate()
+            try:
+                self.proc.wait(5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self.log is not None:
+            self.log.close()
+        return False
+
+
+if __name__ == "__main__":
+    sys.exit(main())
