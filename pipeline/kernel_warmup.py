@@ -2,10 +2,12 @@
 
 On an empty numba cache the kernels of sewing, the simulation and the cloth audit take about half of
 the first run's compiling, and the stages before them (rig, colliders, coverage, maps) keep one core
-busy with their own. `BackgroundCompile` starts `python -m pipeline.kernel_warmup`, which simulates
-a tiny scene (a 4 x 4 cloth over one convex hull, 2 frames) with the scene's simulation settings:
-that compiles the same kernels with the same argument types and numba writes them to its cache.
-The run waits for it before sewing, and its own calls then load them from the cache.
+busy with their own. `BackgroundCompile` starts `python -m pipeline.kernel_warmup`, which measures
+the collider coverage of a tiny character (one convex hull) and simulates a tiny scene (a 4 x 4
+cloth over that hull, 2 frames) with the scene's simulation settings: that compiles the same
+kernels with the same argument types and numba writes them to its cache. The run waits for it
+before sewing, and its own calls then load them from the cache (the coverage kernels are compiled
+first: that stage comes right after the colliders).
 
 - Nothing starts when the simulation's kernel modules already have cache files (a warm run), or
   for a scene without garments.
@@ -31,12 +33,14 @@ from pathlib import Path
 # kernel groups (pipeline.kernel_cache) the tiny scene compiles
 GROUPS = ("simulation", "cloth audit")
 WATCH_PARENT_S = 0.5
+SIMULATED = "simulation compiled"     # the child's line once sewing and simulation kernels are cached
 
 
 def warm_simulation(params, threads: int = 1, cloth_audit: bool = True, vertex_strain: bool = False,
-                    layers=None) -> None:
+                    layers=None, on_simulated=None) -> None:
     """Simulate a tiny scene with `params` on `threads` numba threads (and audit it): every kernel a
-    scene's sewing, simulation and cloth audit call from Python, with the argument types they get."""
+    scene's sewing, simulation and cloth audit call from Python, with the argument types they get.
+    on_simulated: called between the simulation and the audit."""
     import numpy as np
 
     from stages.garments.simple import rectangle_cloth
@@ -55,9 +59,24 @@ def warm_simulation(params, threads: int = 1, cloth_audit: bool = True, vertex_s
     with numba_threads(threads):
         result = simulate(character, toy_motion(2), colliders, maps, cloths, params, threads=threads,
                           layers=None if layers is None else np.asarray(layers))
+        if on_simulated is not None:
+            on_simulated()
         if cloth_audit:
             from stages.sim.audit import audit_cloth
             audit_cloth(result, cloths, vertex_strain=vertex_strain)
+
+
+def warm_coverage(threads: int = 1) -> None:
+    """Measure a tiny character's coverage (stages.coverage): the collider coverage stage's kernels,
+    compiled first (that stage runs before sewing, right after the colliders)."""
+    from stages.coverage import measure_coverage
+    from stages.jit import numba_threads
+    from stages.sim.scenes import convex_mesh, fibonacci_points, hull_set, toy_character, toy_motion
+
+    mesh = convex_mesh(fibonacci_points(12, (0.2, 0.2, 0.2)))
+    with numba_threads(threads):
+        measure_coverage(toy_character(mesh.vertices, mesh.faces), toy_motion(2), hull_set(mesh), every=1,
+                         interior_samples=200, surface_spacing=0.05)
 
 
 def _exit_with_parent(parent: int) -> None:
@@ -74,7 +93,9 @@ def main() -> int:
     _exit_with_parent(request.pop("parent"))
     # the run terminates this process on Ctrl-C (SIGINT reaches the whole process group as well)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    warm_simulation(**request)
+    if request.pop("coverage", False):
+        warm_coverage(request["threads"])
+    warm_simulation(**request, on_simulated=lambda: print(SIMULATED, flush=True))
     return 0
 
 
@@ -87,14 +108,15 @@ def needed() -> bool:
 
 
 class BackgroundCompile:
-    """`with BackgroundCompile(request) as bg:` ... `bg.wait()` before the first stage using the
-    simulation's kernels. request: warm_simulation's keyword arguments. Starts nothing when
+    """`with BackgroundCompile(request) as bg:` ... `bg.wait_simulation()` before sewing,
+    `bg.wait()` before the cloth audit. request: warm_simulation's keyword arguments. Starts nothing when
     `needed()` is false; `bg.started` says whether it did."""
 
     def __init__(self, request: dict, estimate_s: float = 0.0):
         self.request, self.estimate_s = request, estimate_s
         self.proc = None
         self.log = None
+        self.simulated = False
         self.t0 = time.perf_counter()
 
     @property
@@ -108,7 +130,7 @@ class BackgroundCompile:
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p))
         self.log = tempfile.TemporaryFile()
         self.proc = subprocess.Popen([sys.executable, "-m", "pipeline.kernel_warmup"], stdin=subprocess.PIPE,
-                                     stdout=subprocess.DEVNULL, stderr=self.log, env=env, cwd=root)
+                                     stdout=subprocess.PIPE, stderr=self.log, env=env, cwd=root)
         try:
             self.proc.stdin.write(pickle.dumps(dict(self.request, parent=os.getpid())))
             self.proc.stdin.close()
@@ -123,11 +145,32 @@ class BackgroundCompile:
     def seconds_left(self) -> float:
         return max(1.0, self.estimate_s - (time.perf_counter() - self.t0))
 
+    def simulation_ready(self) -> bool:
+        """Whether the sewing and simulation kernels are cached (the child said so or has ended)."""
+        if self.proc is None or self.simulated:
+            return True
+        if self.proc.poll() is not None:
+            return True
+        import select
+        return bool(select.select([self.proc.stdout], [], [], 0)[0])    # its line is there to read
+
+    def wait_simulation(self) -> None:
+        """Wait until the sewing and simulation kernels are cached (the audit's may still compile,
+        while the run sews and simulates)."""
+        if self.proc is None or self.simulated:
+            return
+        line = self.proc.stdout.readline()      # b"" when the child ended (then wait() reports)
+        self.simulated = line.decode(errors="replace").strip() == SIMULATED
+        if not self.simulated:
+            self.wait()
+
     def wait(self) -> int | None:
         """Wait for the compile; its exit code (None: none started). A failure is not an error: the
         run compiles what is missing itself, and a warning shows the child's last line."""
         if self.proc is None:
             return None
+        if self.proc.returncode is not None:    # reported already
+            return self.proc.returncode
         rc = self.proc.wait()
         if rc != 0:
             import warnings
@@ -145,6 +188,8 @@ class BackgroundCompile:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
+        if self.proc is not None:
+            self.proc.stdout.close()
         if self.log is not None:
             self.log.close()
         return False

@@ -269,15 +269,16 @@ def blueprint_of(scene: Scene, character, motion, skinned, colliders, coverage_r
 def background_warmup(scene: Scene, enabled: bool):
     """The BackgroundCompile of the scene's simulation kernels (pipeline.kernel_warmup); it starts
     nothing unless `enabled`, the scene has garments and the kernels are not cached yet."""
-    from pipeline.kernel_cache import ESTIMATE_S
+    from pipeline.kernel_cache import BACKGROUND_ESTIMATE_S
     from pipeline.kernel_warmup import BackgroundCompile
     sp = scene["simulation"]
     params = sim_params(scene)
     request = dict(params=params, threads=sp["threads"], cloth_audit=sp["cloth_audit"],
+                   coverage=scene["colliders"]["report_every"] > 0,
                    vertex_strain=sp["strain_colors"],
                    layers=garment_layers(scene) if params.cloth_collision else None)
     return BackgroundCompile(request if enabled and scene["garments"] else None,
-                             estimate_s=ESTIMATE_S["garments"] + ESTIMATE_S["cloth audit"])
+                             estimate_s=BACKGROUND_ESTIMATE_S)
 
 
 def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = None,
@@ -339,7 +340,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     with atomic_recording(out, scene_name=scene.name, scene_text=scene.text, seed=s["seed"],
                           keep_failed=keep_partial) as rec, numba_threads(s["simulation"]["threads"]), warm:
         if warm.started:
-            announce(f"compiling the simulation's kernels in a second process ({compile_note('simulation')})")
+            announce(f"simulation kernels (compiling in a second process, first run only: about "
+                     f"{warm.estimate_s:.0f} s on 2 cores)")
         say("rig")
         with _Timer(summary, "rig") as r:
             with where.item(character_item(scene)):
@@ -418,11 +420,14 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             logs.log_obstacles(rec, obstacles, times)
 
         if s["garments"]:
-            if warm.running():   # sewing is the first stage to call the simulation's kernels
-                announce(f"garments (waiting for the second process compiling kernels: about "
-                         f"{warm.seconds_left():.0f} s)")
-            warm.wait()
-            say("garments")
+            if not warm.simulation_ready():   # sewing is the first stage to call the simulation's kernels
+                where.stage("garments")
+                announce(f"garments (waiting for the simulation kernels compiling in a second process: "
+                         f"about {warm.seconds_left():.0f} s more)")
+                warm.wait_simulation()
+            else:
+                warm.wait_simulation()
+                say("garments")
             with _Timer(summary, "garments") as r:
                 sewing_bars = []
 
@@ -462,7 +467,13 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 r.sizes.update(steps=result.steps)
             audit = None
             if sp["cloth_audit"]:
-                say("cloth audit")
+                if warm.running():   # its kernels compile in the second process while the run simulates
+                    where.stage("cloth audit")
+                    announce("cloth audit (waiting for its kernels compiling in a second process)")
+                    warm.wait()
+                else:
+                    warm.wait()
+                    say("cloth audit")
                 import warnings
 
                 from stages.sim.audit import audit_cloth

@@ -24,13 +24,13 @@ REPO = Path(__file__).resolve().parents[1]
 # signature while `body` ran (the dispatchers called from Python: loading from the cache adds one)
 _SIGNATURES = """
 import json, sys
-import stages.sim, stages.sim.simulate, stages.sim.audit, stages.maps.build
+import stages.sim, stages.sim.simulate, stages.sim.audit, stages.maps.build, stages.coverage.kernels
 from numba.core.registry import CPUDispatcher
 
 def dispatchers():
     seen = {}
     for name, mod in list(sys.modules.items()):
-        if name.startswith(("stages.sim", "stages.maps", "stages.affine")):
+        if name.startswith(("stages.sim", "stages.maps", "stages.affine", "stages.coverage")):
             for v in vars(mod).values():
                 if isinstance(v, CPUDispatcher):
                     seen[id(v)] = v
@@ -53,7 +53,7 @@ from pipeline.run import run_scene
 from pipeline.scene import load_scene
 state = {{}}
 def on_stage(name):
-    if name.startswith("garments"):
+    if name.startswith("collider coverage"):
         global before
         before = snapshot()
 run_scene(load_scene("scenes/default.yaml"), output={out!r}, frames=3, progress=False, on_stage=on_stage)
@@ -62,9 +62,12 @@ run_scene(load_scene("scenes/default.yaml"), output={out!r}, frames=3, progress=
 _WARMUP = """
 from pipeline.run import background_warmup
 from pipeline.scene import load_scene
-from pipeline.kernel_warmup import warm_simulation
+from pipeline.kernel_warmup import warm_coverage, warm_simulation
 bg = background_warmup(load_scene("scenes/default.yaml"), True)
-warm_simulation(**bg.request)
+request = dict(bg.request)
+if request.pop("coverage"):
+    warm_coverage(request["threads"])
+warm_simulation(**request)
 """
 
 
@@ -75,9 +78,9 @@ def _signatures(body: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
-def test_the_tiny_scene_compiles_what_the_default_scene_calls_after_the_maps(tmp_path):
-    """Every kernel signature the default scene calls from sewing on (3 frames) is one the warm-up
-    calls too: with the warm-up's cache the run compiles nothing after waiting for it."""
+def test_the_tiny_scene_compiles_what_the_default_scene_calls_after_the_colliders(tmp_path):
+    """Every kernel signature the default scene calls from the coverage stage on (3 frames) is one
+    the warm-up calls too: with the warm-up's cache the run compiles nothing after the colliders."""
     # the warm-up first: a signature it misses is one the run then compiles or loads itself
     warm = _signatures(_WARMUP)
     real = _signatures(_REAL_RUN.format(out=str(tmp_path / "r.rrd")))
