@@ -99,9 +99,20 @@ def main() -> int:
     return 0
 
 
+def cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:   # not on Linux
+        return os.cpu_count() or 1
+
+
 def needed() -> bool:
-    """Whether the simulation's kernel modules have no numba cache yet (a first run)."""
-    if os.environ.get("NUMBA_DISABLE_JIT") == "1":
+    """Whether the simulation's kernel modules have no numba cache yet (a first run), with a second
+    core to compile on. GARMENT_BACKGROUND_COMPILE=0 turns it off (tools/compile_profile.py: every
+    compile in one process)."""
+    if os.environ.get("NUMBA_DISABLE_JIT") == "1" or os.environ.get("GARMENT_BACKGROUND_COMPILE") == "0":
+        return False
+    if cores() < 2:     # one core: the second process would only take turns with the run
         return False
     from pipeline.kernel_cache import uncompiled
     return uncompiled("simulation")[0] > 0
@@ -152,7 +163,10 @@ class BackgroundCompile:
         if self.proc.poll() is not None:
             return True
         import select
-        return bool(select.select([self.proc.stdout], [], [], 0)[0])    # its line is there to read
+        try:
+            return bool(select.select([self.proc.stdout], [], [], 0)[0])    # its line is there to read
+        except (OSError, ValueError):   # no select on pipes (Windows): say "waiting"
+            return False
 
     def wait_simulation(self) -> None:
         """Wait until the sewing and simulation kernels are cached (the audit's may still compile,

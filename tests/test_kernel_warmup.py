@@ -89,9 +89,19 @@ def test_the_tiny_scene_compiles_what_the_default_scene_calls_after_the_collider
     assert not missing, f"the warm-up does not compile: {missing}"
 
 
-def test_no_background_compile_on_a_warm_cache(monkeypatch):
-    monkeypatch.setattr(kernel_cache, "uncompiled", lambda stage: (0, 3))
+def test_no_background_compile_on_a_warm_cache_one_core_or_when_turned_off(monkeypatch):
     monkeypatch.delenv("NUMBA_DISABLE_JIT", raising=False)
+    monkeypatch.delenv("GARMENT_BACKGROUND_COMPILE", raising=False)
+    monkeypatch.setattr(kernel_cache, "uncompiled", lambda stage: (3, 3))
+    monkeypatch.setattr(kernel_warmup, "cores", lambda: 2)
+    assert kernel_warmup.needed()
+    monkeypatch.setenv("GARMENT_BACKGROUND_COMPILE", "0")
+    assert not kernel_warmup.needed()
+    monkeypatch.delenv("GARMENT_BACKGROUND_COMPILE")
+    monkeypatch.setattr(kernel_warmup, "cores", lambda: 1)
+    assert not kernel_warmup.needed()
+    monkeypatch.setattr(kernel_warmup, "cores", lambda: 2)
+    monkeypatch.setattr(kernel_cache, "uncompiled", lambda stage: (0, 3))
     with kernel_warmup.BackgroundCompile({"threads": 1}) as bg:
         assert not bg.started and not bg.running()
         assert bg.wait() is None
@@ -134,9 +144,11 @@ time.sleep(120)
 
 
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs Linux /proc")
+@pytest.mark.skipif(kernel_warmup.cores() < 2, reason="one core: no background compile")
 def test_a_killed_run_leaves_no_compile_process(tmp_path):
     """The run is killed (SIGKILL: no cleanup at all): its compile process notices and exits."""
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}   # empty: the compile starts
+    env.pop("GARMENT_BACKGROUND_COMPILE", None)
     parent = subprocess.Popen([sys.executable, "-c", _START_AND_SLEEP], cwd=REPO, env=env, stdout=subprocess.PIPE,
                               text=True)
     try:
@@ -152,8 +164,10 @@ def test_a_killed_run_leaves_no_compile_process(tmp_path):
 
 
 @pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="needs Linux /proc")
+@pytest.mark.skipif(kernel_warmup.cores() < 2, reason="one core: no background compile")
 def test_ctrl_c_stops_the_run_and_its_compile_process(tmp_path):
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    env.pop("GARMENT_BACKGROUND_COMPILE", None)
     out = tmp_path / "r.rrd"
     run = subprocess.Popen([sys.executable, "-m", "pipeline", "run", "scenes/default.yaml", "-q", "-o", str(out)],
                            cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
