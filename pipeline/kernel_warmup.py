@@ -34,6 +34,9 @@ from pathlib import Path
 GROUPS = ("simulation", "cloth audit")
 WATCH_PARENT_S = 0.5
 SIMULATED = "simulation compiled"     # the child's line once sewing and simulation kernels are cached
+# a compile that has not finished by then (never seen: about 25 s of CPU) is stopped and the run
+# compiles what is missing itself, rather than waiting for ever
+WAIT_LIMIT_S = 600
 
 
 def warm_simulation(params, threads: int = 1, cloth_audit: bool = True, vertex_strain: bool = False,
@@ -128,6 +131,7 @@ class BackgroundCompile:
         self.proc = None
         self.log = None
         self.simulated = False
+        self.reported = False     # the exit code seen (and a failure warned about)
         self.t0 = time.perf_counter()
 
     @property
@@ -173,19 +177,48 @@ class BackgroundCompile:
         while the run sews and simulates)."""
         if self.proc is None or self.simulated:
             return
+        import select
+        try:
+            ready = select.select([self.proc.stdout], [], [], WAIT_LIMIT_S)[0]
+        except (OSError, ValueError):   # no select on pipes (Windows): read without a limit
+            ready = True
+        if not ready:
+            self._give_up()
+            return
         line = self.proc.stdout.readline()      # b"" when the child ended (then wait() reports)
         self.simulated = line.decode(errors="replace").strip() == SIMULATED
         if not self.simulated:
             self.wait()
+
+    def _give_up(self) -> None:
+        import warnings
+        self._stop()
+        self.reported = True
+        warnings.warn(f"the background kernel compile did not finish in {WAIT_LIMIT_S} s; the run compiles its "
+                      "kernels itself", RuntimeWarning, stacklevel=3)
+
+    def _stop(self) -> None:
+        if self.running():
+            self.proc.terminate()
+            try:
+                self.proc.wait(5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
 
     def wait(self) -> int | None:
         """Wait for the compile; its exit code (None: none started). A failure is not an error: the
         run compiles what is missing itself, and a warning shows the child's last line."""
         if self.proc is None:
             return None
-        if self.proc.returncode is not None:    # reported already
+        if self.reported:
             return self.proc.returncode
-        rc = self.proc.wait()
+        try:
+            rc = self.proc.wait(WAIT_LIMIT_S)
+        except subprocess.TimeoutExpired:
+            self._give_up()
+            return self.proc.returncode
+        self.reported = True
         if rc != 0:
             import warnings
             self.log.seek(0)
@@ -195,13 +228,7 @@ class BackgroundCompile:
         return rc
 
     def __exit__(self, *exc):
-        if self.running():
-            self.proc.terminate()
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        self._stop()
         if self.proc is not None:
             self.proc.stdout.close()
         if self.log is not None:

@@ -271,14 +271,15 @@ def background_warmup(scene: Scene, enabled: bool):
     nothing unless `enabled`, the scene has garments and the kernels are not cached yet."""
     from pipeline.kernel_cache import BACKGROUND_ESTIMATE_S
     from pipeline.kernel_warmup import BackgroundCompile
+    if not (enabled and scene["garments"]):
+        return BackgroundCompile(None)
     sp = scene["simulation"]
     params = sim_params(scene)
     request = dict(params=params, threads=sp["threads"], cloth_audit=sp["cloth_audit"],
                    coverage=scene["colliders"]["report_every"] > 0,
                    vertex_strain=sp["strain_colors"],
                    layers=garment_layers(scene) if params.cloth_collision else None)
-    return BackgroundCompile(request if enabled and scene["garments"] else None,
-                             estimate_s=BACKGROUND_ESTIMATE_S)
+    return BackgroundCompile(request, estimate_s=BACKGROUND_ESTIMATE_S)
 
 
 def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = None,
