@@ -109,13 +109,26 @@ def cores() -> int:
         return os.cpu_count() or 1
 
 
+def no_idle_core() -> bool:
+    """The 1-minute load average leaves no core idle. Measured on the shared 2-core machine at load
+    4.5-5 (2026-11-24): the second process made the first run slower (54.0 s against 49.5 s wall,
+    49.8 s against 45.5 s CPU): it only takes turns with the other jobs and costs its own start."""
+    try:
+        return os.getloadavg()[0] > cores() - 1
+    except (AttributeError, OSError):   # no load average (Windows)
+        return False
+
+
 def needed() -> bool:
-    """Whether the simulation's kernel modules have no numba cache yet (a first run), with a second
-    core to compile on. GARMENT_BACKGROUND_COMPILE=0 turns it off (tools/compile_profile.py: every
-    compile in one process)."""
-    if os.environ.get("NUMBA_DISABLE_JIT") == "1" or os.environ.get("GARMENT_BACKGROUND_COMPILE") == "0":
+    """Whether the simulation's kernel modules have no numba cache yet (a first run), with an idle
+    second core to compile on. GARMENT_BACKGROUND_COMPILE=0 turns it off (tools/compile_profile.py:
+    every compile in one process), =1 starts it whatever the load."""
+    flag = os.environ.get("GARMENT_BACKGROUND_COMPILE")
+    if os.environ.get("NUMBA_DISABLE_JIT") == "1" or flag == "0":
         return False
     if cores() < 2:     # one core: the second process would only take turns with the run
+        return False
+    if flag != "1" and no_idle_core():
         return False
     from pipeline.kernel_cache import uncompiled
     return uncompiled("simulation")[0] > 0

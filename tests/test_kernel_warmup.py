@@ -94,6 +94,11 @@ def test_no_background_compile_on_a_warm_cache_one_core_or_when_turned_off(monke
     monkeypatch.delenv("GARMENT_BACKGROUND_COMPILE", raising=False)
     monkeypatch.setattr(kernel_cache, "uncompiled", lambda stage: (3, 3))
     monkeypatch.setattr(kernel_warmup, "cores", lambda: 2)
+    monkeypatch.setattr(kernel_warmup, "no_idle_core", lambda: False)
+    assert kernel_warmup.needed()
+    monkeypatch.setattr(kernel_warmup, "no_idle_core", lambda: True)     # a loaded machine
+    assert not kernel_warmup.needed()
+    monkeypatch.setenv("GARMENT_BACKGROUND_COMPILE", "1")                 # asked for all the same
     assert kernel_warmup.needed()
     monkeypatch.setenv("GARMENT_BACKGROUND_COMPILE", "0")
     assert not kernel_warmup.needed()
@@ -148,7 +153,7 @@ time.sleep(120)
 def test_a_killed_run_leaves_no_compile_process(tmp_path):
     """The run is killed (SIGKILL: no cleanup at all): its compile process notices and exits."""
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}   # empty: the compile starts
-    env.pop("GARMENT_BACKGROUND_COMPILE", None)
+    env["GARMENT_BACKGROUND_COMPILE"] = "1"     # whatever the machine's load
     parent = subprocess.Popen([sys.executable, "-c", _START_AND_SLEEP], cwd=REPO, env=env, stdout=subprocess.PIPE,
                               text=True)
     try:
@@ -167,7 +172,7 @@ def test_a_killed_run_leaves_no_compile_process(tmp_path):
 @pytest.mark.skipif(kernel_warmup.cores() < 2, reason="one core: no background compile")
 def test_ctrl_c_stops_the_run_and_its_compile_process(tmp_path):
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
-    env.pop("GARMENT_BACKGROUND_COMPILE", None)
+    env["GARMENT_BACKGROUND_COMPILE"] = "1"     # whatever the machine's load
     out = tmp_path / "r.rrd"
     run = subprocess.Popen([sys.executable, "-m", "pipeline", "run", "scenes/default.yaml", "-q", "-o", str(out)],
                            cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -205,7 +210,7 @@ def test_a_compile_that_does_not_finish_in_time_is_stopped(tmp_path, monkeypatch
 
     from stages.sim import SimParams
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))     # empty: the compile starts
-    monkeypatch.delenv("GARMENT_BACKGROUND_COMPILE", raising=False)
+    monkeypatch.setenv("GARMENT_BACKGROUND_COMPILE", "1")
     monkeypatch.setattr(kernel_warmup, "WAIT_LIMIT_S", 0.5)
     with kernel_warmup.BackgroundCompile(dict(params=SimParams.preset("default"), threads=1)) as bg:
         assert bg.started
