@@ -63,7 +63,8 @@ def cmd_run(args) -> int:
             print(f"{stage} ...", file=sys.stderr, flush=True)
 
     summary = run_scene(scene, output=Path(args.output) if args.output is not None else None, frames=args.frames,
-                        progress=not args.quiet, on_stage=announce, deterministic=args.deterministic)
+                        progress=not args.quiet, on_stage=announce, deterministic=args.deterministic,
+                        background_compile=True)
     print(summary.text())
     return 0
 

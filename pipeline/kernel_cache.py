@@ -8,9 +8,11 @@ half compiled (a kernel a scene did not use before) is not seen; nor is a cache 
 (an edited source), which it recompiles.
 
 ESTIMATE_S: seconds each stage spent compiling on the 2-core development machine (cold run of
-scenes/default.yaml minus the warm one, README "Start-up time"; cloth collision: its kernels'
-first call on an empty cache, 29 s CPU, 2026-11-23); the message scales it by the
-share of the stage's modules that are not compiled.
+scenes/default.yaml minus the warm one, README "Start-up time"; colliders: the hull chain and the
+winding kernels, 12 s CPU; cloth collision: its kernels' first call on an empty cache, 29 s CPU,
+2026-11-23); the message scales it by the share of the stage's modules that are not compiled.
+`run` compiles the garments / simulation / cloth audit kernels in a second process while the
+earlier stages run (pipeline.kernel_warmup), so on a first run those stages are not silent waits.
 """
 from __future__ import annotations
 
@@ -37,8 +39,12 @@ STAGE_PACKAGES = {
                         "sim/cloth_contact_cull"),   # only scenes that turn it on
     "cloth audit": ("sim/audit_kernels",),
 }
-ESTIMATE_S = {"rig": 1, "colliders": 18, "collider coverage": 3, "obstacles": 5, "garments": 16,
+ESTIMATE_S = {"rig": 1, "colliders": 12, "collider coverage": 3, "obstacles": 5, "garments": 16,
               "simulation": 5, "cloth audit": 4, "cloth collision": 29}
+# the second process compiling sewing, simulation and cloth audit kernels (pipeline.kernel_warmup):
+# the coverage and simulation kernels, 22 s of CPU on a cold cache (the audit's 3 s more, compiled
+# while the run sews and simulates), 2026-11-23 (issue 19)
+BACKGROUND_ESTIMATE_S = 22
 
 _CACHED = re.compile(r"cache\s*=\s*True")
 
@@ -50,11 +56,10 @@ def kernel_modules(package: str) -> tuple[Path, ...]:
 
 
 def _cache_dirs(module: Path) -> list[Path]:
-    dirs = [module.parent / "__pycache__"]
     user = os.environ.get("NUMBA_CACHE_DIR")
-    if user:   # numba mirrors the source folder under it
-        dirs.append(Path(user) / module.parent.resolve().relative_to(module.parent.resolve().anchor))
-    return dirs
+    if user:   # numba then uses only that folder, mirroring the source folder under it
+        return [Path(user) / module.parent.resolve().relative_to(module.parent.resolve().anchor)]
+    return [module.parent / "__pycache__"]
 
 
 def is_compiled(module: Path) -> bool:

@@ -266,10 +266,26 @@ def blueprint_of(scene: Scene, character, motion, skinned, colliders, coverage_r
         spheres=[sp.name for sp in colliders.spheres], coverage=coverage_ran))
 
 
+def background_warmup(scene: Scene, enabled: bool):
+    """The BackgroundCompile of the scene's simulation kernels (pipeline.kernel_warmup); it starts
+    nothing unless `enabled`, the scene has garments and the kernels are not cached yet."""
+    from pipeline.kernel_cache import BACKGROUND_ESTIMATE_S
+    from pipeline.kernel_warmup import BackgroundCompile
+    if not (enabled and scene["garments"]):
+        return BackgroundCompile(None)
+    sp = scene["simulation"]
+    params = sim_params(scene)
+    request = dict(params=params, threads=sp["threads"], cloth_audit=sp["cloth_audit"],
+                   coverage=scene["colliders"]["report_every"] > 0,
+                   vertex_strain=sp["strain_colors"],
+                   layers=garment_layers(scene) if params.cloth_collision else None)
+    return BackgroundCompile(request, estimate_s=BACKGROUND_ESTIMATE_S)
+
+
 def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = None,
               progress: bool = True, on_stage=None, deterministic: bool = False,
               export: tuple | None = None, state: dict | None = None,
-              keep_partial: Path | None = None) -> RunSummary:
+              keep_partial: Path | None = None, background_compile: bool = False) -> RunSummary:
     """Check the inputs that need no character (`preflight`), run every stage the scene needs and
     write the recording atomically.
 
@@ -285,6 +301,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     (pipeline.sweep) can measure the run and keep what exists when it fails.
     keep_partial: where a failed run's recording goes (whatever was logged before the failure)
     instead of being deleted.
+    background_compile: on a first run (empty numba cache), compile the sewing, simulation and
+    cloth audit kernels in a second process while the earlier stages run (pipeline.kernel_warmup).
     """
     from pipeline import logs, style, where
     from pipeline.kernel_cache import compile_note
@@ -319,8 +337,12 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     s = scene.settings
     # every stage's parallel kernels run on simulation.threads threads (1: their serial variants,
     # compiled several times faster: stages.jit)
+    warm = background_warmup(scene, background_compile)
     with atomic_recording(out, scene_name=scene.name, scene_text=scene.text, seed=s["seed"],
-                          keep_failed=keep_partial) as rec, numba_threads(s["simulation"]["threads"]):
+                          keep_failed=keep_partial) as rec, numba_threads(s["simulation"]["threads"]), warm:
+        if warm.started:
+            announce(f"simulation kernels (compiling in a second process, first run only: about "
+                     f"{warm.estimate_s:.0f} s on 2 cores)")
         say("rig")
         with _Timer(summary, "rig") as r:
             with where.item(character_item(scene)):
@@ -401,7 +423,14 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             logs.log_obstacles(rec, obstacles, times)
 
         if s["garments"]:
-            say("garments")
+            if not warm.simulation_ready():   # sewing is the first stage to call the simulation's kernels
+                where.stage("garments")
+                announce(f"garments (waiting for the simulation kernels compiling in a second process: "
+                         f"about {warm.seconds_left():.0f} s more)")
+                warm.wait_simulation()
+            else:
+                warm.wait_simulation()
+                say("garments")
             with _Timer(summary, "garments") as r:
                 sewing_bars = []
 
@@ -441,7 +470,13 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 r.sizes.update(steps=result.steps)
             audit = None
             if sp["cloth_audit"]:
-                say("cloth audit")
+                if warm.running():   # its kernels compile in the second process while the run simulates
+                    where.stage("cloth audit")
+                    announce("cloth audit (waiting for its kernels compiling in a second process)")
+                    warm.wait()
+                else:
+                    warm.wait()
+                    say("cloth audit")
                 import warnings
 
                 from stages.sim.audit import audit_cloth

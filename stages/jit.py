@@ -65,6 +65,64 @@ def _register_dependent_locators() -> bool:
 REGISTERED = _register_dependent_locators()
 
 
+def _lock_cache_saves() -> bool:
+    """Serialise numba's cache saves across processes (a lock on the cache folder).
+
+    numba adds an entry by reading the kernel's index, picking the first free data file number and
+    writing both back: two processes adding signatures of one kernel at once (the run and its
+    background compile, pipeline.kernel_warmup) could lose an index entry or, both picking the
+    same number, leave an entry naming the other's machine code. Each file is replaced atomically,
+    so loads need no lock."""
+    try:
+        import fcntl
+
+        from numba.core import caching
+        plain = caching.IndexDataCacheFile.save
+    except (ImportError, AttributeError):   # no flock (Windows) or other numba internals
+        return False
+    if getattr(plain, "_locked", False):
+        return True
+
+    def save(self, key, data):
+        fd = os.open(self._cache_path, os.O_RDONLY)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            return plain(self, key, data)
+        finally:
+            os.close(fd)    # releases the lock
+    save._locked = True
+    caching.IndexDataCacheFile.save = save
+    return True
+
+
+SAVES_LOCKED = _lock_cache_saves()
+
+
+def _plain_slice_errors() -> bool:
+    """numba's CPU error for an array assigned to a slice of another shape ("cannot assign slice of
+    shape (3,) from input of shape (4,)") formats the shapes with numba's string functions, which it
+    compiles (str of ints, join, f-strings: 3-5 s of CPU) the first time a process compiles any
+    kernel with such an assignment. The message of numba's generic target ("cannot assign slice
+    from input of different size") raises the same ValueError and needs no strings compiled."""
+    try:
+        from numba.core.registry import cpu_target
+        from numba.np import arrayobj
+        cpu_only = arrayobj.ol_raise_with_shape_context_cpu
+        plain = arrayobj.ol_raise_with_shape_context_generic
+        typing = cpu_target.typing_context
+        typing.refresh()
+        templates = typing.resolve_value_type(arrayobj.raise_with_shape_context).templates
+    except (ImportError, AttributeError):   # another numba: its own message, compiled as before
+        return False
+    for t in templates:
+        if getattr(t, "_overload_func", None) is cpu_only:
+            t._overload_func = staticmethod(plain)
+    return True
+
+
+PLAIN_SLICE_ERRORS = _plain_slice_errors()
+
+
 # -- serial and parallel variants of one kernel ------------------------------------------------------
 # numba compiles a `parallel=True` kernel several times slower than the same loop as plain code (the
 # parfor passes and the outlined gufunc; the collision kernel: ~26 s against a few), and with one

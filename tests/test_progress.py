@@ -109,7 +109,8 @@ def test_run_shows_a_line_per_stage_and_the_sewing_and_simulation_progress(tmp_p
                        cwd=tmp_path, env=dict(os.environ), capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr
     err = r.stderr.splitlines()
-    starts = [l.split(" ")[0] for l in err if l.endswith(" ...")]
+    # on a first run a line says the simulation kernels compile in a second process
+    starts = [l.split(" ")[0] for l in err if l.endswith(" ...") and not l.startswith("simulation kernels ")]
     assert starts == ["rig", "colliders", "collider", "maps", "garments", "simulation", "cloth"], err
     assert any(l.startswith("colliders: ") and " hulls " in l for l in err), err
     assert any(l.startswith("collider coverage: ") and " frames " in l for l in err), err

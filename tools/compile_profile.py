@@ -7,6 +7,8 @@ compile events and print, per kernel, the compiled signatures and the exclusive 
 Clear the cache first for a cold figure (numba writes *.nbi / *.nbc into the __pycache__ folders
 beside the modules): `find stages -name '*.nbi' -o -name '*.nbc' | xargs rm -f`. With a warm cache
 the table lists only what numba had to compile (a stale or missing cache entry).
+`run` compiles the simulation's kernels in a second process on a first run (pipeline.kernel_warmup);
+this tool turns that off (GARMENT_BACKGROUND_COMPILE=0) so that every compile is counted here.
 """
 from __future__ import annotations
 
@@ -72,6 +74,7 @@ def main(argv=None) -> int:
     ap.add_argument("command", nargs=argparse.REMAINDER)
     a = ap.parse_args(argv)
     cmd = a.command[1:] if a.command[:1] == ["--"] else a.command
+    os.environ.setdefault("GARMENT_BACKGROUND_COMPILE", "0")    # every compile in this process
     listener = _Exclusive()
     event.register("numba:compile", listener)
     llvm = event.TimingListener()       # the part of it spent in LLVM (optimisation, code generation)

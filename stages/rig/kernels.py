@@ -4,6 +4,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+import stages.jit  # noqa: F401  (numba cache stamps, plain slice errors: see stages/jit.py)
+
 
 @njit(cache=True)
 def lbs_kernel(matrices: np.ndarray, vertices: np.ndarray, joints: np.ndarray, weights: np.ndarray,
