@@ -109,14 +109,40 @@ def cores() -> int:
         return os.cpu_count() or 1
 
 
-def no_idle_core() -> bool:
-    """The 1-minute load average leaves no core idle. Measured on the shared 2-core machine at load
-    4.5-5 (2026-11-24): the second process made the first run slower (54.0 s against 49.5 s wall,
-    49.8 s against 45.5 s CPU): it only takes turns with the other jobs and costs its own start."""
+IDLE_SAMPLE = 0.25    # s: how long the CPUs are watched for an idle core
+
+
+def _cpu_times() -> tuple[float, float] | None:
+    """(idle, total) jiffies over all CPUs from /proc/stat (Linux), else None."""
     try:
-        return os.getloadavg()[0] > cores() - 1
-    except (AttributeError, OSError):   # no load average (Windows)
+        with open("/proc/stat") as f:
+            v = [float(x) for x in f.readline().split()[1:]]
+    except (OSError, ValueError):
+        return None
+    return v[3] + (v[4] if len(v) > 4 else 0.0), sum(v[:8])
+
+
+def no_idle_core() -> bool:
+    """No core is idle now: over IDLE_SAMPLE seconds the CPUs (this run included) were idle for less
+    than 3/4 of a core. Measured on the shared 2-core machine at load 4.5-5 (2026-11-24): the second
+    process made the first run slower (54.0 s against 49.5 s wall, 49.8 s against 45.5 s CPU): it
+    only takes turns with the other jobs. Not the 1-minute load average: it stays above 1 for
+    minutes after any work (a pip install, the previous run) while the cores are free (measured:
+    27.3 s with the second process, then 48.7 and 49.3 s with the load average at 1.0-1.2 turning
+    it off). Elsewhere (no /proc/stat) the load average decides."""
+    import time
+    a = _cpu_times()
+    if a is None:
+        try:
+            return os.getloadavg()[0] > cores() - 1
+        except (AttributeError, OSError):   # no load average (Windows)
+            return False
+    time.sleep(IDLE_SAMPLE)
+    b = _cpu_times()
+    if b is None or b[1] <= a[1]:
         return False
+    total = b[1] - a[1]
+    return (b[0] - a[0]) / total * (os.cpu_count() or 1) < 0.75
 
 
 def needed() -> bool:

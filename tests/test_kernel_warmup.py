@@ -220,3 +220,13 @@ def test_a_compile_that_does_not_finish_in_time_is_stopped(tmp_path, monkeypatch
         with warnings.catch_warnings():
             warnings.simplefilter("error")
             bg.wait()          # already reported: no second warning
+
+
+@pytest.mark.parametrize("idle_share,cpus,busy", [(0.5, 2, False), (0.3, 2, True), (0.05, 4, True), (0.25, 4, False)])
+def test_an_idle_core_is_read_from_the_cpu_counters(monkeypatch, idle_share, cpus, busy):
+    """no_idle_core from two /proc/stat samples: idle jiffies / total x CPUs below 3/4 of a core."""
+    samples = iter([(0.0, 0.0), (idle_share * 1000.0, 1000.0)])
+    monkeypatch.setattr(kernel_warmup, "_cpu_times", lambda: next(samples))
+    monkeypatch.setattr(kernel_warmup, "IDLE_SAMPLE", 0.0)
+    monkeypatch.setattr(kernel_warmup.os, "cpu_count", lambda: cpus)
+    assert kernel_warmup.no_idle_core() is busy
