@@ -174,8 +174,11 @@ def test_ctrl_c_stops_the_run_and_its_compile_process(tmp_path):
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
     env["GARMENT_BACKGROUND_COMPILE"] = "1"     # whatever the machine's load
     out = tmp_path / "r.rrd"
+    # Ctrl-C as from a terminal: a test session started in the background (`cmd &`, nohup) has SIGINT
+    # ignored, the run would inherit that and finish (seen in a CI run started that way)
     run = subprocess.Popen([sys.executable, "-m", "pipeline", "run", "scenes/default.yaml", "-q", "-o", str(out)],
-                           cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                           cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                           preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         child = None
         end = time.monotonic() + 60
