@@ -154,10 +154,10 @@ def needed() -> bool:
         return False
     if cores() < 2:     # one core: the second process would only take turns with the run
         return False
-    if flag != "1" and no_idle_core():
-        return False
     from pipeline.kernel_cache import uncompiled
-    return uncompiled("simulation")[0] > 0
+    if uncompiled("simulation")[0] == 0:     # warm: no second process, and no 0.25 s CPU sample either
+        return False
+    return flag == "1" or not no_idle_core()
 
 
 class BackgroundCompile:

@@ -22,7 +22,7 @@ Measured by `python -m pipeline bench coverage` (60-frame walk, delta 1 cm, slac
 regions as hulls), coverage min / excess p95 / max / shell: built-in 99.78 % / 1.8 / 2.9 cm / 40 % (82
 balls), CesiumMan 99.76 % / 1.8 / 2.8 cm / 37 % (250), CMU BVH skin 99.98 % / 1.8 / 2.5 cm / 51 % (233);
 swept hulls on the same walks: 99.71 / 1.7 / 3.4 / 39, 99.91 / 3.5 / 8.3 / 57, 99.95 / 2.9 / 6.9 / 59.
-Slack trades coverage for excess (CesiumMan, tools/balls_probe.py): 0 -> 98.72 % / 1.23 cm / 22 %
+Slack trades coverage for excess (CesiumMan, the same measures in a one-off script): 0 -> 98.72 % / 1.23 cm / 22 %
 (695 balls), 7.5 mm -> 99.56 % / 1.58 cm / 32 % (309), 1 cm -> 99.78 % / 1.80 cm / 37 % (250).
 """
 from __future__ import annotations
@@ -91,6 +91,7 @@ def skin_points(points: np.ndarray, joints: np.ndarray, weights: np.ndarray, inv
 
 
 def check_pose_indices(n_poses: int, most: int = CHECK_POSES) -> np.ndarray:
+    """(k,) int64 indices of at most `most` poses evenly spread over n_poses (first and last included)."""
     return np.unique(np.linspace(0, n_poses - 1, min(most, n_poses)).round().astype(np.int64))
 
 

@@ -221,7 +221,8 @@ def core_points(character: Character, parts: list, poses: np.ndarray, skinned: n
     pts = np.concatenate(local) if local else np.zeros((0, 3))
     bones = np.concatenate(owner) if owner else np.zeros(0, np.int64)
     keep = np.ones(pts.shape[0], bool)
-    for f in np.unique(np.linspace(0, poses.shape[0] - 1, min(CORE_POSES, poses.shape[0])).round().astype(int)):
+    from stages.hulls.balls import check_pose_indices
+    for f in check_pose_indices(poses.shape[0], CORE_POSES):
         body.refit(skinned[f])
         m = poses[f, bones]
         world = np.einsum("nij,nj->ni", m[:, :3, :3], pts) + m[:, :3, 3]

@@ -167,19 +167,23 @@ def edges_apart_bounds(pt_min, pt_max, a, b, c, d):
 
 
 @njit(cache=True)
+def _append(cand, cand_n, slot, a, b):
+    """Append the pair (a, b) to a candidate list (cand_n[slot] its count; cand_n[2] = 1 on overflow)."""
+    k = cand_n[slot]
+    if k >= cand.shape[0]:
+        cand_n[2] = 1
+        return
+    cand[k, 0] = a
+    cand[k, 1] = b
+    cand_n[slot] = k + 1
+
+
+@njit(cache=True)
 def _vf(xs, xe, p, t, topo, tree, h, layer_depth, only_cross, work, n, counters, collect):
     """Test the pair, or with `collect` append it to the candidate list (tree[18], counts tree[20])."""
     if not collect:
         return test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters)
-    cand_vf = tree[18]
-    cand_n = tree[20]
-    k = cand_n[0]
-    if k >= cand_vf.shape[0]:
-        cand_n[2] = 1
-        return n
-    cand_vf[k, 0] = p
-    cand_vf[k, 1] = t
-    cand_n[0] = k + 1
+    _append(tree[18], tree[20], 0, p, t)
     return n
 
 
@@ -188,15 +192,7 @@ def _ee(xs, xe, e, f, topo, tree, h, layer_depth, only_cross, work, n, counters,
     """Test the pair (e < f), or with `collect` append it to the candidate list (tree[19])."""
     if not collect:
         return test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
-    cand_ee = tree[19]
-    cand_n = tree[20]
-    k = cand_n[1]
-    if k >= cand_ee.shape[0]:
-        cand_n[2] = 1
-        return n
-    cand_ee[k, 0] = e
-    cand_ee[k, 1] = f
-    cand_n[1] = k + 1
+    _append(tree[19], tree[20], 1, e, f)
     return n
 
 
