@@ -174,9 +174,9 @@ SCENE_SPEC = {
         "motion_tolerance": Field("float", 0.5, "split: motion: how far (as a fraction of delta) a rigid vertex may "
                                   "move in its bone's frame", lo=0.0, hi=10.0),
         "rigid_threshold": Field("float", 0.9, "split: weights: dominant skin weight that makes a vertex rigid", lo=0.0, lo_open=True, hi=1.0),
-        "flexible": Field("str", "swept", "swept: hulls of the flexible vertices over the motion, in the frame of the "
-                          "bone each moves least with | balls: spheres whose centres are skinned with the flexible skin (stages/hulls/balls.py) "
-                          "| sphere: one sphere per joint (paper)", choices=("swept", "balls", "sphere")),
+        "flexible": Field("str", "balls", "balls: spheres whose centres are skinned with the flexible skin (stages/hulls/balls.py) "
+                          "| swept: hulls of the flexible vertices over the motion, in the frame of the bone each moves "
+                          "least with | sphere: one sphere per joint (paper)", choices=("balls", "swept", "sphere")),
         "min_triangles": Field("int", 40, "simplification stops at this many hull faces", lo=4),
         "max_offset": Field("float", 0.005, "simplified hull stays within this distance (m) of the inflated one; null = unbounded (paper)", lo=0.0, lo_open=True,
                             nullable=True),

@@ -5,7 +5,7 @@ import numpy as np
 from hypothesis import given, settings, strategies as st
 from scipy.sparse import csr_matrix
 
-from stages.hulls.balls import _greedy_cover, check_pose_indices, fit_balls, skin_points
+from stages.hulls.balls import _greedy_cover, ball_check_poses, fit_balls, skin_points
 from stages.rig.motion_range import bone_deviation
 from stages.rig.regions import split_by_motion
 from stages.rig.skinning import skin_poses
@@ -21,35 +21,55 @@ def _walk():
 
 
 def test_ball_centres_skin_like_vertices():
-    """skin_points of the character's own vertices equals the skinning kernel's output."""
-    c, poses, x = _walk()
-    got = skin_points(c.vertices, c.skin_joints.astype(np.int64), c.skin_weights, c.inverse_bind, poses)
-    assert np.allclose(got, x, atol=1e-9)
+    """skin_points equals a plain-Python linear-blend skinning of random points and influences, for
+    many poses and for one pose (no leading axis)."""
+    c, poses, _ = _walk()
+    rng = np.random.default_rng(3)
+    pts = c.vertices[rng.integers(0, c.vertices.shape[0], 40)] + rng.normal(0, 0.01, (40, 3))
+    joints = rng.integers(0, c.n_joints, (40, 3))
+    weights = rng.random((40, 3))
+    weights /= weights.sum(axis=1, keepdims=True)
+    got = skin_points(pts, joints, weights, c.inverse_bind, poses)
+    assert got.shape == (poses.shape[0], 40, 3)
+    for f in (0, poses.shape[0] - 1):
+        for p in range(40):
+            want = np.zeros(3)
+            for k in range(3):
+                m = poses[f, joints[p, k]] @ c.inverse_bind[joints[p, k]]
+                want += weights[p, k] * (m[:3, :3] @ pts[p] + m[:3, 3])
+            assert np.allclose(got[f, p], want, atol=1e-12)
+    assert np.allclose(skin_points(pts, joints, weights, c.inverse_bind, poses[2]), got[2], atol=1e-12)
 
 
 def test_balls_hold_every_flexible_vertex_they_claim_at_every_check_pose():
     """Brute force: every flexible vertex not listed as unheld is within radius - (1 - cover) delta
-    of some ball centre at every check pose; every ball centre is inside the skinned body there."""
+    of some ball centre at every check pose; every ball centre is inside the skinned body there and
+    its ball stands at most the loosest slack + delta out of the skin."""
     from stages.coverage.measure import SkinDistance
+    from stages.coverage.kernels import distance_to_mesh_brute
     from stages.sim import winding_number
     c, poses, x = _walk()
     delta, cover = 0.01, 0.6
     split = split_by_motion(c, bone_deviation(c, poses, x), 0.005)
-    balls = fit_balls(c, split, poses, x, SkinDistance(c), delta=delta, cover=cover)
+    slack = (0.005, 0.01)
+    balls = fit_balls(c, split, poses, x, SkinDistance(c), delta=delta, cover=cover, slack=slack)
     assert balls.radius.size > 0
     flex = np.setdiff1d(np.flatnonzero(~split.rigid), balls.unheld)
     assert flex.size > 0
     centers = balls.centers(c.inverse_bind, poses)                 # (F, B, 3)
     reach = balls.radius - (1 - cover) * delta
-    for f in check_pose_indices(poses.shape[0]):
+    for f in ball_check_poses(poses.shape[0]):
         d = np.linalg.norm(x[f, flex][:, None] - centers[f][None], axis=2)
         assert (d <= reach[None] + 1e-12).any(axis=1).all(), f
         assert (winding_number(x[f], c.triangles, centers[f]) >= 0.5).all(), f
+        depth = np.zeros(centers.shape[1])        # brute force over every triangle
+        distance_to_mesh_brute(centers[f], x[f], c.triangles.astype(np.int64), depth)
+        assert (balls.radius <= depth + max(slack) + delta + 1e-9).all(), f   # stands out at most slack + delta
 
 
-def _greedy_reference(held: np.ndarray) -> list[int]:
-    """Plain greedy set cover: the row holding most targets not yet held (ties: lower row)."""
-    need = np.ones(held.shape[1], bool)
+def _greedy_reference(held: np.ndarray, need: np.ndarray) -> list[int]:
+    """Plain greedy set cover of the needed targets: the row holding most targets still needed (ties: lower row)."""
+    need = need.copy()
     out = []
     while True:
         gain = (held & need[None]).sum(axis=1)
@@ -61,9 +81,30 @@ def _greedy_reference(held: np.ndarray) -> list[int]:
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.integers(1, 12), st.integers(1, 20), st.integers(0, 2**31 - 1), st.floats(0.05, 0.6))
-def test_lazy_greedy_cover_equals_plain_greedy(rows, cols, seed, density):
-    held = np.random.default_rng(seed).random((rows, cols)) < density
-    chosen, unheld = _greedy_cover(csr_matrix(held))
-    assert chosen.tolist() == _greedy_reference(held)
-    assert unheld.tolist() == np.flatnonzero(~held.any(axis=0)).tolist()
+@given(st.integers(1, 12), st.integers(1, 20), st.integers(0, 2**31 - 1), st.floats(0.05, 0.6), st.booleans())
+def test_lazy_greedy_cover_equals_plain_greedy(rows, cols, seed, density, some_held):
+    rng = np.random.default_rng(seed)
+    held = rng.random((rows, cols)) < density
+    need = rng.random(cols) < 0.6 if some_held else np.ones(cols, bool)   # a tier after a tighter one
+    chosen, left = _greedy_cover(csr_matrix(held), need)
+    assert chosen.tolist() == _greedy_reference(held, need)
+    assert np.flatnonzero(left).tolist() == np.flatnonzero(need & ~held.any(axis=0)).tolist()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 30), st.integers(0, 60), st.integers(1, 4), st.integers(0, 2**31 - 1), st.floats(0.01, 0.3))
+def test_pair_search_equals_brute_force(n_centres, n_targets, n_poses, seed, cell):
+    """pairs_in_reach (a grid of the targets at the first pose) finds exactly the pairs a brute
+    force over every pair and pose finds, with the same largest distance, cols ascending."""
+    from stages.hulls.balls_kernels import pairs_in_reach
+    rng = np.random.default_rng(seed)
+    centers = rng.random((n_poses, n_centres, 3)) * 0.5
+    targets = rng.random((n_poses, n_targets, 3)) * 0.5
+    reach = rng.random(n_centres) * 0.3
+    indptr, cols, far = pairs_in_reach(centers, targets, reach, cell)
+    d = np.linalg.norm(centers[:, :, None] - targets[:, None], axis=3).max(axis=0)     # (C, T)
+    want = d <= reach[:, None]
+    assert indptr.tolist() == [0] + np.cumsum(want.sum(axis=1)).tolist()
+    for c in range(n_centres):
+        assert cols[indptr[c]:indptr[c + 1]].tolist() == np.flatnonzero(want[c]).tolist()
+        assert np.allclose(far[indptr[c]:indptr[c + 1]], d[c, want[c]], atol=1e-12)

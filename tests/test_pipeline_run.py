@@ -36,8 +36,8 @@ def test_every_stage_is_logged(default_run):
         assert p in paths, p
     hulls = {p.split("/")[3] for p in paths if p.startswith("/colliders/hulls/")}
     sizes = summary.stages[1].sizes
-    assert sizes["split"] == "motion" and sizes["swept_hulls"] > 0 and sizes["spheres"] == 0
-    assert len(hulls) == sizes["rigid_hulls"] + sizes["swept_hulls"]
+    assert sizes["split"] == "motion" and sizes["swept_hulls"] == 0 and sizes["spheres"] == 0 and sizes["balls"] > 0
+    assert len(hulls) == sizes["rigid_hulls"]
     for bone in hulls:
         for part in ("raw", "inflated", "simplified", "region"):
             assert f"/colliders/hulls/{bone}/{part}" in paths
@@ -158,7 +158,7 @@ def test_coverage_report_is_logged_per_sampled_frame(default_run):
     scene, out, summary = default_run
     report = str(rows(out, "colliders/report", "TextDocument:text")[0][1])
     assert "Coverage and excess" in report and "Hull fit" in report
-    assert "_flex" in report                                 # swept hulls are listed by name
+    assert "_ball" in report                                 # the skinned balls are listed by name
     for key in ("coverage", "excess_p95", "excess_max", "shell"):
         got = rows(out, f"colliders/fit/{key}", "Scalars:scalars")
         assert [f for f, _ in got] == [0, FRAMES - 1], key    # every 10th frame and the last
@@ -223,23 +223,37 @@ colliders: {split: weights, flexible: sphere, max_offset: null, report_every: 5}
     assert max(v[0] for _, v in got) > 3.0
 
 
-def test_skinned_balls_run_hold_the_cloth_and_are_logged_where_the_skin_moves_them(tmp_path):
-    """colliders.flexible: balls through the whole pipeline: the recording's ball centres are the
-    BallSet's centres skinned at every frame (plus the root translation), no particle ends inside a
-    collider, and the summary counts the balls."""
+def test_skinned_balls_are_logged_where_the_skin_moves_them(default_run):
+    """The default colliders' balls: the recording's ball centres are the BallSet's centres skinned
+    at every frame (plus the root translation), and no particle ends inside a collider."""
     from pipeline.run import split_and_fit
-    scene = parse_scene_text((REPO / "scenes" / "default.yaml").read_text().replace(
-        "  delta: 0.01\n", "  delta: 0.01\n  flexible: balls\n  report_every: 5\n"), source="balls.yaml")
-    out = tmp_path / "balls.rrd"
-    summary = run_scene(scene, output=out, frames=FRAMES, progress=False)
-    sizes = summary.stages[1].sizes
-    assert sizes["swept_hulls"] == 0 and sizes["spheres"] == 0 and sizes["balls"] > 0
+    scene, out, summary = default_run
     assert "inside colliders (max / mean per frame, frame 0 excluded): 0 /" in summary.text()
     character = load_character(scene)
     motion = sample_scene_motion(scene, character, frame_times(scene, FRAMES))
     _, colliders = split_and_fit(scene, character, motion)
+    assert colliders.balls.radius.size == summary.stages[1].sizes["balls"]
     want = colliders.balls.centers(character.inverse_bind, motion.joint_world) + motion.root_translation[:, None]
     got = rows(out, "colliders/balls", "Ellipsoids3D:centers")
     assert [f for f, _ in got] == list(range(FRAMES))
     for f, c in got:
         assert np.allclose(np.asarray(c).reshape(-1, 3), want[f], atol=1e-5)
+
+
+def test_swept_hulls_run_hold_the_cloth_and_are_logged(tmp_path):
+    """colliders.flexible: swept (the default until balls) through the whole pipeline: swept hulls
+    are logged by name with their stages, and no particle ends inside a collider."""
+    scene = parse_scene_text((REPO / "scenes" / "default.yaml").read_text().replace(
+        "  delta: 0.01\n", "  delta: 0.01\n  flexible: swept\n"), source="swept.yaml")
+    out = tmp_path / "swept.rrd"
+    summary = run_scene(scene, output=out, frames=FRAMES, progress=False)
+    sizes = summary.stages[1].sizes
+    assert sizes["swept_hulls"] > 0 and sizes["spheres"] == 0 and "balls" not in sizes
+    assert "inside colliders (max / mean per frame, frame 0 excluded): 0 /" in summary.text()
+    paths = entity_paths(out)
+    hulls = {p.split("/")[3] for p in paths if p.startswith("/colliders/hulls/")}
+    assert len(hulls) == sizes["rigid_hulls"] + sizes["swept_hulls"]
+    assert any("_flex" in h for h in hulls) and "/colliders/balls" not in paths
+    for h in hulls:
+        assert f"/colliders/hulls/{h}/simplified" in paths
+    assert "_flex" in str(rows(out, "colliders/report", "TextDocument:text")[0][1])

@@ -325,7 +325,8 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
             ins_s = inside_matrix(world, arrays, pose)
             ins_s[np.arange(world.shape[0]), owner_surface] = 0   # a point is on its own surface
             exposed = ~ins_s.any(axis=1)
-            outside = exposed & ~body.inside(world)
+            outside = exposed.copy()             # inside tests only for the exposed points (most are hidden)
+            outside[exposed] = ~body.inside(world[exposed])
             d = body.distance(world[outside])
             own = owner_surface[outside]
             for c in range(nc):

@@ -186,7 +186,7 @@ def skirt(meas: dict, *, length: float, flare: float, ease: float = 0.2, hip_eas
              Seam(SeamSide("back", ("side_l_lo", "side_l_hi")), SeamSide("front", ("side_r_hi", "side_r_lo"))))
     atts = (PatternAttachment("front", "waist", joint="root", sewing=True),
             PatternAttachment("back", "waist", joint="root", sewing=True))
-    return Pattern(name, tuple(panels), seams, edge_length, atts, fit_edges=_WAISTBAND, fit_band=1.0)
+    return Pattern(name, tuple(panels), seams, edge_length, atts, fit_edges=_WAISTBAND, fit_band=1.03)
 
 
 def _pants(meas: dict, *, leg_length: float, hem_radius: float, ease: float, hip_ease: float | None,

@@ -1,4 +1,5 @@
-"""Flexible regions held by skinned balls: spheres whose centres move with the skin.
+"""Flexible regions held by skinned balls: spheres whose centres move with the skin (the default
+`colliders.flexible`).
 
 Skin near a joint turns with none of its bones, so a collider rigid in one bone's frame stands
 off it by how far the skin moves in that frame, and one convex hull of a patch bridges the saddle
@@ -8,22 +9,23 @@ A ball whose centre is skinned like a vertex (the linear-blend weights of its ne
 applied to its bind-pose position) follows the flexible skin itself, and a ball inscribed in the
 body fits a saddle from inside.
 
-Fitting (`fit_balls`), over the check poses (every `every`-th pose of the motion sample):
+Fitting (`fit_balls`), over the check poses (about every CHECK_EVERY-th pose of the motion sample):
 - candidates: points of a grid (spacing `spacing`) inside the bind-pose body, near flexible vertices;
-- radius: the candidate's smallest depth under the skin at the check poses, plus `slack` (how far a
+- radius: the candidate's smallest depth under the skin at the check poses, plus a slack (how far a
   ball may stand out of the skin at its worst pose), plus delta (the inflation);
-- targets: the flexible vertices and every third candidate (the body's interior there);
-  a ball holds a target when the target is within radius - (1 - cover) * delta of its centre at
-  every check pose;
-- greedy set cover: the ball holding most targets not yet held, until none is left (or no ball
-  holds any of those left: listed in `BallSet.unheld`).
+- targets: the flexible vertices, the skin between them (centroids and edge midpoints of their
+  triangles) and the candidates (the body's interior there); a ball holds a target when the target
+  is within radius - (1 - cover) * delta of its centre at every check pose;
+- greedy set cover per slack tier, tightest first: the ball holding most targets not yet held,
+  until no ball of the tier holds any; the next tier's looser balls take what is left (targets no
+  tier holds: their vertices are listed in `BallSet.unheld`).
 
-Measured by `python -m pipeline bench coverage` (60-frame walk, delta 1 cm, slack 1 cm, rigid
-regions as hulls), coverage min / excess p95 / max / shell: built-in 99.78 % / 1.8 / 2.9 cm / 40 % (82
-balls), CesiumMan 99.76 % / 1.8 / 2.8 cm / 37 % (250), CMU BVH skin 99.98 % / 1.8 / 2.5 cm / 51 % (233);
-swept hulls on the same walks: 99.71 / 1.7 / 3.4 / 39, 99.91 / 3.5 / 8.3 / 57, 99.95 / 2.9 / 6.9 / 59.
-Slack trades coverage for excess (CesiumMan, the same measures in a one-off script): 0 -> 98.72 % / 1.23 cm / 22 %
-(695 balls), 7.5 mm -> 99.56 % / 1.58 cm / 32 % (309), 1 cm -> 99.78 % / 1.80 cm / 37 % (250).
+Measured by `python -m pipeline bench coverage` (60-frame walk, delta 1 cm, tiers 5 mm + 1 cm, rigid
+regions as hulls), coverage min / excess p95 / max / shell: built-in 99.80 % / 1.6 / 2.9 cm / 38 % (140
+balls), CesiumMan 99.91 % / 1.5 / 2.8 cm / 34 % (744), CMU BVH skin 99.98 % / 1.6 / 2.5 cm / 47 % (711).
+One 1 cm slack tier with only vertices and every third candidate as targets: CesiumMan 99.76 % / 1.8 /
+2.8 cm / 37 % (250 balls), and garment bands resting on them sat 2.0-2.3 cm off the skin; a 0 slack:
+98.72 % coverage, its holes mostly under 4 mm deep between the vertices held (hence the skin targets).
 """
 from __future__ import annotations
 
@@ -34,15 +36,18 @@ from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
 from stages.checks import ContractError, check_array
+from stages.hulls.balls_kernels import pairs_in_reach
 from stages.rig.types import Character, RegionSplit
 
 BALL_SPACING = 0.01    # m: candidate centres on a grid inside the bind-pose body
-BALL_SLACK = 0.01      # m: a ball may stand this far out of the skin at its worst check pose
+BALL_SLACK = (0.005, 0.01)   # m: tiers of how far a ball may stand out of the skin at its worst check pose
 BALL_COVER = 0.6       # a target is held within radius - (1 - BALL_COVER) * delta of the centre
 MIN_DEPTH = 0.005      # m: candidates shallower than this at some check pose are dropped
 NEAR_FLEXIBLE = 0.06   # m: candidates farther than this from every flexible vertex are dropped
-CHECK_POSES = 24       # at most this many poses of the motion sample are checked (evenly spread)
-INTERIOR_STRIDE = 3    # every this-many-th candidate is also a target (the interior to hold)
+CHECK_POSES = 24       # at most this many poses of the motion sample are checked (evenly spread) ...
+CHECK_EVERY = 5        # ... about one in this many (60-frame walks: 12 poses fit as 24 did, in half the time) ...
+CHECK_LEAST = 12       # ... and at least this many (6 over a 30-frame clip left a CesiumMan long skirt's seam open)
+PAIR_CELL = 0.02       # m: grid cell of the (ball, target) pair search
 
 
 @dataclass(frozen=True)
@@ -83,11 +88,15 @@ class BallSet:
 
 def skin_points(points: np.ndarray, joints: np.ndarray, weights: np.ndarray, inverse_bind: np.ndarray,
                 joint_world: np.ndarray) -> np.ndarray:
-    """(..., P, 3) linear-blend skinning of bind-pose points (P, 3) with influences (P, K)."""
-    m = joint_world @ inverse_bind                                         # (..., J, 4, 4)
-    mk = m[..., joints, :, :]                                               # (..., P, K, 4, 4)
-    x = np.einsum("...pkij,pj->...pki", mk[..., :3, :3], points) + mk[..., :3, 3]
-    return np.einsum("...pki,pk->...pi", x, weights)
+    """(..., P, 3) linear-blend skinning of bind-pose points (P, 3) with influences (P, K), for joint
+    transforms (..., J, 4, 4): the skinning kernel the body uses."""
+    from stages.rig.kernels import lbs_kernel
+    lead = joint_world.shape[:-3]
+    m = np.ascontiguousarray((joint_world @ inverse_bind).reshape(-1, *joint_world.shape[-3:]))
+    out = np.empty((m.shape[0], points.shape[0], 3))
+    lbs_kernel(m, np.ascontiguousarray(points, np.float64), np.ascontiguousarray(joints, np.int32),
+               np.ascontiguousarray(weights, np.float64), out)
+    return out.reshape(*lead, points.shape[0], 3)
 
 
 def check_pose_indices(n_poses: int, most: int = CHECK_POSES) -> np.ndarray:
@@ -95,8 +104,14 @@ def check_pose_indices(n_poses: int, most: int = CHECK_POSES) -> np.ndarray:
     return np.unique(np.linspace(0, n_poses - 1, min(most, n_poses)).round().astype(np.int64))
 
 
+def ball_check_poses(n_poses: int) -> np.ndarray:
+    """(k,) int64 indices of the poses the balls are fitted at: about every CHECK_EVERY-th, at least
+    CHECK_LEAST (or all), at most CHECK_POSES."""
+    return check_pose_indices(n_poses, min(CHECK_POSES, max(CHECK_LEAST, -(-n_poses // CHECK_EVERY))))
+
+
 def fit_balls(character: Character, split: RegionSplit, poses: np.ndarray, skinned: np.ndarray, body, *,
-              delta: float, spacing: float = BALL_SPACING, slack: float = BALL_SLACK,
+              delta: float, spacing: float = BALL_SPACING, slack: tuple | float = BALL_SLACK,
               cover: float = BALL_COVER) -> BallSet:
     """Skinned balls holding the flexible vertices of `split` and the body's interior near them
     (module doc). poses: (F, J, 4, 4) the motion sample; skinned: (F, V, 3) its skinned vertices;
@@ -117,57 +132,70 @@ def fit_balls(character: Character, split: RegionSplit, poses: np.ndarray, skinn
     joints = character.skin_joints[nearest].astype(np.int64)
     weights = character.skin_weights[nearest].astype(np.float64)
     weights /= weights.sum(axis=1, keepdims=True)
-    check = check_pose_indices(poses.shape[0])
+    check = ball_check_poses(poses.shape[0])
     centers = skin_points(grid, joints, weights, character.inverse_bind, poses[check])   # (S, C, 3)
     depth = np.full(grid.shape[0], np.inf)
-    for s, f in enumerate(check):
+    for s, f in enumerate(check):   # a candidate shallower than MIN_DEPTH at one pose is out: not checked again
+        alive = np.flatnonzero(depth > MIN_DEPTH)
         body.refit(skinned[f])
-        inside = body.inside(centers[s])
-        depth = np.minimum(depth, np.where(inside, body.distance(centers[s]), 0.0))
+        d = body.distance(centers[s, alive])
+        deep = d > MIN_DEPTH
+        d[deep] = np.where(body.inside(centers[s, alive[deep]]), d[deep], 0.0)
+        depth[alive] = np.minimum(depth[alive], d)
     body.refit(bind)
     keep = depth > MIN_DEPTH
     grid, joints, weights, depth, centers = grid[keep], joints[keep], weights[keep], depth[keep], centers[:, keep]
     if grid.shape[0] == 0:
         return BallSet(empty.bind_center, empty.joints, empty.weights, empty.radius, empty.joint, flex.astype(np.int64))
-    radius = depth + slack + delta
-    reach = radius - (1.0 - cover) * delta
-    # targets: the flexible vertices, then the candidates (the interior), at every check pose
-    # (every INTERIOR_STRIDE-th candidate: neighbours a spacing apart add little)
-    targets = np.concatenate([skinned[check][:, flex], centers[:, ::INTERIOR_STRIDE]], axis=1)   # (S, T, 3)
-    held = _held(centers, reach, targets)                                    # (C, T) sparse bool
-    chosen, unheld = _greedy_cover(held)
-    owner = np.array([flex[held[k].indices[0]] if held[k].nnz and held[k].indices[0] < flex.size else -1
-                      for k in chosen], np.int64)
-    joint = np.where(owner >= 0, split.region_joint[np.maximum(owner, 0)],
+    # targets: the flexible vertices, the skin between them, then the candidates (the interior), at
+    # every check pose
+    targets = np.concatenate([skinned[check][:, flex], _skin_between(character.triangles, ~split.rigid, skinned[check]),
+                              centers], axis=1)   # (S, T, 3)
+    tiers = np.sort(np.atleast_1d(np.asarray(slack, np.float64)))
+    margin = (1.0 - cover) * delta
+    indptr, cols, far = pairs_in_reach(np.ascontiguousarray(centers), np.ascontiguousarray(targets),
+                                       depth + tiers[-1] + delta - margin, PAIR_CELL)
+    pair_row = np.repeat(np.arange(grid.shape[0]), np.diff(indptr))
+    need = np.ones(targets.shape[1], bool)
+    rows, radii, owners = [], [], []
+    for tier in tiers:    # the tightest balls first; a looser tier holds what they cannot
+        radius = depth + tier + delta
+        ok = far <= (radius - margin)[pair_row]
+        held = csr_matrix((np.ones(int(ok.sum()), bool), cols[ok],
+                           np.concatenate([[0], np.cumsum(np.bincount(pair_row[ok], minlength=grid.shape[0]))])),
+                          shape=(grid.shape[0], targets.shape[1]))             # (C, T): t held by c at every pose
+        chosen, need = _greedy_cover(held, need)
+        rows.append(chosen)
+        radii.append(radius[chosen])
+        owners.append([held.indices[held.indptr[k]] if held.indptr[k + 1] > held.indptr[k] else flex.size for k in chosen])
+    chosen, radius = np.concatenate(rows), np.concatenate(radii)
+    first = np.concatenate(owners).astype(np.int64)
+    unheld = np.flatnonzero(need)
+    joint = np.where(first < flex.size, split.region_joint[flex[np.minimum(first, flex.size - 1)]],
                      joints[chosen, np.argmax(weights[chosen], axis=1)]).astype(np.int64)
     return BallSet(np.ascontiguousarray(grid[chosen]), np.ascontiguousarray(joints[chosen]),
-                   np.ascontiguousarray(weights[chosen]), np.ascontiguousarray(radius[chosen]), joint,
+                   np.ascontiguousarray(weights[chosen]), np.ascontiguousarray(radius), joint,
                    flex[unheld[unheld < flex.size]].astype(np.int64))
 
 
-def _held(centers: np.ndarray, reach: np.ndarray, targets: np.ndarray, chunk: int = 200_000) -> csr_matrix:
-    """(C, T) sparse bool: target t within reach[c] of centre c at every check pose (centers
-    (S, C, 3), targets (S, T, 3)). Pairs come from the first pose's ball query, then each pair is
-    checked at every pose."""
-    tree = cKDTree(targets[0])
-    lists = tree.query_ball_point(centers[0], reach)
-    rows = np.repeat(np.arange(len(lists)), [len(x) for x in lists])
-    cols = np.concatenate([np.asarray(x, np.int64) for x in lists]) if rows.size else np.zeros(0, np.int64)
-    ok = np.ones(rows.size, bool)
-    for a in range(0, rows.size, chunk):
-        r, c = rows[a:a + chunk], cols[a:a + chunk]
-        d = np.linalg.norm(centers[:, r] - targets[:, c], axis=2).max(axis=0)
-        ok[a:a + chunk] = d <= reach[r]
-    return csr_matrix((np.ones(int(ok.sum()), bool), (rows[ok], cols[ok])), shape=(centers.shape[1], targets.shape[1]))
+def _skin_between(triangles: np.ndarray, flexible: np.ndarray, skinned: np.ndarray) -> np.ndarray:
+    """(S, P, 3) points of the skin between the vertices of every triangle with a flexible corner:
+    its centroid and its edges' midpoints (shared edges once), at each pose of skinned (S, V, 3).
+    Balls that hold only the vertices leave the skin between them out where they are small."""
+    tri = triangles[flexible[triangles].any(axis=1)]
+    if tri.size == 0:
+        return skinned[:, :0]
+    edges = np.unique(np.sort(tri[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    return np.concatenate([skinned[:, tri].mean(axis=2), skinned[:, edges].mean(axis=2)], axis=1)
 
 
-def _greedy_cover(held: csr_matrix) -> tuple[np.ndarray, np.ndarray]:
-    """(chosen rows in order, targets no row holds): the row holding most targets not yet held,
-    repeatedly (ties: lower row). Lazy: a row's gain only falls, so a stale gain is an upper bound."""
+def _greedy_cover(held: csr_matrix, need: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(chosen rows in order, (T,) bool: targets still needed after them): the row holding most needed
+    targets (default: all), repeatedly (ties: lower row). Lazy: a row's gain only falls, so a stale
+    gain is an upper bound."""
     import heapq
-    n_rows, n_targets = held.shape
-    need = np.ones(n_targets, bool)
-    gains = np.diff(held.indptr)
+    need = np.ones(held.shape[1], bool) if need is None else need.copy()
+    gains = held.astype(np.int64) @ need.astype(np.int64)
     heap = [(-int(g), r) for r, g in enumerate(gains) if g > 0]
     heapq.heapify(heap)
     chosen = []
@@ -182,4 +210,4 @@ def _greedy_cover(held: csr_matrix) -> tuple[np.ndarray, np.ndarray]:
             continue
         chosen.append(r)
         need[cols] = False
-    return np.array(chosen, np.int64), np.flatnonzero(need)
+    return np.array(chosen, np.int64), need

@@ -236,15 +236,15 @@ def core_points(character: Character, parts: list, poses: np.ndarray, skinned: n
 
 
 def fit_character(character: Character, poses: np.ndarray | None, *, split: str = "motion",
-                  flexible: str = "swept", delta: float = 0.01, motion_tolerance: float = 0.5,
+                  flexible: str = "balls", delta: float = 0.01, motion_tolerance: float = 0.5,
                   rigid_threshold: float = 0.9, min_triangles: int = 40,
                   max_offset: float | None = 0.005, sweep_poses: np.ndarray | None = None,
                   progress=None) -> tuple[RegionSplit, ColliderSet]:
     """Region split and colliders in one call: (split, colliders).
 
     split 'motion' (rigid within motion_tolerance * delta of its bind position in its bone's frame
-    over `poses`) or 'weights' (dominant weight >= rigid_threshold, the paper); flexible 'swept' or
-    'sphere' (the paper). poses: (F, J, 4, 4) joint transforms of the motion sample (needed unless
+    over `poses`) or 'weights' (dominant weight >= rigid_threshold, the paper); flexible 'balls'
+    (skinned balls, stages/hulls/balls.py), 'swept' or 'sphere' (the paper). poses: (F, J, 4, 4) joint transforms of the motion sample (needed unless
     split='weights' and flexible='sphere'). sweep_poses: the poses swept hulls are fitted over
     (default: poses); a static scene splits on a range-of-motion sample but sweeps only its frames."""
     from stages.rig.motion_range import bone_deviation

@@ -100,8 +100,8 @@ def drape(frames: int = 150, threads: int = 1, repeats: int = 3, preset: str = "
 def walk_scene(frames: int = 90, colliders: str = "default"):
     """The built-in character walking in a T-shirt-like tube and a short skirt (~3,200 particles).
 
-    colliders: 'default' (motion split, swept flexible hulls, max_offset 0.005, as scenes) or
-    'paper' (weight split, joint spheres, max_offset unbounded)."""
+    colliders: 'default' (motion split, skinned balls, max_offset 0.005, as scenes), 'swept'
+    (the same with swept flexible hulls) or 'paper' (weight split, joint spheres, max_offset unbounded)."""
     from stages.hulls.fit import fit_character
     from stages.maps.build import build_maps
     from stages.rig.procedural import procedural_character
@@ -112,7 +112,7 @@ def walk_scene(frames: int = 90, colliders: str = "default"):
     if colliders == "paper":
         _, cs = fit_character(ch, None, split="weights", flexible="sphere", max_offset=None)
     else:
-        _, cs = fit_character(ch, motion.joint_world)
+        _, cs = fit_character(ch, motion.joint_world, **({"flexible": "swept"} if colliders == "swept" else {}))
     maps = build_maps(cs)
     bind = bind_pose(ch, motion, cs)
     v = ch.vertices

@@ -309,9 +309,9 @@ def interpolate_poses(a: np.ndarray, b: np.ndarray, u: np.ndarray) -> np.ndarray
     return out
 
 
-def _frame_poses(motion, f: int, substeps: int):
+def _frame_poses(joint_world: np.ndarray, f: int, substeps: int):
     """End-of-step poses (S, J, 4, 4), their inverses, and the start-of-step inverses, frame f-1 -> f."""
-    a, b = motion.joint_world[f - 1], motion.joint_world[f]
+    a, b = joint_world[f - 1], joint_world[f]
     if substeps == 1:
         fwd = b[None]
     else:
@@ -319,7 +319,18 @@ def _frame_poses(motion, f: int, substeps: int):
         fwd[-1] = b  # exact at the frame
     inv = np.linalg.inv(fwd)
     inv0 = np.concatenate([np.linalg.inv(a)[None], inv[:-1]])
-    return np.ascontiguousarray(fwd), np.ascontiguousarray(inv), np.ascontiguousarray(inv0)
+    return fwd, inv, inv0
+
+
+def _shift_tail(joint_world: np.ndarray) -> int:
+    """The first of the trailing frames that only translate at every frame (a skinned ball's,
+    ColliderSet.frame_poses); joint_world.shape[1] when none does."""
+    r = joint_world[..., :3, :3]
+    fixed = (r == np.eye(3)).all(axis=(0, 2, 3)) & (joint_world[..., 3, :] == [0, 0, 0, 1]).all(axis=(0, 2))
+    k = fixed.size
+    while k > 0 and fixed[k - 1]:
+        k -= 1
+    return k
 
 
 def _chunk_poses(motion, f0: int, f1: int, substeps: int, s: float, d_last):
@@ -331,13 +342,28 @@ def _chunk_poses(motion, f0: int, f1: int, substeps: int, s: float, d_last):
     """
     root = motion.root_translation
     jw = motion.joint_world
+    k = _shift_tail(jw[f0 - 1:f1])       # frames k.. only translate: lerp and negate, no slerp or inverse
+    n_steps, n = (f1 - f0) * substeps, jw.shape[1]
+    fwd, inv, inv0 = (np.empty((n_steps, n, 4, 4)) for _ in range(3))
     if substeps == 1:
-        fwd = jw[f0:f1]
-        inv_all = np.linalg.inv(jw[f0 - 1:f1])
-        inv, inv0 = inv_all[1:], inv_all[:-1]
+        fwd[:, :k] = jw[f0:f1, :k]
+        inv_all = np.linalg.inv(jw[f0 - 1:f1, :k])
+        inv[:, :k], inv0[:, :k] = inv_all[1:], inv_all[:-1]
     else:
-        parts = [_frame_poses(motion, f, substeps) for f in range(f0, f1)]
-        fwd, inv, inv0 = (np.concatenate([p[k] for p in parts]) for k in range(3))
+        for i, f in enumerate(range(f0, f1)):
+            s0 = i * substeps
+            fwd[s0:s0 + substeps, :k], inv[s0:s0 + substeps, :k], inv0[s0:s0 + substeps, :k] = \
+                _frame_poses(jw[:, :k], f, substeps)
+    if k < n:
+        u = np.arange(1, substeps + 1) / substeps
+        ta, tb = jw[f0 - 1:f1 - 1, k:, :3, 3], jw[f0:f1, k:, :3, 3]                  # (F, B, 3)
+        t = (1 - u)[None, :, None, None] * ta[:, None] + u[None, :, None, None] * tb[:, None]
+        t[:, -1] = tb                                                                 # exact at the frame
+        t = t.reshape(n_steps, n - k, 3)
+        t0 = np.concatenate([ta[:1], t[:-1]])
+        for m, sign, tt in ((fwd, 1.0, t), (inv, -1.0, t), (inv0, -1.0, t0)):
+            m[:, k:] = np.eye(4)
+            m[:, k:, :3, 3] = sign * tt
     u = np.arange(substeps + 1) / substeps
     tr = root[f0 - 1:f1 - 1, None, :] + (root[f0:f1] - root[f0 - 1:f1 - 1])[:, None, :] * u[None, :, None]
     if s > 0:
