@@ -108,3 +108,35 @@ def test_pair_search_equals_brute_force(n_centres, n_targets, n_poses, seed, cel
     for c in range(n_centres):
         assert cols[indptr[c]:indptr[c + 1]].tolist() == np.flatnonzero(want[c]).tolist()
         assert np.allclose(far[indptr[c]:indptr[c + 1]], d[c, want[c]], atol=1e-12)
+
+
+def test_body_scale_leaves_human_sizes_alone_and_follows_others():
+    from stages.hulls.balls import body_scale
+    box = lambda h: np.array([[0.0, 0.0, 0.0], [0.3 * h, h, 0.2 * h]])   # noqa: E731
+    assert body_scale(box(1.75)) == 1.0 and body_scale(box(0.5)) == 1.0 and body_scale(box(2.5)) == 1.0
+    assert np.isclose(body_scale(box(10.0)), 4.0) and np.isclose(body_scale(box(0.1)), 0.2)
+
+
+def test_a_body_held_by_balls_alone_builds_maps_and_simulates():
+    """Colliders with no hull (a body whose every region is flexible, as a glTF tube with smooth
+    weights: here the bent tube's balls without its rigid hulls): no hull maps, and the cloth still
+    collides with the balls (none of it ends inside a collider)."""
+    from stages.garments.simple import rectangle_cloth
+    from stages.garments.types import build_garment
+    from stages.hulls.fit import fit_character
+    from stages.maps.build import build_maps
+    from stages.sim import simulate
+    from stages.sim.types import SimParams
+    from tests.toy_rig import bend_motion, bent_tube
+    c = bent_tube()
+    motion = bend_motion(c, np.linspace(0.0, 90.0, 12))
+    from dataclasses import replace
+    _, cs = fit_character(c, motion.joint_world)
+    cs = replace(cs, hulls=())
+    assert cs.balls.radius.size > 0
+    maps = build_maps(cs)
+    assert len(maps.maps) == 0 and maps.arrays.planes.shape == (0, 4)
+    biggest = cs.balls.bind_center[np.argmax(cs.balls.radius)]
+    x, tri = rectangle_cloth(0.3, 0.3, 8, 8, center=tuple(biggest + [0.0, cs.balls.radius.max() + 0.03, 0.0]))
+    r = simulate(c, motion, cs, maps, [build_garment("cloth", x, tri)], SimParams.preset("default"))
+    assert r.penetrations_colliders[1:].max() == 0

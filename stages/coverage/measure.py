@@ -32,6 +32,8 @@ COVERAGE_WARN = 0.99       # warn below this coverage at any sampled frame
 MAX_REFINE = 4             # grid refinements to reach interior_samples (each ~x(n / needed)^(1/3))
 MIN_INSIDE = 50            # fewer grid points inside the body than this: it has no volume to measure
 EXCESS_P95_WARN = 0.03     # m: warn above this p95 excess
+MAX_SURFACE_SAMPLES = 200_000   # collider-surface samples per frame at most (spacing grows beyond: a 10 m glTF
+                                # with 1,233 balls had 7 million at 1 cm, and its coverage took 475 s)
 
 
 @dataclass(frozen=True)
@@ -254,7 +256,8 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
 
     frames: motion frame indices (default every `every`-th frame and the last). interior_samples:
     the grid is refined until at least this many of its points are inside the body at each frame.
-    surface_spacing: about one collider-surface sample per spacing^2 (m). vertex_collider: (V,)
+    surface_spacing: about one collider-surface sample per spacing^2 (m; coarser when that would
+    exceed MAX_SURFACE_SAMPLES). vertex_collider: (V,)
     int, the collider index (ColliderSet order, hulls then spheres) whose region holds each vertex,
     -1 for none: per-collider coverage (default: from the colliders' region vertex indices).
     seed: the jitter and surface samples (same seed, same figures). keep_samples: keep every
@@ -271,7 +274,10 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
     if vertex_collider is None:
         vertex_collider = region_owner(colliders, character.vertices.shape[0])
     rng = np.random.default_rng(seed)
-    local_surface, _ = surface_samples(colliders, surface_spacing, rng)
+    area = sum(_mesh_area(h.simplified.vertices, h.simplified.faces) for h in colliders.hulls) + \
+        sum(4 * np.pi * c.radius ** 2 for c in colliders.spheres)
+    spacing = max(surface_spacing, float(np.sqrt(area / MAX_SURFACE_SAMPLES)))   # a big body: coarser, not slower
+    local_surface, _ = surface_samples(colliders, spacing, rng)
     owner_surface = np.concatenate([np.full(p.shape[0], c, np.int64) for c, p in enumerate(local_surface)]) \
         if nc else np.zeros(0, np.int64)
     skinned = skin(character, motion, frames)
@@ -406,6 +412,10 @@ def _body_grid(body: "SkinDistance", box: np.ndarray, h: float, balls, rng: np.r
     near = np.repeat(~far[keep], sub.shape[0])
     in_body[near] = body.inside(grid[near])
     return grid, in_body
+
+
+def _mesh_area(v: np.ndarray, t: np.ndarray) -> float:
+    return float(0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1).sum())
 
 
 def _mesh_volume(v: np.ndarray, t: np.ndarray) -> float:

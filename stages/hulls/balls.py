@@ -48,6 +48,7 @@ CHECK_POSES = 24       # at most this many poses of the motion sample are checke
 CHECK_EVERY = 5        # ... about one in this many (60-frame walks: 12 poses fit as 24 did, in half the time) ...
 CHECK_LEAST = 12       # ... and at least this many (6 over a 30-frame clip left a CesiumMan long skirt's seam open)
 PAIR_CELL = 0.02       # m: grid cell of the (ball, target) pair search
+HUMAN_SIZE = (0.5, 2.5)   # m: the lengths above are for bodies this tall (bind-pose extent); others scale them
 
 
 @dataclass(frozen=True)
@@ -104,6 +105,14 @@ def check_pose_indices(n_poses: int, most: int = CHECK_POSES) -> np.ndarray:
     return np.unique(np.linspace(0, n_poses - 1, min(most, n_poses)).round().astype(np.int64))
 
 
+def body_scale(vertices: np.ndarray) -> float:
+    """1 for a body whose bind-pose extent is within HUMAN_SIZE, else extent / the nearer bound: the
+    fit's lengths (spacing, slack, ...) then scale with it (a 10 m glTF stored in other units)."""
+    extent = float(np.ptp(vertices, axis=0).max()) if vertices.size else 1.0
+    lo, hi = HUMAN_SIZE
+    return extent / hi if extent > hi else extent / lo if extent < lo else 1.0
+
+
 def ball_check_poses(n_poses: int) -> np.ndarray:
     """(k,) int64 indices of the poses the balls are fitted at: about every CHECK_EVERY-th, at least
     CHECK_LEAST (or all), at most CHECK_POSES."""
@@ -122,10 +131,12 @@ def fit_balls(character: Character, split: RegionSplit, poses: np.ndarray, skinn
     if flex.size == 0:
         return empty
     bind = character.vertices
-    lo, hi = bind[flex].min(axis=0) - NEAR_FLEXIBLE, bind[flex].max(axis=0) + NEAR_FLEXIBLE
+    k = body_scale(bind)
+    spacing, near, min_depth = spacing * k, NEAR_FLEXIBLE * k, MIN_DEPTH * k
+    lo, hi = bind[flex].min(axis=0) - near, bind[flex].max(axis=0) + near
     axes = [np.arange(a, b + spacing, spacing) for a, b in zip(lo, hi)]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    grid = grid[cKDTree(bind[flex]).query(grid, distance_upper_bound=NEAR_FLEXIBLE)[0] < NEAR_FLEXIBLE]
+    grid = grid[cKDTree(bind[flex]).query(grid, distance_upper_bound=near)[0] < near]
     body.refit(bind)
     grid = grid[body.inside(grid)] if grid.size else grid
     _, nearest = cKDTree(bind).query(grid)
@@ -135,15 +146,15 @@ def fit_balls(character: Character, split: RegionSplit, poses: np.ndarray, skinn
     check = ball_check_poses(poses.shape[0])
     centers = skin_points(grid, joints, weights, character.inverse_bind, poses[check])   # (S, C, 3)
     depth = np.full(grid.shape[0], np.inf)
-    for s, f in enumerate(check):   # a candidate shallower than MIN_DEPTH at one pose is out: not checked again
-        alive = np.flatnonzero(depth > MIN_DEPTH)
+    for s, f in enumerate(check):   # a candidate shallower than min_depth at one pose is out: not checked again
+        alive = np.flatnonzero(depth > min_depth)
         body.refit(skinned[f])
         d = body.distance(centers[s, alive])
-        deep = d > MIN_DEPTH
+        deep = d > min_depth
         d[deep] = np.where(body.inside(centers[s, alive[deep]]), d[deep], 0.0)
         depth[alive] = np.minimum(depth[alive], d)
     body.refit(bind)
-    keep = depth > MIN_DEPTH
+    keep = depth > min_depth
     grid, joints, weights, depth, centers = grid[keep], joints[keep], weights[keep], depth[keep], centers[:, keep]
     if grid.shape[0] == 0:
         return BallSet(empty.bind_center, empty.joints, empty.weights, empty.radius, empty.joint, flex.astype(np.int64))
@@ -151,10 +162,10 @@ def fit_balls(character: Character, split: RegionSplit, poses: np.ndarray, skinn
     # every check pose
     targets = np.concatenate([skinned[check][:, flex], _skin_between(character.triangles, ~split.rigid, skinned[check]),
                               centers], axis=1)   # (S, T, 3)
-    tiers = np.sort(np.atleast_1d(np.asarray(slack, np.float64)))
+    tiers = np.sort(np.atleast_1d(np.asarray(slack, np.float64))) * k
     margin = (1.0 - cover) * delta
     indptr, cols, far = pairs_in_reach(np.ascontiguousarray(centers), np.ascontiguousarray(targets),
-                                       depth + tiers[-1] + delta - margin, PAIR_CELL)
+                                       depth + tiers[-1] + delta - margin, PAIR_CELL * k)
     pair_row = np.repeat(np.arange(grid.shape[0]), np.diff(indptr))
     need = np.ones(targets.shape[1], bool)
     rows, radii, owners = [], [], []

@@ -222,8 +222,14 @@ class MapArrays(NamedTuple):
 
 def pack_maps(maps: tuple[HullMap, ...]) -> MapArrays:
     """Pack hull maps into MapArrays (face / cell / slab ids offset to global)."""
-    if len(maps) == 0:
-        raise ContractError("MapSet: expected at least one hull map")
+    if len(maps) == 0:   # a character held by balls alone (every region flexible): the kernels see no hull
+        i4, f8 = np.int32, np.float64
+        z = lambda *shape, dtype=f8: np.zeros(shape, dtype)   # noqa: E731
+        return MapArrays(center=z(0, 3), axes=z(0, 3, 3), half=z(0, 3), kind=z(0, dtype=i4), n_theta=z(0, dtype=i4),
+                         n_second=z(0, dtype=i4), second_lo=z(0), second_hi=z(0), face_start=z(1, dtype=i4),
+                         planes=z(0, 4), cell_base=z(1, dtype=i4), cell_start=z(1, dtype=i4), cell_tris=z(0, dtype=i4),
+                         loc_base=z(1, dtype=i4), loc_x=z(0), loc_start=z(1, dtype=i4), loc_y=z(0, 4),
+                         loc_face=z(0, dtype=i4))
     planes, cell_start, cell_tris, loc_x, loc_start, loc_y, loc_face = [], [0], [], [], [], [], []
     face_start, cell_base, loc_base = [0], [0], [0]
     e0 = 0
