@@ -420,20 +420,46 @@ def push_out(points: np.ndarray, character, skinned: np.ndarray, clearance: floa
 
 HUG_GAP = 0.004    # m: a hugged band stays this far outside the colliders
 HUG_STEP = 0.002   # m: radial search step
+UNDER_REACH = 0.05  # m: with garments worn under it, a band's walk starts this much farther out
+UNDER_SAMPLES = 6   # surface samples of a garment worn under: a barycentric grid of n + 1 per side
 
 
-def hug(points: np.ndarray, targets: np.ndarray, character, skinned: np.ndarray, bind, gap: float = HUG_GAP
-        ) -> np.ndarray:
+def surface_samples(positions: np.ndarray, triangles: np.ndarray, n: int = UNDER_SAMPLES) -> np.ndarray:
+    """(T (n + 1)(n + 2) / 2, 3) points on a triangle mesh: each triangle's barycentric grid with n
+    steps per side (corners and edges included), so every surface point is within about a third of
+    an edge / n of one."""
+    w = np.array([(i, j, n - i - j) for i in range(n + 1) for j in range(n + 1 - i)], np.float64) / n
+    tri = np.asarray(positions, np.float64)[np.asarray(triangles)]
+    return np.einsum("sk,tkd->tsd", w, tri).reshape(-1, 3)
+
+
+def hug(points: np.ndarray, targets: np.ndarray, character, skinned: np.ndarray, bind, gap: float = HUG_GAP,
+        under: np.ndarray | None = None, under_gap: float = 0.0) -> np.ndarray:
     """(N, 3) `points` (a waistband, a collar) each moved on the straight line towards its target
     (N, 3) as far as it stays `gap` outside every collider and outside the body: walking in from where
     it was placed, it stops before the first blocked position (and never passes its target). A band
     wrapped around an ellipse that contains the body's cross-section stands off a boxy section by
-    centimetres; this brings it onto the colliders."""
+    centimetres; this brings it onto the colliders.
+
+    under: optional (M, 3) points on the garments worn under this one (surface_samples): positions
+    closer than under_gap to one are blocked too, and the walk of a point with one within UNDER_REACH
+    starts UNDER_REACH farther out, so the band ends outside what it is worn over (a waistband over a
+    tucked-in shirt) where the placement put it inside."""
+    from scipy.spatial import cKDTree
+
     from stages.garments.types import _collider_distances
     from stages.sim import winding_number
     p = np.asarray(points, np.float64)
     d = np.asarray(targets, np.float64) - p
     length = np.linalg.norm(d, axis=1)
+    has_under = under is not None and len(under) > 0 and p.shape[0] > 0
+    if has_under:
+        tree = cKDTree(np.asarray(under, np.float64))
+        # points with a garment under them within reach start farther out (the others as placed)
+        near = tree.query(p, distance_upper_bound=UNDER_REACH + under_gap)[0] < np.inf
+        p = p - (UNDER_REACH * near / np.maximum(length, 1e-12))[:, None] * d
+        d = np.asarray(targets, np.float64) - p
+        length = np.linalg.norm(d, axis=1)
     if p.shape[0] == 0 or length.max(initial=0.0) < HUG_STEP:
         return p.copy()
     steps = np.arange(0.0, length.max(), HUG_STEP)                  # moves tried, m
@@ -443,6 +469,8 @@ def hug(points: np.ndarray, targets: np.ndarray, character, skinned: np.ndarray,
     dist, _, _ = _collider_distances(bind, flat)
     blocked = (dist.min(axis=0) < gap) if dist.size else np.zeros(flat.shape[0], bool)
     blocked |= winding_number(skinned, character.triangles, flat) >= 0.5
+    if has_under:
+        blocked |= tree.query(flat, distance_upper_bound=under_gap)[0] < under_gap
     blocked = blocked.reshape(s.shape)
     blocked[-1] = True                                              # never past the target
     first = np.argmax(blocked, axis=0)                              # first blocked step per point
