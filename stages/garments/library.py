@@ -410,7 +410,8 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
     from stages.garments.triangulate import run_vertices, triangulate_pattern
     from scipy.spatial import cKDTree
 
-    from stages.garments.placement import UNDER_REACH, bind_geometry, hug, place_pattern, surface_samples
+    from stages.garments.placement import (UNDER_REACH, bind_geometry, hug, place_pattern, push_over,
+                                          surface_samples)
     from stages.garments.types import attach_indices, bind_pose, build_garment
 
     sp = sew_params if sew_params is not None else SewParams()
@@ -469,6 +470,20 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
                     density=pattern.density, flat_positions=flat3, pair_stage=stage, pins=pins, bind=bind,
                     progress=progress)
     pos, mtri, remap = merged_mesh(sewn, tri, flat.seam_pairs)
+    if over.any():
+        # the seams' ends were free while sewing: where one closed inside a garment worn under it (the
+        # sharp side seam of a T-shirt), it goes out over it; the band's edges are cut to the new length
+        band = np.unique(remap[np.flatnonzero(over)])
+        _, origins, _ = bind_geometry(character, motion)
+        moved = push_over(pos[band], hug_targets(character, origins, pos[band], pattern.fit_hug), under, under_gap)
+        changed = band[np.any(moved != pos[band], axis=1)]
+        pos[band] = moved
+        if changed.size:
+            tri_rest = tri_rest.copy()
+            for k in range(3):
+                a, b = mtri[:, k], mtri[:, (k + 1) % 3]
+                e = (np.isin(a, changed) | np.isin(b, changed)) & np.isin(a, band) & np.isin(b, band)
+                tri_rest[e, k] = np.maximum(tri_rest[e, k], np.linalg.norm(pos[a[e]] - pos[b[e]], axis=1))
     atts = []
     if attach and pattern.attachments:
         for a in pattern.attachments:
