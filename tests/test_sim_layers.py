@@ -145,3 +145,22 @@ def test_waistband_is_hugged_over_the_garment_worn_under_it(tucked):
     # hugged over the T-shirt: outside it all round, more than a thickness off its surface
     assert _outside(band, shirt, centre).min() > 0.0
     assert cKDTree(surface_samples(shirt.positions, shirt.triangles)).query(band)[0].min() > H
+
+
+def test_tucked_scene_runs_without_crossings_after_frame_0(tmp_path):
+    """scenes/walk_tshirt_tucked.yaml as `run` runs it (8 frames): no cloth edge through cloth after
+    frame 0, read back from the recording (main before the dressing over lower layers: 33 T-shirt and
+    skirt edges through each other in every frame)."""
+    from pathlib import Path
+
+    from pipeline.run import run_scene
+    from pipeline.scene import load_scene
+    from tests.rrd_read import rows
+    s = load_scene(Path(__file__).resolve().parent.parent / "scenes" / "walk_tshirt_tucked.yaml")
+    s.settings["frames"]["count"] = 8
+    s.settings["colliders"]["report_every"] = 0
+    out = tmp_path / "tucked.rrd"
+    run_scene(s, output=out, progress=False)
+    for k in ("tshirt", "skirt", "between"):
+        series = np.array([float(np.ravel(v)[0]) for _, v in rows(out, f"sim/intersections/{k}", "Scalars:scalars")])
+        assert series.size == 8 and series[1:].max() == 0, (k, series)
