@@ -130,9 +130,11 @@ def place_scene_pattern(scene: Scene, index: int, character, motion, colliders):
         raise SceneError(f"{_garment_where(scene, index, character)}: cannot place the pattern: {err}") from None
 
 
-def build_pattern_garment(scene: Scene, index: int, character, motion, colliders, maps, progress=None):
+def build_pattern_garment(scene: Scene, index: int, character, motion, colliders, maps, progress=None, under=()):
     """A sewn garment from a built-in pattern: (Garment, SewingLog, GarmentBuild). Seams that do
-    not close within the tolerance are a SceneError naming the seam and the gap."""
+    not close within the tolerance are a SceneError naming the seam and the gap. under: the
+    garments worn under it (its waistband is hugged over them, HUG_GAP + the cloth thickness off)."""
+    from stages.garments.placement import HUG_GAP
     from stages.checks import ContractError
     from stages.errors import InputError
     from stages.garments.library import make_garment
@@ -145,7 +147,8 @@ def build_pattern_garment(scene: Scene, index: int, character, motion, colliders
                     gravity_scale=sw["gravity_scale"], iterations=sw["iterations"])
     try:
         garment, log, build = make_garment(pattern, character, motion, colliders, maps, sew_params=sew,
-                                           progress=progress)
+                                           progress=progress, under=under,
+                                           under_gap=HUG_GAP + scene["simulation"]["cloth_thickness"])
     except (ContractError, InputError) as err:
         raise SceneError(f"{where}: cannot place and sew the pattern: {err}") from None
     if not log.converged:
@@ -186,18 +189,31 @@ def build_scene_garments(scene: Scene, character, motion, colliders, maps, meshe
     from stages.checks import ContractError
     from stages.errors import InputError
     meshes = load_scene_meshes(scene) if meshes is None else meshes
-    out, builds = [], {}
-    for i, g in enumerate(scene["garments"]):
+    out, builds = [None] * len(scene["garments"]), {}
+    layers = dressing_layers(scene)
+    # inner layers first: a garment's waistband is hugged over the garments worn under it
+    for i in sorted(range(len(layers)), key=lambda k: (layers[k], k)):
+        g = scene["garments"][i]
+        under = [out[k] for k in range(len(layers)) if layers[k] < layers[i]]
         with where.item(f"{_item(scene, 'garments', i)}, type {g['type']}"):
             try:
                 garment, built = _build_scene_garment(scene, i, character, motion, colliders, maps, meshes,
-                                                      progress(g["name"]) if progress is not None else None)
+                                                      progress(g["name"]) if progress is not None else None,
+                                                      under=under)
             except (ContractError, InputError) as err:
                 raise _garment_build_error(scene, i, err) from None
-        out.append(garment)
+        out[i] = garment
         if built is not None:
             builds[g["name"]] = built
-    return out, builds
+    return out, {g["name"]: builds[g["name"]] for g in scene["garments"] if g["name"] in builds}
+
+
+def dressing_layers(scene: Scene) -> list[int]:
+    """Each garment's cloth layer when the scene's cloth collision is on (its `layer`, else its place
+    in the list), else all 0: the garments are then dressed independently."""
+    if not scene["simulation"]["cloth_collision"]:
+        return [0] * len(scene["garments"])
+    return [g["layer"] if g.get("layer") is not None else i for i, g in enumerate(scene["garments"])]
 
 
 def _garment_build_error(scene: Scene, index: int, err: Exception) -> SceneError:
@@ -229,14 +245,16 @@ def check_scene_garments(scene: Scene, character, motion, colliders, meshes: dic
     return patterns
 
 
-def _build_scene_garment(scene: Scene, i: int, character, motion, colliders, maps, meshes, progress=None):
-    """One garment: (Garment, (SewingLog, GarmentBuild) of a pattern or None)."""
+def _build_scene_garment(scene: Scene, i: int, character, motion, colliders, maps, meshes, progress=None,
+                         under=()):
+    """One garment: (Garment, (SewingLog, GarmentBuild) of a pattern or None). under: the garments
+    worn under it (a pattern's waistband is hugged over them)."""
     from stages.garments.simple import rectangle_cloth, tube_skirt
     from stages.garments.types import (COMMON_BONE, attach_indices, attach_near, attach_top_loop, bind_pose,
                                        build_garment)
     g = scene["garments"][i]
     if g["type"] == "pattern":
-        garment, log, build = build_pattern_garment(scene, i, character, motion, colliders, maps, progress)
+        garment, log, build = build_pattern_garment(scene, i, character, motion, colliders, maps, progress, under)
         return garment, (log, build)
     bind = bind_pose(character, motion, colliders)
     if g["type"] == "mesh":

@@ -403,7 +403,8 @@ def test_same_input_same_output():
         outs.append((xx, c))
     assert outs[0][1][CK.N_CONTACTS] > 0
     np.testing.assert_array_equal(outs[0][0], outs[1][0])
-    np.testing.assert_array_equal(outs[0][1], outs[1][1])
+    # the counters (the last ones are CPU cycles: timings)
+    np.testing.assert_array_equal(outs[0][1][:CK.N_CYC_BUILD], outs[1][1][:CK.N_CYC_BUILD])
 
 
 def test_outward_signs_from_the_body():

@@ -136,5 +136,8 @@ def test_shipped_scenes_turn_cloth_collision_on_with_their_layers():
     walk = load_scene(REPO / "scenes" / "walk_tshirt_skirt.yaml")
     assert garment_layers(walk) == [1, 0]                      # the T-shirt worn over the skirt
     assert sim_params(walk).cloth_collision
+    tucked = load_scene(REPO / "scenes" / "walk_tshirt_tucked.yaml")
+    assert garment_layers(tucked) == [0, 1]                    # the T-shirt tucked into the skirt
+    assert sim_params(tucked).cloth_collision
     assert sim_params(load_scene(REPO / "scenes" / "long_skirt.yaml")).cloth_collision
     assert not sim_params(load_scene(REPO / "scenes" / "default.yaml")).cloth_collision

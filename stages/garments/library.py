@@ -396,16 +396,22 @@ class GarmentBuild:
 
 
 def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_params=None, attach: bool = True,
-                 progress=None):
+                 progress=None, under=(), under_gap: float = 0.0):
     """Pattern -> Garment on the character in the bind pose (frame 0 of `motion`).
 
     Returns (Garment, SewingLog, GarmentBuild). The Garment's positions are the sewn shape (merged
     seam vertices), its rest lengths and masses come from the flat panels, and the pattern's
     attachments pin the chosen vertices to their bones.
+    under: Garments worn under this one (lower cloth layers, in the same frame): the fit edges
+    (a waistband) are hugged onto them, `under_gap` (m) off their surface, instead of onto the
+    colliders where they are in the way, so a pinned band leaves room for what is tucked in under it.
     """
     from stages.garments.sewing import SewParams, merged_mesh, seam_gaps, sew
     from stages.garments.triangulate import run_vertices, triangulate_pattern
-    from stages.garments.placement import bind_geometry, hug, place_pattern
+    from scipy.spatial import cKDTree
+
+    from stages.garments.placement import (UNDER_REACH, bind_geometry, hug, place_pattern, push_over,
+                                          surface_samples)
     from stages.garments.types import attach_indices, bind_pose, build_garment
 
     sp = sew_params if sew_params is not None else SewParams()
@@ -429,14 +435,19 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
         joint = character.joint_names[character.root_joint] if a.joint == "root" else a.joint
         return idx, joint
 
+    over = np.zeros(placed.shape[0], bool)   # fit-edge vertices hugged over a garment worn under
     if pattern.fit_edges:
         # the edges meant to sit on the body (waistband, collar, a cape's top) are brought onto the
         # colliders (see hug); a waistband is then pinned there
         skinned0, origins, _ = bind_geometry(character, motion)
+        below = (np.concatenate([surface_samples(g.positions, g.triangles) for g in under])
+                 if len(under) else None)
         for side in pattern.fit_edges:
             idx = run_vertices(pattern, flat, side)
+            if below is not None:
+                over[idx] = cKDTree(below).query(placed[idx], distance_upper_bound=UNDER_REACH + under_gap)[0] < np.inf
             placed[idx] = hug(placed[idx], hug_targets(character, origins, placed[idx], pattern.fit_hug), character,
-                              skinned0, pose)
+                              skinned0, pose, under=below, under_gap=under_gap)
             if pattern.fit_band is not None:
                 _band_rest(tri, tri_rest, idx, placed, pattern.fit_band)
     pins = []
@@ -449,13 +460,30 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
             if np.isin(idx, flat.seam_pairs.ravel()).any():
                 s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv[idx], axis=0), axis=1))])
                 f = s / max(s[-1], 1e-12)
-                idx = np.setdiff1d(idx[(f >= 0.25) & (f <= 0.75)], flat.seam_pairs.ravel())
+                # hugged over a garment worn under it, the whole run stays where it was hugged (outside
+                # it: the seams' ends pulled in would close the band through it)
+                keep = (f >= 0.25) & (f <= 0.75) | over[idx]
+                idx = np.setdiff1d(idx[keep], flat.seam_pairs.ravel())
             if idx.size:
                 pins.append(attach_indices(idx, joint))
     sewn, log = sew(pattern.name, placed, tri, tri_rest, flat.seam_pairs, character, motion, colliders, maps, sp,
                     density=pattern.density, flat_positions=flat3, pair_stage=stage, pins=pins, bind=bind,
                     progress=progress)
     pos, mtri, remap = merged_mesh(sewn, tri, flat.seam_pairs)
+    if over.any():
+        # the seams' ends were free while sewing: where one closed inside a garment worn under it (the
+        # sharp side seam of a T-shirt), it goes out over it; the band's edges are cut to the new length
+        band = np.unique(remap[np.flatnonzero(over)])
+        _, origins, _ = bind_geometry(character, motion)
+        moved = push_over(pos[band], hug_targets(character, origins, pos[band], pattern.fit_hug), under, under_gap)
+        changed = band[np.any(moved != pos[band], axis=1)]
+        pos[band] = moved
+        if changed.size:
+            tri_rest = tri_rest.copy()
+            for k in range(3):
+                a, b = mtri[:, k], mtri[:, (k + 1) % 3]
+                e = (np.isin(a, changed) | np.isin(b, changed)) & np.isin(a, band) & np.isin(b, band)
+                tri_rest[e, k] = np.maximum(tri_rest[e, k], np.linalg.norm(pos[a[e]] - pos[b[e]], axis=1))
     atts = []
     if attach and pattern.attachments:
         for a in pattern.attachments:

@@ -420,20 +420,86 @@ def push_out(points: np.ndarray, character, skinned: np.ndarray, clearance: floa
 
 HUG_GAP = 0.004    # m: a hugged band stays this far outside the colliders
 HUG_STEP = 0.002   # m: radial search step
+UNDER_REACH = 0.05  # m: with garments worn under it, a band's walk starts this much farther out
+UNDER_SAMPLES = 6   # surface samples of a garment worn under: a barycentric grid of n + 1 per side
 
 
-def hug(points: np.ndarray, targets: np.ndarray, character, skinned: np.ndarray, bind, gap: float = HUG_GAP
-        ) -> np.ndarray:
+def surface_samples(positions: np.ndarray, triangles: np.ndarray, n: int = UNDER_SAMPLES) -> np.ndarray:
+    """(T (n + 1)(n + 2) / 2, 3) points on a triangle mesh: each triangle's barycentric grid with n
+    steps per side (corners and edges included), so every surface point is within about a third of
+    an edge / n of one."""
+    w = np.array([(i, j, n - i - j) for i in range(n + 1) for j in range(n + 1 - i)], np.float64) / n
+    tri = np.asarray(positions, np.float64)[np.asarray(triangles)]
+    return np.einsum("sk,tkd->tsd", w, tri).reshape(-1, 3)
+
+
+def farthest_hits(origins: np.ndarray, points: np.ndarray, positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(N,) distance from each origin, along the ray through its point, to the ray's farthest hit on
+    the triangle mesh (Moller-Trumbore), -inf where it misses."""
+    tri = np.asarray(positions, np.float64)[np.asarray(triangles)]
+    a, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    out = np.full(points.shape[0], -np.inf)
+    for k in range(points.shape[0]):
+        d = points[k] - origins[k]
+        d = d / max(float(np.linalg.norm(d)), 1e-12)
+        pv = np.cross(d, e2)
+        det = np.einsum("ij,ij->i", e1, pv)
+        ok = np.abs(det) > 1e-15
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        tv = origins[k] - a
+        u = np.einsum("ij,ij->i", tv, pv) * inv
+        qv = np.cross(tv, e1)
+        v = (qv @ d) * inv
+        t = np.einsum("ij,ij->i", e2, qv) * inv
+        hit = ok & (u >= 0.0) & (v >= 0.0) & (u + v <= 1.0) & (t > 0.0)
+        if hit.any():
+            out[k] = t[hit].max()
+    return out
+
+
+def push_over(points: np.ndarray, origins: np.ndarray, under, gap: float) -> np.ndarray:
+    """(N, 3) points moved out along the rays from their origins (a band's hug targets on the body's
+    axis) to `gap` beyond the farthest hit on any garment of `under` (Garments), where they are
+    closer to the origin than that; the others as they are."""
+    p = np.asarray(points, np.float64).copy()
+    o = np.asarray(origins, np.float64)
+    reach = np.full(p.shape[0], -np.inf)
+    for g in under:
+        reach = np.maximum(reach, farthest_hits(o, p, g.positions, g.triangles))
+    d = p - o
+    r = np.linalg.norm(d, axis=1)
+    move = np.isfinite(reach) & (r < reach + gap)
+    p[move] = o[move] + d[move] * ((reach[move] + gap) / np.maximum(r[move], 1e-12))[:, None]
+    return p
+
+
+def hug(points: np.ndarray, targets: np.ndarray, character, skinned: np.ndarray, bind, gap: float = HUG_GAP,
+        under: np.ndarray | None = None, under_gap: float = 0.0) -> np.ndarray:
     """(N, 3) `points` (a waistband, a collar) each moved on the straight line towards its target
     (N, 3) as far as it stays `gap` outside every collider and outside the body: walking in from where
     it was placed, it stops before the first blocked position (and never passes its target). A band
     wrapped around an ellipse that contains the body's cross-section stands off a boxy section by
-    centimetres; this brings it onto the colliders."""
+    centimetres; this brings it onto the colliders.
+
+    under: optional (M, 3) points on the garments worn under this one (surface_samples): positions
+    closer than under_gap to one are blocked too, and the walk of a point with one within UNDER_REACH
+    starts UNDER_REACH farther out, so the band ends outside what it is worn over (a waistband over a
+    tucked-in shirt) where the placement put it inside."""
+    from scipy.spatial import cKDTree
+
     from stages.garments.types import _collider_distances
     from stages.sim import winding_number
     p = np.asarray(points, np.float64)
     d = np.asarray(targets, np.float64) - p
     length = np.linalg.norm(d, axis=1)
+    has_under = under is not None and len(under) > 0 and p.shape[0] > 0
+    if has_under:
+        tree = cKDTree(np.asarray(under, np.float64))
+        # points with a garment under them within reach start farther out (the others as placed)
+        near = tree.query(p, distance_upper_bound=UNDER_REACH + under_gap)[0] < np.inf
+        p = p - (UNDER_REACH * near / np.maximum(length, 1e-12))[:, None] * d
+        d = np.asarray(targets, np.float64) - p
+        length = np.linalg.norm(d, axis=1)
     if p.shape[0] == 0 or length.max(initial=0.0) < HUG_STEP:
         return p.copy()
     steps = np.arange(0.0, length.max(), HUG_STEP)                  # moves tried, m
@@ -443,6 +509,8 @@ def hug(points: np.ndarray, targets: np.ndarray, character, skinned: np.ndarray,
     dist, _, _ = _collider_distances(bind, flat)
     blocked = (dist.min(axis=0) < gap) if dist.size else np.zeros(flat.shape[0], bool)
     blocked |= winding_number(skinned, character.triangles, flat) >= 0.5
+    if has_under:
+        blocked |= tree.query(flat, distance_upper_bound=under_gap)[0] < under_gap
     blocked = blocked.reshape(s.shape)
     blocked[-1] = True                                              # never past the target
     first = np.argmax(blocked, axis=0)                              # first blocked step per point

@@ -492,5 +492,7 @@ class ClothPhase:
                 "left": int(c[CK.N_LEFT]), "rounds": int(c[CK.N_ROUNDS]), "node_pairs": int(c[CK.N_NODE_PAIRS]),
                 "tests": int(c[CK.N_TESTS]), "overflow": int(c[CK.N_OVERFLOW]),
                 "candidate_builds": int(c[CK.N_BUILDS]), "candidate_overflow": int(c[CK.N_CAND_OVERFLOW]),
+                "cycles_build": int(c[CK.N_CYC_BUILD]), "cycles_detect": int(c[CK.N_CYC_DETECT]),
+                "cycles_respond": int(c[CK.N_CYC_RESPOND]), "cycles_failsafe": int(c[CK.N_CYC_FAILSAFE]),
                 "layers": [int(v) for v in self.cc.garment_layer],
                 "outward": [int(v) for v in self.cc.garment_outward]}

@@ -395,6 +395,93 @@ def test_edge_edge(xs, xe, a, b, c, d, forced, ox, oy, oz, h, layer_depth):
     return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
 
 
+# ---------------------------------------------------------------------------------------------
+# conservative separation: pairs that can neither cross nor end within `reach` over the step.
+# A feature's points are fixed convex combinations of its corners, so over the step each moves at
+# most as far as its farthest corner: the pair's distance at any time is at least its distance at
+# the start minus the two features' largest corner moves. Both exact tests report only pairs that
+# touch at some time (CROSS) or end closer than max(h, layer_depth) (NEAR, the projection inside
+# the features): a pair whose bound stays above that reach is neither.
+
+APART_SLACK = 1e-6   # m added to the reach: the exact tests' inside tolerances (CROSS_TOL, BARY_TOL)
+
+
+@njit(cache=True)
+def _move(xs, xe, i):
+    return np.sqrt((xe[i, 0] - xs[i, 0]) ** 2 + (xe[i, 1] - xs[i, 1]) ** 2 + (xe[i, 2] - xs[i, 2]) ** 2)
+
+
+@njit(cache=True)
+def vf_apart(xs, xe, p, a, b, c, reach):
+    """Particle p and triangle abc stay farther apart than `reach` over the step xs -> xe (so
+    test_vertex_face reports nothing): the distance from p to the triangle's bounding sphere about
+    its centroid at the start, less the moves of p and of the triangle's farthest-moving corner."""
+    cx = (xs[a, 0] + xs[b, 0] + xs[c, 0]) / 3.0
+    cy = (xs[a, 1] + xs[b, 1] + xs[c, 1]) / 3.0
+    cz = (xs[a, 2] + xs[b, 2] + xs[c, 2]) / 3.0
+    r2 = 0.0
+    for i in (a, b, c):
+        r2 = max(r2, (xs[i, 0] - cx) ** 2 + (xs[i, 1] - cy) ** 2 + (xs[i, 2] - cz) ** 2)
+    d = np.sqrt((xs[p, 0] - cx) ** 2 + (xs[p, 1] - cy) ** 2 + (xs[p, 2] - cz) ** 2) - np.sqrt(r2)
+    room = reach + APART_SLACK
+    if d <= room:
+        return False
+    return d > room + _move(xs, xe, p) + max(_move(xs, xe, a), max(_move(xs, xe, b), _move(xs, xe, c)))
+
+
+@njit(cache=True)
+def segment_distance(x, a, b, c, d):
+    """Distance between the segments x[a] x[b] and x[c] x[d] (closest points clamped to both)."""
+    d1x = x[b, 0] - x[a, 0]
+    d1y = x[b, 1] - x[a, 1]
+    d1z = x[b, 2] - x[a, 2]
+    d2x = x[d, 0] - x[c, 0]
+    d2y = x[d, 1] - x[c, 1]
+    d2z = x[d, 2] - x[c, 2]
+    rx = x[a, 0] - x[c, 0]
+    ry = x[a, 1] - x[c, 1]
+    rz = x[a, 2] - x[c, 2]
+    aa = d1x * d1x + d1y * d1y + d1z * d1z
+    ee = d2x * d2x + d2y * d2y + d2z * d2z
+    ff = d2x * rx + d2y * ry + d2z * rz
+    s = 0.0
+    t = 0.0
+    if aa <= 1e-30 and ee <= 1e-30:
+        pass
+    elif aa <= 1e-30:
+        t = min(max(ff / ee, 0.0), 1.0)
+    else:
+        cc = d1x * rx + d1y * ry + d1z * rz
+        if ee <= 1e-30:
+            s = min(max(-cc / aa, 0.0), 1.0)
+        else:
+            bb = d1x * d2x + d1y * d2y + d1z * d2z
+            den = aa * ee - bb * bb
+            s = min(max((bb * ff - cc * ee) / den, 0.0), 1.0) if den > 0.0 else 0.0
+            t = (bb * s + ff) / ee
+            if t < 0.0:
+                t = 0.0
+                s = min(max(-cc / aa, 0.0), 1.0)
+            elif t > 1.0:
+                t = 1.0
+                s = min(max((bb - cc) / aa, 0.0), 1.0)
+    qx = rx + s * d1x - t * d2x
+    qy = ry + s * d1y - t * d2y
+    qz = rz + s * d1z - t * d2z
+    return np.sqrt(qx * qx + qy * qy + qz * qz)
+
+
+@njit(cache=True)
+def ee_apart(xs, xe, a, b, c, d, reach):
+    """Edges ab and cd stay farther apart than `reach` over the step xs -> xe (so test_edge_edge
+    reports nothing): their distance at the start less each edge's farthest corner move."""
+    room = reach + APART_SLACK
+    d0 = segment_distance(xs, a, b, c, d)
+    if d0 <= room:
+        return False
+    return d0 > room + max(_move(xs, xe, a), _move(xs, xe, b)) + max(_move(xs, xe, c), _move(xs, xe, d))
+
+
 @njit(cache=True)
 def segment_crosses_triangle(x, i, j, a, b, c):
     """Static exact test: segment x[i] x[j] crosses triangle abc (orientation signs; touching

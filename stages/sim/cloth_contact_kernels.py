@@ -23,25 +23,29 @@ from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.obstacles.kdop import refit_range
+from stages.sim.cloth_contact_response import contact_velocity, respond, revert, settled  # noqa: F401
+from stages.sim.simd import cycles
 from stages.sim.cloth_contact_cull import FLAT_COS, UNION_COS, flat_patch, flat_union, patch_nodes  # noqa: F401
 from stages.sim.cloth_contact_ccd import (EE_CROSS, EE_NEAR, VF_CROSS, VF_NEAR,  # noqa: F401
                                           count_edge_triangle_crossings, cubic_roots01,
                                           segment_crosses_triangle, test_edge_edge, test_vertex_face,
                                           triple_cubic)
 from stages.sim.cloth_contact_pairs import (N_BUILDS, N_CAND_OVERFLOW, N_CONTACTS, N_CORRECTED,  # noqa: F401
-                                            N_COUNTERS, N_LEFT, N_NODE_PAIRS, N_OVERFLOW, N_REVERTED, N_ROUNDS,
+                                            N_COUNTERS, N_CYC_BUILD, N_CYC_DETECT, N_CYC_FAILSAFE, N_CYC_RESPOND, N_LEFT, N_NODE_PAIRS, N_OVERFLOW, N_REVERTED, N_ROUNDS,
                                             N_TESTS, N_UNRESOLVED, brute_force_contacts, edges_apart_bounds,
-                                            point_off_triangle, test_ee_pair, test_triangle_pair, test_vf_pair)
+                                            ee_candidate, point_off_triangle, test_ee_pair, test_triangle_pair, test_vf_pair,
+                                            vf_candidate)
 
 # kernels below compile in code from these modules: their edits must invalidate the disk cache
 NUMBA_CACHE_DEPENDS = ("stages.obstacles.kdop", "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_cull",
-                       "stages.sim.cloth_contact_pairs")
+                       "stages.sim.cloth_contact_pairs", "stages.sim.cloth_contact_response", "stages.sim.simd")
 
 STEPS_AHEAD = 8      # a candidate list is built wide enough for this many steps at each particle's speed,
 MAX_MOTION_STEPS = 4  # but at most this many times the motion margin
 MIN_TURN = 0.5       # rad: a candidate list culls only patches whose normals can turn this far and stay flat
 PUSH_OVER = 1.02     # responses push to 1.02 h so a contact just resolved is not found again at h
 SWEEPS = 3           # Gauss-Seidel sweeps over a round's contacts before the next detection
+# (the response, the settled test and the fail-safe's revert: stages.sim.cloth_contact_response)
 
 # ---------------------------------------------------------------------------------------------
 # tree: refit and self-traversal
@@ -393,7 +397,7 @@ def narrow(xs, xe, topo, tree, work, margin, h, layer_depth, only_cross, counter
             continue
         if point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t):
             continue
-        n = test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters)
+        n = vf_candidate(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters)
     for k in range(cand_n[1]):
         e = cand_ee[k, 0]
         f = cand_ee[k, 1]
@@ -405,7 +409,7 @@ def narrow(xs, xe, topo, tree, work, margin, h, layer_depth, only_cross, counter
             continue
         if edges_apart_bounds(pt_min, pt_max, a, b, c, d):
             continue
-        n = test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
+        n = ee_candidate(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
     return n
 
 
@@ -448,7 +452,9 @@ def find_contacts(xs, xe, topo, tree, work, prm, only_cross, counters):
         # the bounds narrow() keeps are stale after a build or a tree search: then all afresh
         full = tree[20][3] == 0 or tree[20][3] == 2
         if not candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation):
+            c0 = cycles()
             build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, counters)
+            counters[N_CYC_BUILD] += cycles() - c0
             full = True
         if tree[20][2] == 0:
             tree[20][3] = 1
@@ -460,58 +466,6 @@ def find_contacts(xs, xe, topo, tree, work, prm, only_cross, counters):
 
 # ---------------------------------------------------------------------------------------------
 # response, fail-safe, entry
-
-@njit(cache=True, _nrt=False)
-def respond(x, inv_mass, work, n, target):
-    """Project contacts 0..n-1 in buffer order (Gauss-Seidel): C = dir . sum_k w_k x_k - target;
-    if C < 0 each particle moves by -C w_k inv_mass_k / sum_j w_j^2 inv_mass_j along dir."""
-    moved, corrected, c_kind, c_feat, c_idx, c_w, c_dir = work
-    for k in range(n):
-        dx = c_dir[k, 0]
-        dy = c_dir[k, 1]
-        dz = c_dir[k, 2]
-        cval = -target
-        den = 0.0
-        for j in range(4):
-            i = c_idx[k, j]
-            w = c_w[k, j]
-            cval += w * (dx * x[i, 0] + dy * x[i, 1] + dz * x[i, 2])
-            den += w * w * inv_mass[i]
-        if cval >= 0.0 or den == 0.0:
-            continue
-        lam = -cval / den
-        for j in range(4):
-            i = c_idx[k, j]
-            sc = lam * c_w[k, j] * inv_mass[i]
-            if sc == 0.0:
-                continue
-            x[i, 0] += sc * dx
-            x[i, 1] += sc * dy
-            x[i, 2] += sc * dz
-            moved[i] = 1
-            corrected[i] = 1
-
-
-@njit(cache=True, _nrt=False)
-def revert(x_prev, x, inv_mass, work, n):
-    """Fail-safe: every movable particle of contacts 0..n-1 goes back to x_prev. Returns how many
-    particles changed."""
-    moved, corrected, c_kind, c_feat, c_idx, c_w, c_dir = work
-    changed = 0
-    for k in range(n):
-        for j in range(4):
-            i = c_idx[k, j]
-            if inv_mass[i] == 0.0:
-                continue
-            if x[i, 0] != x_prev[i, 0] or x[i, 1] != x_prev[i, 1] or x[i, 2] != x_prev[i, 2]:
-                x[i, 0] = x_prev[i, 0]
-                x[i, 1] = x_prev[i, 1]
-                x[i, 2] = x_prev[i, 2]
-                moved[i] = 1
-                corrected[i] = 1
-                changed += 1
-    return changed
-
 
 @njit(cache=True, _nrt=False)
 def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
@@ -530,7 +484,8 @@ def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
     counters (N_COUNTERS,) i8: accumulated (+=), see N_* above.
 
     Rounds: refit the tree over x_prev -> x (or check the candidate lists), find contacts (all pairs in round 1, then only pairs
-    with a particle the previous round moved), project them; stop when a round finds none. If the
+    with a particle the previous round moved), project them; stop when a round finds none or only
+    pairs nearly a thickness apart (`settled`: no crossing, none closer than (1 - SETTLED) h). If the
     rounds run out, the fail-safe finds the pairs that still pass through (CROSS) and puts their
     movable particles back at x_prev, repeated until none is left: as x_prev has no crossing, the
     worst case is the whole cloth at rest, which has none.
@@ -544,17 +499,24 @@ def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
     clean = False
     for _ in range(rounds):
         dropped = counters[N_OVERFLOW]
+        c0 = cycles()
+        b0 = counters[N_CYC_BUILD]
         n = find_contacts(x_prev, x, topo, tree, work, prm, False, counters)
+        counters[N_CYC_DETECT] += cycles() - c0 - (counters[N_CYC_BUILD] - b0)
         counters[N_ROUNDS] += 1
         counters[N_CONTACTS] += n
-        if n == 0 and counters[N_OVERFLOW] == dropped:
+        if counters[N_OVERFLOW] == dropped and (n == 0 or settled(x, inv_mass, work, n, thickness)):
             clean = True
             break
         moved[:] = 0
+        c0 = cycles()
         for _sweep in range(SWEEPS):  # coupled contacts (a particle in several) need a few sweeps
             respond(x, inv_mass, work, n, target)
+        counters[N_CYC_RESPOND] += cycles() - c0
         if counters[N_OVERFLOW] != dropped:
             moved[:] = 1  # dropped contacts: look everywhere again
+    c0 = cycles()
+    b0 = counters[N_CYC_BUILD]
     if not clean:
         for it in range(failsafe_rounds + 1):
             dropped = counters[N_OVERFLOW]
@@ -574,38 +536,8 @@ def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters):
             if changed == 0 and counters[N_OVERFLOW] == dropped:
                 counters[N_LEFT] += n  # only pinned particles left to move
                 break
+    counters[N_CYC_FAILSAFE] += cycles() - c0 - (counters[N_CYC_BUILD] - b0)
     nc = 0
     for i in range(corrected.shape[0]):
         nc += corrected[i]
     counters[N_CORRECTED] += nc
-
-
-# ---------------------------------------------------------------------------------------------
-# brute force (references for the tests and a static audit)
-
-@njit(cache=True, _nrt=False)
-def contact_velocity(x_before, x, xp, corrected):
-    """Verlet velocity after a `collide_cloth` called once per frame (or whenever the correction should
-    not become velocity): for each corrected particle, with d = x - x_before its correction and
-    v = x_before - xp its velocity (times dt) before it, drop the part of v that approaches along d
-    (inelastic along the contact normal, tangential kept) and set xp = x - v. Uncorrected particles
-    keep xp. corrected: work[1] of the call."""
-    for i in range(x.shape[0]):
-        if not corrected[i]:
-            continue
-        dx = x[i, 0] - x_before[i, 0]
-        dy = x[i, 1] - x_before[i, 1]
-        dz = x[i, 2] - x_before[i, 2]
-        vx = x_before[i, 0] - xp[i, 0]
-        vy = x_before[i, 1] - xp[i, 1]
-        vz = x_before[i, 2] - xp[i, 2]
-        dd = dx * dx + dy * dy + dz * dz
-        if dd > 0.0:
-            vn = (vx * dx + vy * dy + vz * dz) / dd
-            if vn < 0.0:
-                vx -= vn * dx
-                vy -= vn * dy
-                vz -= vn * dz
-        xp[i, 0] = x[i, 0] - vx
-        xp[i, 1] = x[i, 1] - vy
-        xp[i, 2] = x[i, 2] - vz

@@ -11,7 +11,7 @@ import numpy as np
 from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
-from stages.sim.cloth_contact_ccd import EE_CROSS, VF_CROSS, test_edge_edge, test_vertex_face
+from stages.sim.cloth_contact_ccd import EE_CROSS, VF_CROSS, ee_apart, test_edge_edge, test_vertex_face, vf_apart
 
 NUMBA_CACHE_DEPENDS = ("stages.sim.cloth_contact_ccd",)
 
@@ -28,7 +28,11 @@ N_TESTS = 7        # exact feature-pair tests
 N_OVERFLOW = 8     # contacts dropped because the contact buffer was full
 N_BUILDS = 9       # candidate lists built (stages.sim.cloth_contact_kernels.build_candidates)
 N_CAND_OVERFLOW = 10  # candidate lists that overflowed their buffers (the tree search ran instead)
-N_COUNTERS = 11
+N_CYC_BUILD = 11   # CPU cycles in candidate list builds (the tree search that collects the pairs)
+N_CYC_DETECT = 12  # CPU cycles in the response rounds' detections (lists checked, pairs tested), builds excluded
+N_CYC_RESPOND = 13  # CPU cycles in the responses
+N_CYC_FAILSAFE = 14  # CPU cycles in the fail-safe (its detections and reverts), builds excluded
+N_COUNTERS = 15
 
 # ---------------------------------------------------------------------------------------------
 # feature pairs of two triangles, the contact buffer
@@ -179,10 +183,28 @@ def _append(cand, cand_n, slot, a, b):
 
 
 @njit(cache=True)
+def vf_candidate(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters):
+    """test_vf_pair unless the pair provably stays apart (vf_apart: beyond max(h, layer_depth))."""
+    tri = topo[0]
+    if vf_apart(xs, xe, p, tri[t, 0], tri[t, 1], tri[t, 2], max(h, layer_depth)):
+        return n
+    return test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters)
+
+
+@njit(cache=True)
+def ee_candidate(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters):
+    """test_ee_pair unless the pair provably stays apart (ee_apart: beyond max(h, layer_depth))."""
+    edges = topo[1]
+    if ee_apart(xs, xe, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1], max(h, layer_depth)):
+        return n
+    return test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
+
+
+@njit(cache=True)
 def _vf(xs, xe, p, t, topo, tree, h, layer_depth, only_cross, work, n, counters, collect):
     """Test the pair, or with `collect` append it to the candidate list (tree[18], counts tree[20])."""
     if not collect:
-        return test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters)
+        return vf_candidate(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters)
     _append(tree[18], tree[20], 0, p, t)
     return n
 
@@ -191,7 +213,7 @@ def _vf(xs, xe, p, t, topo, tree, h, layer_depth, only_cross, work, n, counters,
 def _ee(xs, xe, e, f, topo, tree, h, layer_depth, only_cross, work, n, counters, collect):
     """Test the pair (e < f), or with `collect` append it to the candidate list (tree[19])."""
     if not collect:
-        return test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
+        return ee_candidate(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
     _append(tree[19], tree[20], 1, e, f)
     return n
 

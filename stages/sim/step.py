@@ -52,7 +52,7 @@ NUMBA_CACHE_DEPENDS = ("stages.sim.body_collide", "stages.sim.collider_grid", "s
                        "stages.sim.integrate", "stages.sim.simd", "stages.sim.springs", "stages.maps.kernels",
                        "stages.maps.types", "stages.affine", "stages.fastmath", "stages.sim.cloth_contact_kernels",
                        "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_cull",
-                       "stages.sim.cloth_contact_pairs", "stages.obstacles.kdop")
+                       "stages.sim.cloth_contact_pairs", "stages.sim.cloth_contact_response", "stages.obstacles.kdop")
 
 # timer slots (CPU cycles; simulate.py converts to seconds)
 T_INTEGRATE = 0
