@@ -70,16 +70,23 @@ def warm_simulation(params, threads: int = 1, cloth_audit: bool = True, vertex_s
 
 
 def warm_coverage(threads: int = 1) -> None:
-    """Measure a tiny character's coverage (stages.coverage): the collider coverage stage's kernels,
-    compiled first (that stage runs before sewing, right after the colliders)."""
+    """Measure a tiny character's coverage (stages.coverage): the collider coverage stage's kernels
+    (the skinned-ball fit of the colliders stage uses them too), then the balls' pair search; compiled
+    first (those stages run before sewing)."""
+    import numpy as np
+
     from stages.coverage import measure_coverage
     from stages.jit import numba_threads
     from stages.sim.scenes import convex_mesh, fibonacci_points, hull_set, toy_character, toy_motion
+
+    from stages.hulls.balls_kernels import pairs_in_reach
 
     mesh = convex_mesh(fibonacci_points(12, (0.2, 0.2, 0.2)))
     with numba_threads(threads):
         measure_coverage(toy_character(mesh.vertices, mesh.faces), toy_motion(2), hull_set(mesh), every=1,
                          interior_samples=200, surface_spacing=0.05)
+    # the skinned balls' pair search (the colliders stage, after the hulls: 1.6 s of compiling)
+    pairs_in_reach(np.zeros((2, 3, 3)), np.zeros((2, 4, 3)), np.full(3, 0.1), 0.05)
 
 
 def _exit_with_parent(parent: int) -> None:

@@ -276,7 +276,7 @@ def background_warmup(scene: Scene, enabled: bool):
     sp = scene["simulation"]
     params = sim_params(scene)
     request = dict(params=params, threads=sp["threads"], cloth_audit=sp["cloth_audit"],
-                   coverage=scene["colliders"]["report_every"] > 0,
+                   coverage=scene["colliders"]["report_every"] > 0 or scene["colliders"]["flexible"] == "balls",
                    vertex_strain=sp["strain_colors"],
                    layers=garment_layers(scene) if params.cloth_collision else None)
     return BackgroundCompile(request, estimate_s=BACKGROUND_ESTIMATE_S)
