@@ -128,7 +128,7 @@ def test_waistband_is_hugged_over_the_garment_worn_under_it(tucked):
     from scipy.spatial import cKDTree
 
     from pipeline.dressing import build_scene_garments, dressing_layers
-    from stages.garments.placement import surface_samples
+    from stages.garments.placement import triangle_grid_points
     scene, p = tucked
     assert dressing_layers(scene) == [0, 1]
     (shirt, skirt), _ = build_scene_garments(scene, p.character, p.motion, p.colliders, p.maps)
@@ -144,7 +144,7 @@ def test_waistband_is_hugged_over_the_garment_worn_under_it(tucked):
     assert _outside(band_p, shirt, centre).min() < -0.01
     # hugged over the T-shirt: outside it all round, more than a thickness off its surface
     assert _outside(band, shirt, centre).min() > 0.0
-    assert cKDTree(surface_samples(shirt.positions, shirt.triangles)).query(band)[0].min() > H
+    assert cKDTree(triangle_grid_points(shirt.positions, shirt.triangles)).query(band)[0].min() > H
 
 
 def test_tucked_scene_runs_without_crossings_after_frame_0(tmp_path):

@@ -183,31 +183,34 @@ def inside_matrix(points: np.ndarray, arrays: ColliderArrays, pose: np.ndarray) 
 
 
 def surface_samples(colliders: ColliderSet, spacing: float, rng: np.random.Generator,
-                    max_per_collider: int = 6000) -> tuple[list[np.ndarray], np.ndarray]:
+                    max_per_collider: int = 6000, max_total: int = MAX_SURFACE_SAMPLES
+                    ) -> tuple[list[np.ndarray], np.ndarray]:
     """Uniform random points on each collider's surface, bone-local: (list of (n_c, 3), areas (C,)).
 
-    About one point per spacing^2 of area (at least 64, at most max_per_collider per collider)."""
-    pts, areas = [], []
+    About one point per spacing^2 of area (at least 64, at most max_per_collider per collider); a
+    coarser spacing where that would make more than about max_total in all (a big body)."""
+    hull_tris = []
     for h in colliders.hulls:
         v, f = h.simplified.vertices, h.simplified.faces
         a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-        tri_area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
-        area = float(tri_area.sum())
-        n = int(np.clip(area / spacing ** 2, 64, max_per_collider))
+        hull_tris.append((a, b, c, 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)))
+    areas = np.array([float(t[3].sum()) for t in hull_tris] + [4 * np.pi * s.radius ** 2 for s in colliders.spheres])
+    spacing = max(spacing, float(np.sqrt(areas.sum() / max_total)))
+    count = lambda area: int(np.clip(area / spacing ** 2, 64, max_per_collider))   # noqa: E731
+    pts = []
+    for (a, b, c, tri_area), area in zip(hull_tris, areas):
+        n = count(area)
         t = rng.choice(tri_area.size, size=n, p=tri_area / area)
         u, w = rng.random(n), rng.random(n)
         flip = u + w > 1
         u[flip], w[flip] = 1 - u[flip], 1 - w[flip]
         pts.append(a[t] + u[:, None] * (b[t] - a[t]) + w[:, None] * (c[t] - a[t]))
-        areas.append(area)
-    for s in colliders.spheres:
-        area = 4 * np.pi * s.radius ** 2
-        n = int(np.clip(area / spacing ** 2, 64, max_per_collider))
+    for s, area in zip(colliders.spheres, areas[len(hull_tris):]):
+        n = count(area)
         d = rng.normal(size=(n, 3))
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         pts.append(s.center + s.radius * d)
-        areas.append(area)
-    return pts, np.array(areas)
+    return pts, areas
 
 
 class SkinDistance:
@@ -274,10 +277,7 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
     if vertex_collider is None:
         vertex_collider = region_owner(colliders, character.vertices.shape[0])
     rng = np.random.default_rng(seed)
-    area = sum(_mesh_area(h.simplified.vertices, h.simplified.faces) for h in colliders.hulls) + \
-        sum(4 * np.pi * c.radius ** 2 for c in colliders.spheres)
-    spacing = max(surface_spacing, float(np.sqrt(area / MAX_SURFACE_SAMPLES)))   # a big body: coarser, not slower
-    local_surface, _ = surface_samples(colliders, spacing, rng)
+    local_surface, _ = surface_samples(colliders, surface_spacing, rng)
     owner_surface = np.concatenate([np.full(p.shape[0], c, np.int64) for c, p in enumerate(local_surface)]) \
         if nc else np.zeros(0, np.int64)
     skinned = skin(character, motion, frames)
@@ -412,10 +412,6 @@ def _body_grid(body: "SkinDistance", box: np.ndarray, h: float, balls, rng: np.r
     near = np.repeat(~far[keep], sub.shape[0])
     in_body[near] = body.inside(grid[near])
     return grid, in_body
-
-
-def _mesh_area(v: np.ndarray, t: np.ndarray) -> float:
-    return float(0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1).sum())
 
 
 def _mesh_volume(v: np.ndarray, t: np.ndarray) -> float:

@@ -411,7 +411,7 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
     from scipy.spatial import cKDTree
 
     from stages.garments.placement import (UNDER_REACH, bind_geometry, hug, place_pattern, push_over,
-                                          surface_samples)
+                                          triangle_grid_points)
     from stages.garments.types import attach_indices, bind_pose, build_garment
 
     sp = sew_params if sew_params is not None else SewParams()
@@ -440,7 +440,7 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
         # the edges meant to sit on the body (waistband, collar, a cape's top) are brought onto the
         # colliders (see hug); a waistband is then pinned there
         skinned0, origins, _ = bind_geometry(character, motion)
-        below = (np.concatenate([surface_samples(g.positions, g.triangles) for g in under])
+        below = (np.concatenate([triangle_grid_points(g.positions, g.triangles) for g in under])
                  if len(under) else None)
         for side in pattern.fit_edges:
             idx = run_vertices(pattern, flat, side)

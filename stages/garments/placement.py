@@ -424,7 +424,7 @@ UNDER_REACH = 0.05  # m: with garments worn under it, a band's walk starts this 
 UNDER_SAMPLES = 6   # surface samples of a garment worn under: a barycentric grid of n + 1 per side
 
 
-def surface_samples(positions: np.ndarray, triangles: np.ndarray, n: int = UNDER_SAMPLES) -> np.ndarray:
+def triangle_grid_points(positions: np.ndarray, triangles: np.ndarray, n: int = UNDER_SAMPLES) -> np.ndarray:
     """(T (n + 1)(n + 2) / 2, 3) points on a triangle mesh: each triangle's barycentric grid with n
     steps per side (corners and edges included), so every surface point is within about a third of
     an edge / n of one."""
@@ -481,7 +481,7 @@ def hug(points: np.ndarray, targets: np.ndarray, character, skinned: np.ndarray,
     wrapped around an ellipse that contains the body's cross-section stands off a boxy section by
     centimetres; this brings it onto the colliders.
 
-    under: optional (M, 3) points on the garments worn under this one (surface_samples): positions
+    under: optional (M, 3) points on the garments worn under this one (triangle_grid_points): positions
     closer than under_gap to one are blocked too, and the walk of a point with one within UNDER_REACH
     starts UNDER_REACH farther out, so the band ends outside what it is worn over (a waistband over a
     tucked-in shirt) where the placement put it inside."""

@@ -131,8 +131,8 @@ def fit_balls(character: Character, split: RegionSplit, poses: np.ndarray, skinn
     if flex.size == 0:
         return empty
     bind = character.vertices
-    k = body_scale(bind)
-    spacing, near, min_depth = spacing * k, NEAR_FLEXIBLE * k, MIN_DEPTH * k
+    scale = body_scale(bind)
+    spacing, near, min_depth = spacing * scale, NEAR_FLEXIBLE * scale, MIN_DEPTH * scale
     lo, hi = bind[flex].min(axis=0) - near, bind[flex].max(axis=0) + near
     axes = [np.arange(a, b + spacing, spacing) for a, b in zip(lo, hi)]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
@@ -162,13 +162,13 @@ def fit_balls(character: Character, split: RegionSplit, poses: np.ndarray, skinn
     # every check pose
     targets = np.concatenate([skinned[check][:, flex], _skin_between(character.triangles, ~split.rigid, skinned[check]),
                               centers], axis=1)   # (S, T, 3)
-    tiers = np.sort(np.atleast_1d(np.asarray(slack, np.float64))) * k
+    tiers = np.sort(np.atleast_1d(np.asarray(slack, np.float64))) * scale
     margin = (1.0 - cover) * delta
     indptr, cols, far = pairs_in_reach(np.ascontiguousarray(centers), np.ascontiguousarray(targets),
-                                       depth + tiers[-1] + delta - margin, PAIR_CELL * k)
+                                       depth + tiers[-1] + delta - margin, PAIR_CELL * scale)
     pair_row = np.repeat(np.arange(grid.shape[0]), np.diff(indptr))
     need = np.ones(targets.shape[1], bool)
-    rows, radii, owners = [], [], []
+    rows, radii, first = [], [], []      # first: each chosen ball's lowest held target (a vertex names its joint)
     for tier in tiers:    # the tightest balls first; a looser tier holds what they cannot
         radius = depth + tier + delta
         ok = far <= (radius - margin)[pair_row]
@@ -178,9 +178,8 @@ def fit_balls(character: Character, split: RegionSplit, poses: np.ndarray, skinn
         chosen, need = _greedy_cover(held, need)
         rows.append(chosen)
         radii.append(radius[chosen])
-        owners.append([held.indices[held.indptr[k]] if held.indptr[k + 1] > held.indptr[k] else flex.size for k in chosen])
-    chosen, radius = np.concatenate(rows), np.concatenate(radii)
-    first = np.concatenate(owners).astype(np.int64)
+        first.append(held.indices[held.indptr[chosen]])     # a chosen ball holds at least one target
+    chosen, radius, first = np.concatenate(rows), np.concatenate(radii), np.concatenate(first).astype(np.int64)
     unheld = np.flatnonzero(need)
     joint = np.where(first < flex.size, split.region_joint[flex[np.minimum(first, flex.size - 1)]],
                      joints[chosen, np.argmax(weights[chosen], axis=1)]).astype(np.int64)
