@@ -93,3 +93,27 @@ def test_tshirt_sews(scene):
     assert abs(hem[0]) < 0.03 and abs(neck[0]) < 0.03
     assert sorted(np.sign(cuffs[:, 0])) == [-1, 1] and np.all(np.abs(cuffs[:, 0]) > 0.25)
     assert g.attached.size > 0
+
+
+def test_a_collar_sewn_off_the_body_is_sewn_again_held(scene):
+    """Sewing with a free collar can leave it off the body (the tall-slim and BVH T-shirts: its
+    corners stand 3-4 cm off the hollow between neck and shoulders); then the garment is sewn again
+    with the collar held where it was hugged, kept when its seams close and the collar sits closer.
+    Here a band cut 1.1 x its hugged loop (loose) leaves the collar 2.4 cm out sewn free."""
+    import dataclasses
+    import re
+
+    from stages.coverage import SkinDistance
+    from stages.garments.fit import FIT_GAP_MAX, signed_skin_distance
+    c, m, cols, maps, skin0 = scene
+    pattern = dataclasses.replace(library_pattern("tshirt", garment_measurements(c, cols, m)), fit_band=1.1)
+    g, log, build = make_garment(pattern, c, m, cols, maps)
+    held = [n for n in log.notes if n.startswith("fit edges held")]
+    assert len(held) == 1, log.notes
+    free_cm, held_cm = (float(v) for v in re.findall(r"([\d.]+) cm", held[0]))
+    assert held_cm < free_cm and free_cm > FIT_GAP_MAX * 100
+    assert log.converged and log.gap_max[-1] <= 0.004
+    body = SkinDistance(c)
+    body.refit(np.ascontiguousarray(skin0, np.float64))
+    # the note's figure is the garment's: the collar of the sewn garment sits where it says
+    assert abs(np.median(signed_skin_distance(body, g.positions[build.fit_vertices])) * 100 - held_cm) < 0.3

@@ -58,6 +58,13 @@ class GarmentFit:
         return out
 
 
+def signed_skin_distance(body, points: np.ndarray) -> np.ndarray:
+    """(N,) float64, m: distance of (N, 3) points to the skin of `body` (a stages.coverage.SkinDistance
+    refitted to the pose of the points), negative inside the body."""
+    p = np.ascontiguousarray(points, np.float64)
+    return np.where(body.inside(p), -1.0, 1.0) * body.distance(p)
+
+
 def garment_fit(character, bind_skin: np.ndarray, bind_positions: np.ndarray, fit_vertices: np.ndarray,
                 track, floor_y: float, skin_distance=None) -> GarmentFit:
     """The fit of one simulated garment.
@@ -73,8 +80,7 @@ def garment_fit(character, bind_skin: np.ndarray, bind_positions: np.ndarray, fi
     if fit_vertices.size:
         body = skin_distance if skin_distance is not None else SkinDistance(character)
         body.refit(np.ascontiguousarray(bind_skin, np.float64))
-        pts = np.ascontiguousarray(np.asarray(bind_positions, np.float64)[fit_vertices])
-        gap = np.where(body.inside(pts), -1.0, 1.0) * body.distance(pts)
+        gap = signed_skin_distance(body, np.asarray(bind_positions, np.float64)[fit_vertices])
     clearance = track.positions[..., 1].min(axis=1).astype(np.float64) - float(floor_y)
     pen = track.penetrations_body.astype(np.float64)
     share = np.where(pen >= 0, pen / max(n, 1), np.nan)

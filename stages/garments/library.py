@@ -8,13 +8,14 @@ heights.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from stages.errors import InputError
 from stages.garments.patterns import (Panel, Pattern, PatternAttachment, Placement, Seam, SeamSide, cubic, line,
                                       quad)
+from stages.garments.fit import FIT_GAP_MAX, signed_skin_distance
 from stages.garments.measurements import quarter_length
 from stages.garments.types import COMMON_BONE
 
@@ -450,25 +451,49 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
                               skinned0, pose, under=below, under_gap=under_gap)
             if pattern.fit_band is not None:
                 _band_rest(tri, tri_rest, idx, placed, pattern.fit_band)
+    def middle_half(idx):
+        """The middle half of a run (by length) without its seam vertices: the ends stay free so that
+        the seams there can close even where the placement had to stretch the band around a collider;
+        a run without seams (a cape's top) whole, else its free ends swing off the shoulders while
+        sewing. Hugged over a garment worn under it, the whole run stays where it was hugged (outside
+        it: the seams' ends pulled in would close the band through it)."""
+        if not np.isin(idx, flat.seam_pairs.ravel()).any():
+            return idx
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv[idx], axis=0), axis=1))])
+        f = s / max(s[-1], 1e-12)
+        return np.setdiff1d(idx[(f >= 0.25) & (f <= 0.75) | over[idx]], flat.seam_pairs.ravel())
+
     pins = []
     for a in pattern.attachments:
         if a.sewing:
-            # the middle half of the run: the ends stay free so that the seams there can close even
-            # where the placement had to stretch the band around a collider; a run without seams (a
-            # cape's top) is pinned whole, else its free ends swing off the shoulders while sewing
             idx, joint = chosen(a)
-            if np.isin(idx, flat.seam_pairs.ravel()).any():
-                s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv[idx], axis=0), axis=1))])
-                f = s / max(s[-1], 1e-12)
-                # hugged over a garment worn under it, the whole run stays where it was hugged (outside
-                # it: the seams' ends pulled in would close the band through it)
-                keep = (f >= 0.25) & (f <= 0.75) | over[idx]
-                idx = np.setdiff1d(idx[keep], flat.seam_pairs.ravel())
+            idx = middle_half(idx)
             if idx.size:
                 pins.append(attach_indices(idx, joint))
-    sewn, log = sew(pattern.name, placed, tri, tri_rest, flat.seam_pairs, character, motion, colliders, maps, sp,
-                    density=pattern.density, flat_positions=flat3, pair_stage=stage, pins=pins, bind=bind,
-                    progress=progress)
+
+    def sew_held(pins):
+        return sew(pattern.name, placed, tri, tri_rest, flat.seam_pairs, character, motion, colliders, maps, sp,
+                   density=pattern.density, flat_positions=flat3, pair_stage=stage, pins=pins, bind=bind,
+                   progress=progress)
+    sewn, log = sew_held(pins)
+    runs = [run_vertices(pattern, flat, side) for side in pattern.fit_edges]
+    pinned = np.concatenate([np.asarray(a.indices) for a in pins]) if pins else np.zeros(0, np.int64)
+    free = [r for r in runs if not np.isin(r, pinned).any()]
+    if free:
+        # fallback: a collar whose sewing pulled it off the body (its corners stand off the hollow
+        # between neck and shoulders, the patterns' flat rest shape pushing them out) is sewn again,
+        # held where it was hugged until the seams are closed, then free as before
+        from stages.coverage import SkinDistance
+        body = SkinDistance(character)
+        body.refit(np.ascontiguousarray(skinned0, np.float64))
+        gap = float(np.median(signed_skin_distance(body, sewn[np.concatenate(free)])))
+        if gap > FIT_GAP_MAX:
+            sewn2, log2 = sew_held(pins + [attach_indices(middle_half(r), None) for r in free])
+            gap2 = float(np.median(signed_skin_distance(body, sewn2[np.concatenate(free)])))
+            if log2.gap_max[-1] <= max(sp.tolerance, log.gap_max[-1]) and gap2 < gap:
+                note = (f"fit edges held where hugged while sewing: {gap * 100:.1f} cm from the skin "
+                        f"(median) when free, {gap2 * 100:.1f} cm held")
+                sewn, log = sewn2, replace(log2, notes=log2.notes + (note,))
     pos, mtri, remap = merged_mesh(sewn, tri, flat.seam_pairs)
     if over.any():
         # the seams' ends were free while sewing: where one closed inside a garment worn under it (the
@@ -491,8 +516,7 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
             atts.append(attach_indices(np.unique(remap[idx]), joint))
     g = build_garment(pattern.name, pos, mtri, density=pattern.density, triangle_rest=tri_rest, attachments=atts,
                       bind=bind)
-    fit = [run_vertices(pattern, flat, side) for side in pattern.fit_edges]
-    fit = np.unique(remap[np.concatenate(fit)]).astype(np.int64) if fit else np.zeros(0, np.int64)
+    fit = np.unique(remap[np.concatenate(runs)]).astype(np.int64) if runs else np.zeros(0, np.int64)
     gaps = seam_gaps(sewn, flat.seam_pairs)
     by_seam = {}
     for k, seam in enumerate(pattern.seams):
