@@ -329,18 +329,25 @@ def _build_scene_obstacle(o: dict, file_mesh, duration: float):
                          restitution=o["restitution"], motion=motion)
 
 
-def garment_fits(character, motion, skinned, garments, builds, result) -> list:
+def garment_fits(character, motion, skinned, garments, builds, result, layers=None) -> list:
     """stages.garments.fit.GarmentFit of every simulated garment; the floor is the lowest skin point
-    over the frames (world), the fit edges those of the pattern garments' builds."""
+    over the frames (world), the fit edges those of the pattern garments' builds. layers: each
+    garment's cloth layer (dressing_layers) or None: a garment's fit edges are measured to the nearer
+    of the skin and the garments of lower layers (a waistband worn over a tucked-in shirt sits on the
+    shirt, not on the skin)."""
     from stages.coverage import SkinDistance
     from stages.garments.fit import garment_fit
+    from stages.garments.placement import triangle_grid_points
     floor_y = float((skinned[..., 1] + motion.root_translation[:, None, 1]).min())
     body = SkinDistance(character)
+    layers = [0] * len(garments) if layers is None else list(layers)
     out = []
-    for g, track in zip(garments, result.garments):
+    for i, (g, track) in enumerate(zip(garments, result.garments)):
         build = builds.get(g.name, (None, None))[1]
         fit_vertices = build.fit_vertices if build is not None else np.zeros(0, np.int64)
-        out.append(garment_fit(character, skinned[0], g.positions, fit_vertices, track, floor_y, skin_distance=body))
+        below = [triangle_grid_points(u.positions, u.triangles) for u, k in zip(garments, layers) if k < layers[i]]
+        out.append(garment_fit(character, skinned[0], g.positions, fit_vertices, track, floor_y, skin_distance=body,
+                               under=np.concatenate(below) if below else None))
     return out
 
 

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.dressing import (build_scene_garments, build_scene_obstacles, check_pattern, check_pins, garment_fit_report,
-                               garment_fits, load_scene_meshes)
+from pipeline.dressing import (build_scene_garments, build_scene_obstacles, check_pattern, check_pins, dressing_layers,
+                               garment_fit_report, garment_fits, load_scene_meshes)
 from pipeline.scene import Scene
 from pipeline.schema import SceneError
 
@@ -489,7 +489,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             summary.penetrations = logs.log_sim(rec, motion, garments, result, audit)
             summary.speeds = {k: summary.penetrations.pop(k) for k in list(summary.penetrations) if k.startswith("steps/s")}
             step_ms = result.step_ms
-            state["fits"] = garment_fits(character, motion, skinned, garments, builds, result)
+            state["fits"] = garment_fits(character, motion, skinned, garments, builds, result,
+                                         layers=dressing_layers(scene))
             summary.tables["garment fit"] = garment_fit_report(character, motion, skinned, garments, builds, result,
                                                                fits=state["fits"])
             logs.log_text(rec, "sim/fit", summary.tables["garment fit"])
