@@ -16,13 +16,7 @@ pytestmark = pytest.mark.matrix
 
 # (character, kind) -> what fails today (python -m pipeline matrix, 30 frames, 2026-11-24, skinned
 # balls as the flexible colliders)
-KNOWN = {
-    ("CesiumMan", "tshirt"): "a sleeve cap seam stays 10.6 mm open: the cap is 27 % longer than the armhole can be "
-                             "scooped (CesiumMan's upper-arm bone starts at the base of a neck 13 cm wide each side, "
-                             "its arm colliders need sleeves of 9.8 cm radius), so it does not close even with the "
-                             "colliders off (10.8 mm); an armhole deepened to the cap's length closes the left sleeve, "
-                             "not the right (9 mm), and stretches the built-in T-shirt's armpits (p99 10.2 -> 11.1 %)",
-}
+KNOWN: dict = {}   # every pair passes (CesiumMan's T-shirt since its sleeves are wrapped around its arms only)
 
 _prepared: dict = {}
 

@@ -136,3 +136,51 @@ def test_import_repairs_with_warning_and_refuses_bad_files(tmp_path):
         import_garment_mesh(bad)
     with pytest.raises(InputError, match="not found"):
         import_garment_mesh(tmp_path / "missing.obj")
+
+
+def _cap_and_armhole(meas):
+    """(half sleeve cap length, front armhole length, armpit height) of the library T-shirt."""
+    p = library_pattern("tshirt", meas)
+    panels = {q.name: q for q in p.panels}
+    front, sleeve = panels["front"], panels["sleeve_r"]
+    names = [e.name for e in front.edges]
+    k_hole, k_side = names.index("armhole_l"), names.index("side_l")
+    k_cap = [e.name for e in sleeve.edges].index("cap_front")
+    return sleeve.edge_length(k_cap), front.edge_length(k_hole), front.edges[k_side].end[1]
+
+
+def test_tshirt_armhole_takes_the_sleeve_cap():
+    """The T-shirt's armhole is scooped to the sleeve cap's length; a cap longer still than the
+    scooped armhole by more than CAP_EASE (a thick arm beside a wide neck, as on CesiumMan) gets an
+    armhole deepened to its length, since a seam that must gather a quarter of its length does not
+    close; within CAP_EASE the armpit stays where the sleeve's cut puts it."""
+    from stages.garments.library import CAP_EASE
+    cap, hole, armpit = _cap_and_armhole(MEAS)
+    assert hole <= cap * (1 + 1e-6) and cap / hole - 1 <= CAP_EASE
+    thick = dict(MEAS, arm_girth=0.62, neck_half=0.13)
+    cap2, hole2, armpit2 = _cap_and_armhole(thick)
+    assert cap2 / cap > 1.2                                   # the thicker arm's cap
+    assert hole2 == pytest.approx(cap2, abs=1e-3)             # the deepened armhole as long
+    assert armpit2 < armpit - 0.02                            # its armpit lower
+
+
+def test_a_limb_keeps_only_its_own_colliders_around_it():
+    """The points a sleeve is wrapped around: the limb's skin and those of its colliders within
+    LIMB_REACH of its skin's radius; farther ones (balls in the hips labelled with the arm's joint:
+    CesiumMan) are left out. Without a limb axis (torso, hips) every collider point counts."""
+    from stages.garments.placement import LIMB_REACH, BodyAxis, _part_points
+    axis = BodyAxis(np.zeros(3), np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]), np.array([0.0, 1.0, 0.0]))
+    t = np.linspace(0.0, 0.3, 7)
+    ring = np.stack([np.cos(np.linspace(0, 2 * np.pi, 12, endpoint=False)),
+                     np.sin(np.linspace(0, 2 * np.pi, 12, endpoint=False))], axis=1)
+
+    def tube(r):
+        return np.array([[x, r * c, r * s] for x in t for c, s in ring])
+    skin = tube(0.05)
+    near, far, other = tube(0.05 + 0.9 * LIMB_REACH), tube(0.3), tube(0.08)
+    dominant = np.ones(len(skin), np.int64)
+    cols = [(1, np.concatenate([near, far])), (2, other)]
+    got = _part_points({1}, skin, dominant, cols, limb=axis)
+    assert len(got) == len(skin) + len(near)
+    assert np.abs(np.linalg.norm(got[:, 1:], axis=1)).max() < 0.05 + LIMB_REACH
+    assert len(_part_points({1}, skin, dominant, cols)) == len(skin) + len(near) + len(far)

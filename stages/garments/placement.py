@@ -25,6 +25,7 @@ from stages.rig.humanoid import limb_chain, subtree
 
 SLAB = 0.03        # m, half height of the body slab measured for one cross-section level
 LEVEL_STEP = 0.01  # m, spacing of cross-section levels along the axis
+LIMB_REACH = 0.04  # m, how far beyond a limb's skin its own colliders can stand (delta, slack, hull offset)
 
 
 @dataclass(frozen=True)
@@ -209,14 +210,28 @@ def place_panel(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, characte
                              _part_points({ch[1]}, skinned, dominant, col_points), mid)
             return out
     mid = float(joint_origins[character.root_joint, 0]) if pl.body.startswith("leg_") else None
-    return _wrap(uv, boundary_uv, pl, axis, _part_points(joints, skinned, dominant, col_points, cj), mid)
+    limb = axis if pl.body.startswith("arm_") else None
+    return _wrap(uv, boundary_uv, pl, axis, _part_points(joints, skinned, dominant, col_points, cj, limb), mid)
 
 
-def _part_points(joints: set, skinned, dominant, col_points, collider_joints: set | None = None) -> np.ndarray:
+def _part_points(joints: set, skinned, dominant, col_points, collider_joints: set | None = None,
+                 limb: BodyAxis | None = None) -> np.ndarray:
     """Skinned vertices whose dominant joint is in `joints`, plus the collider points of
-    `collider_joints` (default: the same joints)."""
+    `collider_joints` (default: the same joints). limb: a limb's axis: its collider points farther
+    from it than its skin's farthest vertex + LIMB_REACH are left out: they belong to the torso (a
+    bone that moves little in the clip makes torso skin rigid with it, or its balls carry its
+    weight: CesiumMan's upper-arm colliders reach 39 cm from the arm, and a sleeve wrapped around
+    them spanned from the hips to above the head)."""
     cj = joints if collider_joints is None else collider_joints
-    return np.concatenate([skinned[np.isin(dominant, list(joints))]] + [p for j, p in col_points if j in cj])
+    skin = skinned[np.isin(dominant, list(joints))]
+    cols = [p for j, p in col_points if j in cj]
+    if limb is not None and skin.shape[0] and cols:
+        def radius(p):
+            rel = p - limb.origin
+            return np.linalg.norm(rel - np.outer(rel @ limb.a, limb.a), axis=1)
+        reach = radius(skin).max() + LIMB_REACH
+        cols = [p[radius(p) <= reach] for p in cols]
+    return np.concatenate([skin] + cols)
 
 
 def _wrap(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, axis: BodyAxis, pts: np.ndarray,
