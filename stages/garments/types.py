@@ -261,8 +261,9 @@ def _signed_distance(collider, p: np.ndarray) -> np.ndarray:
 
 
 def _colliders(cs) -> list:
-    """(bone, name, collider, pose index) of every hull, then every sphere (a skinned ball: its
-    dominant joint as the bone, its own frame as the pose index)."""
+    """(bone, name, collider, pose index) of every hull, then every sphere (a skinned ball: the
+    joint it is named by as the bone, the flexible region's joint of the first vertex it holds, which
+    can differ from the joint that moves it most; its own frame as the pose index)."""
     return [(h.bone, h.name, h, h.bone) for h in cs.hulls] + [(s.joint, s.name, s, s.pose_index) for s in cs.spheres]
 
 
