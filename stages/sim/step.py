@@ -59,6 +59,13 @@ NUMBA_CACHE_DEPENDS = ("stages.sim.body_collide", "stages.sim.collider_grid", "s
                        "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_cull",
                        "stages.sim.cloth_contact_pairs", "stages.sim.cloth_contact_response", "stages.obstacles.kdop")
 
+# Broad phase once per frame (the spheres swept through its steps, no query-frame boxes) from this
+# many colliders on; fewer, once per step (with the boxes). Measured one frame from the same state,
+# per-frame minimum over 25 rounds, alternating (2026-11-24, load 3.5-3.9): the bench walk (162
+# colliders) collisions 88.9 -> 69.5 us a step with the swept grid; the bench drape (one hull)
+# 49.7 -> 55.1 us (its cells lose the OBB cut, building its grid costs ~2 us). Same positions.
+SWEPT_GRID_MIN = 8
+
 # timer slots (CPU cycles; simulate.py converts to seconds)
 T_INTEGRATE = 0
 T_CONSTRAINTS = 1
@@ -102,7 +109,7 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
         t2 = cycles()
         collider_frames(fwd[k], inv[k], inv0[k], m, col_joint, col_kind, col_index, col_bcenter, col_bradius,
                         sph_center, tq, tq0, fq, cw)
-        if k1 - k0 == 1:    # one step (the obstacle loop): its own broad phase
+        if k1 - k0 == 1 or col_joint.size < SWEPT_GRID_MIN:    # its own broad phase (one step: the obstacle loop)
             build_grid(m, method, col_kind, col_index, sph_radius, tq, fq, cw, grid_start, grid_items, grid_runs,
                        grid_box, grid_dims)
         elif k == k0:       # a frame's steps: one broad phase over the spheres swept through them
