@@ -102,7 +102,7 @@ def sim_params(scene: Scene):
     sp = scene["simulation"]
     given = {k: sp[k] for k in PRESET_KEYS if sp[k] is not None}
     return SimParams.preset(sp["preset"], dt=sp["dt"], gravity=tuple(sp["gravity"]), wind=tuple(sp["wind"]),
-                            drag=sp["drag"], lift=sp["lift"], friction=sp["friction"],
+                            drag=sp["drag"], lift=sp["lift"], aero_interval=sp["aero_interval"], friction=sp["friction"],
                             inertia_scale=sp["inertia_scale"], hull_response=scene["colliders"]["response"],
                             body_audit=sp["body_audit"], cloth_thickness=sp["cloth_thickness"], **given)
 

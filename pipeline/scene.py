@@ -204,6 +204,8 @@ SCENE_SPEC = {
         "wind": Field("vec3", [0.0, 0.0, 0.0], "air velocity, m/s"),
         "drag": Field("float", 0.5, "aerodynamic drag coefficient", lo=0.0),
         "lift": Field("float", 0.1, "aerodynamic lift coefficient", lo=0.0),
+        "aero_interval": Field("float", 1.0 / 30.0, "s: the aerodynamic forces are computed once per this span of "
+                               "sub-steps and held over it (0: every sub-step)", lo=0.0, hi=10.0),
         "friction": Field("float", 0.5, "Coulomb friction with colliders: sliding reduced by up to friction x push depth", lo=0.0, hi=10.0),
         "tethers": Field("bool", None, "(preset) long-range attachments: free particles stay within their rest distance along the mesh of the nearest pinned one (Kim et al. 2012; not in the paper)"),
         "inertia_scale": Field("float", 0.0, "0 = relative simulation (paper), 1 = world space", lo=0.0, hi=1.0),

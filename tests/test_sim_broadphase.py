@@ -8,7 +8,7 @@ from stages.hulls.types import ColliderSet, SphereCollider
 from stages.maps.build import build_maps
 from stages.maps.kernels import METHOD_NEAREST_PLANE, METHOD_PAPER, collide_points
 from stages.sim.body_collide import collide
-from stages.sim.collider_grid import build_grid, GRID_CELLS
+from stages.sim.collider_grid import build_grid, GRID_CELLS, swept_spheres
 from stages.sim.scenes import convex_mesh, fibonacci_points, hull_set
 from tests.test_sim_kernels import _collider_arrays
 
@@ -173,3 +173,40 @@ def test_collide_with_the_grid_leaves_overlapping_colliders(seed):
         out, _, corr, ins = _collide_with(col, g, x, x, np.full((x.shape[0], nc), -1, np.int32), METHOD_PAPER, 4)
         assert corr.sum() > 100 and not ins.any()
         assert not _inside_matrix(cs, maps, fwd, out, METHOD_PAPER).any()
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_frames_swept_grid_lists_every_collider_that_holds_a_point_at_any_of_its_steps(seed):
+    """The step loop builds one broad phase per frame (stages.sim.step.run_steps): build_grid over the
+    spheres swept through the frame's steps (swept_spheres, no query-frame boxes). Its cell lists
+    hold every collider that holds a point at any step's pose; each swept sphere holds every step's."""
+    cs, maps, fwd0 = _scene(seed)
+    rng = np.random.default_rng(300 + seed)
+    steps = 5
+    fwd = np.empty((steps,) + fwd0.shape)
+    for k in range(steps):      # each bone turns and moves a little more at every step
+        for j in range(fwd0.shape[0]):
+            turn = Rotation.from_rotvec(0.05 * (k + 1) * rng.normal(0, 1.0, 3)).as_matrix()
+            fwd[k, j] = fwd0[j]
+            fwd[k, j, :3, :3] = turn @ fwd0[j, :3, :3]
+            fwd[k, j, :3, 3] = fwd0[j, :3, 3] + 0.02 * (k + 1) * rng.normal(0, 1.0, 3)
+    fwd = np.ascontiguousarray(fwd)
+    cols = [_collider_arrays(cs, maps, fwd[k]) for k in range(steps)]
+    col = cols[0]
+    cws = np.zeros_like(col.cw)
+    swept_spheres(fwd, 0, steps, col.joint, col.bcenter, col.bradius, cws)
+    for c_k in cols:
+        assert (np.linalg.norm(c_k.cw[:, :3] - cws[:, :3], axis=1) + c_k.cw[:, 3] <= cws[:, 3]).all()
+    build_grid(col.m, METHOD_NEAREST_PLANE, col.kind, col.index, col.sph_radius, col.tq, col.fq, cws, col.grid_start,
+               col.grid_items, col.grid_runs, col.grid_box, col.grid_dims)
+    start, items = col.grid_start, col.grid_items
+    for k in range(steps):
+        pts = _points(cs, fwd[k], rng, 1500)
+        inside = _inside_matrix(cs, maps, fwd[k], pts, METHOD_PAPER)
+        assert inside.any()
+        listed = np.zeros_like(inside)
+        for p, x in enumerate(pts):
+            b = _cell_of(col, x)
+            if b >= 0:
+                listed[p, items[start[b]:start[b + 1]]] = True
+        assert not (inside & ~listed).any()

@@ -83,6 +83,45 @@ def collider_frames(fwd, inv, inv0, m, col_joint, col_kind, col_index, col_bcent
         cw[c, 4] = rad * rad
 
 
+@njit(cache=True, _nrt=False)
+def swept_spheres(fwd, k0, k1, col_joint, col_bcenter, col_bradius, cws):
+    """cws[c] = (centre, r, r^2): a world sphere holding collider c's world bounding sphere (as
+    collider_frames computes it) at the end of each step k0..k1-1 (poses fwd[k]): the broad phase
+    of a whole frame (build_grid over cws without the query-frame boxes, METHOD_NEAREST_PLANE),
+    whose cell lists are then supersets of every step's. Centre: the middle of the box of the
+    step centres; radius: the largest distance to a step centre plus that step's radius."""
+    for c in range(col_joint.size):
+        j = col_joint[c]
+        lo0 = lo1 = lo2 = np.inf
+        hi0 = hi1 = hi2 = -np.inf
+        for k in range(k0, k1):
+            px, py, pz = apply_affine(fwd[k, j], col_bcenter[c, 0], col_bcenter[c, 1], col_bcenter[c, 2])
+            lo0 = min(lo0, px)
+            lo1 = min(lo1, py)
+            lo2 = min(lo2, pz)
+            hi0 = max(hi0, px)
+            hi1 = max(hi1, py)
+            hi2 = max(hi2, pz)
+        m0 = 0.5 * (lo0 + hi0)
+        m1 = 0.5 * (lo1 + hi1)
+        m2 = 0.5 * (lo2 + hi2)
+        rad = 0.0
+        for k in range(k0, k1):
+            f = fwd[k, j]
+            px, py, pz = apply_affine(f, col_bcenter[c, 0], col_bcenter[c, 1], col_bcenter[c, 2])
+            sc = 0.0
+            for b in range(3):
+                sc = max(sc, f[0, b] * f[0, b] + f[1, b] * f[1, b] + f[2, b] * f[2, b])
+            r = col_bradius[c] * math.sqrt(sc) * (1.0 + 1e-9)
+            rad = max(rad, math.sqrt((px - m0) ** 2 + (py - m1) ** 2 + (pz - m2) ** 2) + r)
+        rad *= 1.0 + 1e-9
+        cws[c, 0] = m0
+        cws[c, 1] = m1
+        cws[c, 2] = m2
+        cws[c, 3] = rad
+        cws[c, 4] = rad * rad
+
+
 @njit(cache=True, _nrt=False, forceinline=True)
 def _world_box(c, m, col_kind, col_index, sph_radius, use_obb, fq, cw):
     """(lo0, lo1, lo2, hi0, hi1, hi2): a world axis-aligned box holding every point collider c can

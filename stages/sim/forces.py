@@ -151,7 +151,7 @@ def _aero_group(typingctx, x, xp, tris, tri_mass, out, t0, ih, c3x, c3y, c3z, wi
 
 
 @serial_and_parallel(cache=True, fastmath=True, _nrt=False)
-def aero_forces(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, out):
+def aero_forces(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, out, hold=1):
     """Per-triangle aerodynamic forces (N) into rows 0..T-1 of out (rows (x, y, z, 0), 4 columns), from
     the air velocity relative to each triangle. tri_mass (T,): the mass of the triangle's free vertices
     (a third of each free vertex's lumped mass), kg.
@@ -162,13 +162,14 @@ def aero_forces(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, out):
     With N = (b - a) x (c - a) (|N| = 2A) these are drag = k_drag/2 |N.w| w and
     lift = k_lift/2 (N.w) |w|/|N| (N - (N.w)/|w|^2 w), from one r = 1/sqrt(|w|^2 |N|^2):
     |w|/|N| = |w|^2 r, 1/|w|^2 = |N|^2 r^2. Explicit drag
-    is unstable once it would more than stop the triangle within a step: |F| is capped at m |w| / h.
+    is unstable once it would more than stop the triangle within a step: |F| is capped at m |w| / h,
+    or m |w| / (hold h) for a force held over `hold` steps (SimParams.aero_interval).
     Computed 4 triangles at a time (`_aero_group`, its docstring: the exact operation order).
     """
     if out.shape[1] != 4 or out.shape[0] < tris.shape[0]:
         raise ValueError("aero_forces: out must have (T, 4) rows")
     ih = 1.0 / (3.0 * h)
-    ihh = 1.0 / (h * h)
+    ihh = 1.0 / (h * h) if hold == 1 else 1.0 / ((hold * h) * (hold * h))
     c3x = 3.0 * s * d_prev[0]
     c3y = 3.0 * s * d_prev[1]
     c3z = 3.0 * s * d_prev[2]

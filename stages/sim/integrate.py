@@ -126,3 +126,26 @@ def integrate(x, xp, inv_mass, attach_joint, attach_local, fwd, h, gravity, damp
         if i + 3 < n:
             _verlet(x, xp, inv_mass, attach_joint, attach_local, fwd, i + 3, hh, keep, gx, gy, gz, rx, ry, rz,
                     use_aero, f[9], f[10], f[11])
+
+
+@serial_and_parallel(cache=True, _nrt=False)
+def gather_forces(tri_force, vt_table, vertex_force):
+    """vertex_force[i, :3] = the sum of the tri_force rows of vertex i (vt_table, in its order: the
+    sums `integrate` forms), row N and column 3 left alone. For forces held over several steps
+    (SimParams.aero_interval): `integrate` then reads one row per vertex (vertex_force with the
+    table `identity_table(N)`), the same sums, bit for bit (0 + f = f)."""
+    n = vt_table.shape[0]
+    for g in prange((n + 3) // 4):
+        i = 4 * g
+        f = _force_sums(tri_force, vt_table, i)
+        for lane in range(4):
+            if i + lane < n:
+                vertex_force[i + lane, 0] = f[3 * lane]
+                vertex_force[i + lane, 1] = f[3 * lane + 1]
+                vertex_force[i + lane, 2] = f[3 * lane + 2]
+
+
+def identity_table(n: int):
+    """(N, 1) int32: vertex i lists row i (a `vt_table` over per-vertex force rows)."""
+    import numpy as np
+    return np.arange(n, dtype=np.int32).reshape(n, 1)

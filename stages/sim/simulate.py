@@ -40,7 +40,7 @@ from stages.jit import for_threads, threaded
 from stages.garments.types import BEND, STRETCH, Garment
 from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER
 from stages.maps.types import KIND_CYLINDER, MapArrays
-from stages.sim import body_collide, collider_grid, forces, simd, step, winding
+from stages.sim import body_collide, collider_grid, forces, integrate, simd, step, winding
 from stages.sim.cloth_contact import ClothPhase
 from stages.sim.springs import pack_springs, partition_springs
 from stages.sim.types import GarmentTrack, SimParams, SimResult, SimulationDiverged
@@ -154,6 +154,8 @@ class _System:
         # per triangle (x, y, z, 0) aerodynamic force, row T zero (the padding of vt_table)
         self.tri_force = simd.padded_rows(self.tris.shape[0])
         self.vt_table = forces.vertex_triangles(self.tris, n)
+        self.vertex_force = simd.padded_rows(n)     # per vertex sums of held forces (SimParams.aero_steps)
+        self.vt_eye = integrate.identity_table(n)
         self.corrected = np.zeros(n, np.uint8)
         self.inside = np.zeros(n, np.uint8)
         self.speed2 = np.zeros(n)
@@ -166,7 +168,7 @@ class _System:
         """The kernels' `cloth` tuple (see stages/sim/step.py)."""
         return (self.x, self.xp, self.inv_mass, self.attach_joint, self.attach_local, self.ij, self.sp,
                 self.group_start, self.ti, self.ta, self.tl, self.tris, self.tri_mass, self.tri_force,
-                self.vt_table, self.x4)
+                self.vt_table, self.x4, self.vertex_force, self.vt_eye)
 
     def set_colliders(self, n_colliders: int):
         """The collision kernel's per particle and collider face cache, all unknown (-1)."""
@@ -259,6 +261,7 @@ class _Colliders:
         self.tq0 = np.zeros((nc, 12))
         self.fq = np.zeros((nc, 12))
         self.cw = np.zeros((nc, 5))
+        self.cws = np.zeros((nc, 5))      # a frame's swept spheres (collider_grid.swept_spheres)
         self.grid_start = np.zeros(collider_grid.GRID_CELLS + 1, np.int64)
         self.grid_items = np.zeros(max(nc * collider_grid.GRID_CELLS, 1), np.int32)
         self.grid_runs = np.zeros((max(nc * collider_grid.GRID_CELLS, 1), 3), np.int32)
@@ -270,7 +273,7 @@ class _Colliders:
         return (self.joint, self.kind, self.index, self.bcenter, self.bradius, self.sph_center, self.sph_radius,
                 self.tq, self.tq0, self.fq, self.cw, self.grid_start, self.grid_items, self.grid_runs,
                 self.grid_box, self.grid_dims,
-                self.face_edges, self.src_range)
+                self.face_edges, self.src_range, self.cws)
 
 
 def particles_inside_colliders(points, colliders, maps, pose, method: int = METHOD_PAPER) -> np.ndarray:
@@ -521,7 +524,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     n_obst = np.zeros(nf, np.int32)                                # obstacle contacts per frame
     obst_points = [np.zeros((0, 3), np.float32) for _ in range(nf)]
     prm = (h, params.step_damping(), s, k_drag, k_lift, float(params.friction), use_aero, int(params.iterations),
-           int(params.collision_passes), method)
+           int(params.collision_passes), method, int(params.aero_steps()))
     cloth, cols, flags = sysm.cloth(), col.cols(), sysm.flags()
     # one thread: the serial kernels (compiled several times faster than the parallel ones)
     import numba
