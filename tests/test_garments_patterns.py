@@ -138,30 +138,37 @@ def test_import_repairs_with_warning_and_refuses_bad_files(tmp_path):
         import_garment_mesh(tmp_path / "missing.obj")
 
 
-def _cap_and_armhole(meas):
-    """(half sleeve cap length, front armhole length, armpit height) of the library T-shirt."""
+def _tshirt_fronts(meas):
+    """(half sleeve cap length, front armhole length, side seam length, hem height) of the library
+    T-shirt."""
     p = library_pattern("tshirt", meas)
     panels = {q.name: q for q in p.panels}
     front, sleeve = panels["front"], panels["sleeve_r"]
     names = [e.name for e in front.edges]
-    k_hole, k_side = names.index("armhole_l"), names.index("side_l")
     k_cap = [e.name for e in sleeve.edges].index("cap_front")
-    return sleeve.edge_length(k_cap), front.edge_length(k_hole), front.edges[k_side].end[1]
+    return (sleeve.edge_length(k_cap), front.edge_length(names.index("armhole_l")),
+            front.edge_length(names.index("side_l")), front.placement.shift)
 
 
-def test_tshirt_armhole_takes_the_sleeve_cap():
+def test_tshirt_armhole_takes_the_sleeve_cap(monkeypatch):
     """The T-shirt's armhole is scooped to the sleeve cap's length; a cap longer still than the
     scooped armhole by more than CAP_EASE (a thick arm beside a wide neck, as on CesiumMan) gets an
     armhole deepened to its length, since a seam that must gather a quarter of its length does not
-    close; within CAP_EASE the armpit stays where the sleeve's cut puts it."""
-    from stages.garments.library import CAP_EASE
-    cap, hole, armpit = _cap_and_armhole(MEAS)
-    assert hole <= cap * (1 + 1e-6) and cap / hole - 1 <= CAP_EASE
+    close: the armpit lower, and the hem as much lower (the side seam keeps its length, else it
+    pulls the hem up); within CAP_EASE nothing moves."""
+    import stages.garments.library as lib
+    cap, hole, side, hem = _tshirt_fronts(MEAS)
+    assert hole <= cap * (1 + 1e-6) and cap / hole - 1 <= lib.CAP_EASE
     thick = dict(MEAS, arm_girth=0.62, neck_half=0.13)
-    cap2, hole2, armpit2 = _cap_and_armhole(thick)
-    assert cap2 / cap > 1.2                                   # the thicker arm's cap
-    assert hole2 == pytest.approx(cap2, abs=1e-3)             # the deepened armhole as long
-    assert armpit2 < armpit - 0.02                            # its armpit lower
+    cap2, hole2, side2, hem2 = _tshirt_fronts(thick)
+    monkeypatch.setattr(lib, "CAP_EASE", 10.0)                 # never deepened
+    cap3, hole3, side3, hem3 = _tshirt_fronts(thick)
+    assert cap2 == cap3 and cap2 / cap > 1.2                   # the thicker arm's cap
+    assert cap3 / hole3 - 1 > 0.2                              # as scooped: far shorter
+    assert hole2 == pytest.approx(cap2, abs=1e-3)              # deepened: as long
+    drop = hem3 - hem2
+    assert drop > 0.02 and side2 == pytest.approx(side3, abs=1e-9)
+    assert hole2 - hole3 == pytest.approx(drop, rel=0.3)       # the armhole is longer by about the drop
 
 
 def test_a_limb_keeps_only_its_own_colliders_around_it():

@@ -125,8 +125,10 @@ def tshirt(meas: dict, *, ease: float = 0.08, length_below_waist: float | None =
     scoop_max = max(u_s - u_n - 0.02, 0.0)
     scoop = solve(hole_length, 0.0, scoop_max) if hole_length(0.0) < cap_len else 0.0
     if hole_length(scoop_max) < cap_len / (1.0 + CAP_EASE):
-        ha0 = ha
-        ha = ha0 - solve(lambda drop: hole_length(scoop_max, ha0 - drop), 0.0, 0.5 * ha0)
+        drop = solve(lambda d: hole_length(scoop_max, ha - d), 0.0, 0.5 * ha)
+        # the armpit lower by `drop` and the hem too, so the side seam keeps its length: sewn to a
+        # sleeve whose underarm is higher, a shortened side pulled the hem 5 cm up (CesiumMan)
+        hem_y, fold, hs, hn = hem_y - drop, fold + drop, hs + drop, hn + drop
     dy = hs - ha
     panels, seams = [], []
     for pname, angle, neck_depth in (("front", 0.0, neckline(True)), ("back", 180.0, neckline(False))):
