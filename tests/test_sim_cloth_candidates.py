@@ -69,7 +69,7 @@ def test_moving_beyond_the_margin_rebuilds_the_lists():
     topo, tree, work, prm = cc.kernel_args()
     cc.moved[:] = 1
     margin = 0.5 * 3 * H
-    assert not CK.candidates_valid(x, xe, topo, tree, work, margin, MOTION, prm[6])
+    assert not CK.candidates_valid(x, xe, topo, tree, work, margin, MOTION, prm[6], counters)
     assert CK.narrow(x, xe, topo, tree, work, margin, H, 3 * H, False, counters, True) == 0
     # as collide_cloth does it: the check fails, the lists are rebuilt, every contact is found
     assert _same(cc, x, xe, counters) > 0
