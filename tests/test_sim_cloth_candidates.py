@@ -69,7 +69,7 @@ def test_moving_beyond_the_margin_rebuilds_the_lists():
     topo, tree, work, prm = cc.kernel_args()
     cc.moved[:] = 1
     margin = 0.5 * 3 * H
-    assert not CK.candidates_valid(x, xe, topo, tree, work, margin, MOTION, prm[6])
+    assert not CK.candidates_valid(x, xe, topo, tree, work, margin, MOTION, prm[6], counters)
     assert CK.narrow(x, xe, topo, tree, work, margin, H, 3 * H, False, counters, True) == 0
     # as collide_cloth does it: the check fails, the lists are rebuilt, every contact is found
     assert _same(cc, x, xe, counters) > 0
@@ -133,3 +133,29 @@ def test_folded_cloth_with_candidate_lists_does_not_pass_through_itself(motion):
     assert sim.counters[CK.N_CONTACTS] > 0 and sim.counters[CK.N_LEFT] == 0
     if motion > 0:   # the lists were kept over several steps
         assert 0 < sim.counters[CK.N_BUILDS] < 120
+
+
+def test_step_normal_cone_holds_every_normal_of_the_step():
+    """The culling's normal cone over a step is the cone of n(xs), the middle normal and n(xe)
+    (_step_normal): n(u) of the linearly moving triangle is their Bernstein combination, checked
+    against the cross product at sampled u; and a triangle that turns over and back within the step
+    (n(xs) and n(xe) alike) has a middle normal pointing the other way."""
+    rng = np.random.default_rng(7)
+    tri = np.array([[0, 1, 2]], np.int32)
+    for _ in range(50):
+        xs = rng.normal(size=(3, 3))
+        xe = xs + rng.normal(size=(3, 3))
+        n0, nm, n1 = (np.array(CK._step_normal(xs, xe, tri, 0, j)) for j in range(3))
+        for u in np.linspace(0.0, 1.0, 7):
+            x = (1 - u) * xs + u * xe
+            want = np.cross(x[1] - x[0], x[2] - x[0])
+            got = (1 - u) ** 2 * n0 + 2 * u * (1 - u) * nm + u ** 2 * n1
+            np.testing.assert_allclose(got, want, atol=1e-12)
+    # a triangle that inverts in its plane and back within the step: +z at both ends, -z at u = 0.4
+    # (its edges along x and y shrink through 0 at u = 1/3 and 1/2); only the middle normal sees it
+    xs = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    xe = np.array([[0.0, 0.0, 0.0], [-2.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    n0, nm, n1 = (np.array(CK._step_normal(xs, xe, tri, 0, j)) for j in range(3))
+    x = 0.6 * xs + 0.4 * xe
+    n_mid = np.cross(x[1] - x[0], x[2] - x[0])
+    assert n0 @ n1 > 0.0 and n_mid @ n0 < 0.0 and n_mid @ n1 < 0.0 and n_mid @ nm > 0.0

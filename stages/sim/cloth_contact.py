@@ -445,8 +445,11 @@ class ClothPhase:
         self.x_before = np.zeros((n, 3))
         self.cinv = np.ascontiguousarray(cinv, np.float64)
         # sorting garments that start interpenetrating: the tree search (candidate lists as deep
-        # as layer_depth0 would hold most of the two garments)
-        first = (prm[0], prm[1], prm[2], prm[3], prm[4], 0.0, prm[6])
+        # as layer_depth0 would hold most of the two garments), without the normal-cone culling:
+        # the sorting pushes slide parts of one garment over others (its free hem), which a cone
+        # test without Volino's contour test misses (settling frames left 2-6 skirt edges through
+        # the skirt on the skinned balls, kept ever after by the fail-safe)
+        first = (prm[0], prm[1], prm[2], prm[3], False, 0.0, prm[6])
         rest = (prm[0], float(thickness), prm[2], prm[3], prm[4], prm[5], prm[6])
         self.first = (self.x_start, self.x_before, self.cinv, topo, tree, work, first, self.counters, int(every))
         self.rest = (self.x_start, self.x_before, self.cinv, topo, tree, work, rest, self.counters, int(every))
@@ -494,5 +497,6 @@ class ClothPhase:
                 "candidate_builds": int(c[CK.N_BUILDS]), "candidate_overflow": int(c[CK.N_CAND_OVERFLOW]),
                 "cycles_build": int(c[CK.N_CYC_BUILD]), "cycles_detect": int(c[CK.N_CYC_DETECT]),
                 "cycles_respond": int(c[CK.N_CYC_RESPOND]), "cycles_failsafe": int(c[CK.N_CYC_FAILSAFE]),
+                "invalid_move": int(c[CK.N_INVALID_MOVE]), "invalid_turn": int(c[CK.N_INVALID_TURN]),
                 "layers": [int(v) for v in self.cc.garment_layer],
                 "outward": [int(v) for v in self.cc.garment_outward]}

@@ -31,7 +31,7 @@ from stages.sim.cloth_contact_ccd import (EE_CROSS, EE_NEAR, VF_CROSS, VF_NEAR, 
                                           segment_crosses_triangle, test_edge_edge, test_vertex_face,
                                           triple_cubic)
 from stages.sim.cloth_contact_pairs import (N_BUILDS, N_CAND_OVERFLOW, N_CONTACTS, N_CORRECTED,  # noqa: F401
-                                            N_COUNTERS, N_CYC_BUILD, N_CYC_DETECT, N_CYC_FAILSAFE, N_CYC_RESPOND, N_LEFT, N_NODE_PAIRS, N_OVERFLOW, N_REVERTED, N_ROUNDS,
+                                            N_COUNTERS, N_CYC_BUILD, N_CYC_DETECT, N_CYC_FAILSAFE, N_CYC_RESPOND, N_INVALID_MOVE, N_INVALID_TURN, N_LEFT, N_NODE_PAIRS, N_OVERFLOW, N_REVERTED, N_ROUNDS,
                                             N_TESTS, N_UNRESOLVED, brute_force_contacts, edges_apart_bounds,
                                             ee_candidate, point_off_triangle, test_ee_pair, test_triangle_pair, test_vf_pair,
                                             vf_candidate)
@@ -78,7 +78,7 @@ def _triangle_bounds(triangles, pt_min, pt_max, tri_min, tri_max):
 @njit(cache=True, _nrt=False)
 def _refit_nodes(xs, xe, topo, tree, moved, all_dirty):
     """Node bounds from tri_min / tri_max; node_dirty (every node with all_dirty); nrm_min/max bound
-    the projections of the node's triangles' unit normals (at xs and at xe) on the directions."""
+    the projections of the node's triangles' unit normals (over the step: _step_normal) on the directions."""
     triangles = topo[0]
     (directions, axis_order, roots, node_min, node_max, children, leaf_prim, node_dirty, tri_min, tri_max, pt_min,
      pt_max, nrm_min, nrm_max, node_patch, stack, border_start, border_vert) = tree[:18]
@@ -92,8 +92,8 @@ def _refit_nodes(xs, xe, topo, tree, moved, all_dirty):
             for i in range(h):
                 nrm_min[node, i] = np.inf
                 nrm_max[node, i] = -np.inf
-            for xx in (xs, xe):
-                nx, ny, nz = _normal(xx, triangles, t)
+            for j in range(3):   # the normal over the step lies in the cone of these three
+                nx, ny, nz = _step_normal(xs, xe, triangles, t, j)
                 ln = np.sqrt(nx * nx + ny * ny + nz * nz)
                 if ln == 0.0:
                     ln = 1.0  # a degenerate triangle: normal 0 makes no cone flat
@@ -108,6 +108,38 @@ def _refit_nodes(xs, xe, topo, tree, moved, all_dirty):
             for i in range(h):
                 nrm_min[node, i] = min(nrm_min[l, i], nrm_min[r, i])
                 nrm_max[node, i] = max(nrm_max[l, i], nrm_max[r, i])
+
+
+@njit(cache=True)
+def _step_normal(xs, xe, triangles, t, j):
+    """The normal of triangle t moving linearly xs -> xe is n(u) = (1-u)^2 n0 + 2u(1-u) nm + u^2 n1
+    (Bernstein form, u in [0, 1]): a positive combination of n0 (j = 0, at xs), nm (j = 1) and n1
+    (j = 2, at xe), so every normal over the step lies in the cone of these three (n0 and n1
+    alone miss a triangle that turns and comes back, or turns far, within the step)."""
+    if j == 0:
+        return _normal(xs, triangles, t)
+    if j == 2:
+        return _normal(xe, triangles, t)
+    a = triangles[t, 0]
+    b = triangles[t, 1]
+    c = triangles[t, 2]
+    s1x = xs[b, 0] - xs[a, 0]
+    s1y = xs[b, 1] - xs[a, 1]
+    s1z = xs[b, 2] - xs[a, 2]
+    s2x = xs[c, 0] - xs[a, 0]
+    s2y = xs[c, 1] - xs[a, 1]
+    s2z = xs[c, 2] - xs[a, 2]
+    e1x = xe[b, 0] - xe[a, 0]
+    e1y = xe[b, 1] - xe[a, 1]
+    e1z = xe[b, 2] - xe[a, 2]
+    e2x = xe[c, 0] - xe[a, 0]
+    e2y = xe[c, 1] - xe[a, 1]
+    e2z = xe[c, 2] - xe[a, 2]
+    # (s1 x e2 + e1 x s2) / 2
+    mx = 0.5 * (s1y * e2z - s1z * e2y + e1y * s2z - e1z * s2y)
+    my = 0.5 * (s1z * e2x - s1x * e2z + e1z * s2x - e1x * s2z)
+    mz = 0.5 * (s1x * e2y - s1y * e2x + e1x * s2y - e1y * s2x)
+    return mx, my, mz
 
 
 @njit(cache=True)
@@ -129,7 +161,7 @@ def _normal(xx, triangles, t):
 def refit_cloth_tree(xs, xe, topo, tree, moved, margin):
     """Leaves bound each triangle over the step (xs and xe) inflated by `margin`; a node is dirty
     when a particle of its triangles moved since the last detection (moved[p] != 0); nrm_min/max
-    bound the projections of its triangles' unit normals (at xs and at xe) on the directions."""
+    bound the projections of its triangles' unit normals (over the step: _step_normal) on the directions."""
     _segment_bounds(xs, xe, tree[0], margin, tree[10], tree[11])
     _triangle_bounds(topo[0], tree[10], tree[11], tree[8], tree[9])
     _refit_nodes(xs, xe, topo, tree, moved, False)
@@ -329,7 +361,7 @@ def build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, c
 
 
 @njit(cache=True, _nrt=False)
-def candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation):
+def candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation, counters):
     """The candidate lists cover the step xs -> xe: built for this margin and motion, every particle
     within its motion radius (box_lo[:, 3]) of its box at the build (at xs and at xe; its straight
     path between them then too) and every triangle's normal within its allowed turn of its normal
@@ -356,15 +388,17 @@ def candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation):
                 elif v > box_hi[p, k]:
                     d2 += (v - box_hi[p, k]) ** 2
             if d2 > m2:
+                counters[N_INVALID_MOVE] += 1
                 return False
     for t in range(triangles.shape[0]):
         cr = nrm_ref[t, 3]
         if cr < -1.5 or not (moved[triangles[t, 0]] | moved[triangles[t, 1]] | moved[triangles[t, 2]]):
             continue
-        for xx in (xs, xe):
-            nx, ny, nz = _normal(xx, triangles, t)
+        for j in range(3):   # the normals over the step: the cone of these three (_step_normal)
+            nx, ny, nz = _step_normal(xs, xe, triangles, t, j)
             dot = nx * nrm_ref[t, 0] + ny * nrm_ref[t, 1] + nz * nrm_ref[t, 2]
             if dot < cr * np.sqrt(nx * nx + ny * ny + nz * nz):
+                counters[N_INVALID_TURN] += 1
                 return False
     return True
 
@@ -451,7 +485,7 @@ def find_contacts(xs, xe, topo, tree, work, prm, only_cross, counters):
     if motion > 0.0:
         # the bounds narrow() keeps are stale after a build or a tree search: then all afresh
         full = tree[20][3] == 0 or tree[20][3] == 2
-        if not candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation):
+        if not candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation, counters):
             c0 = cycles()
             build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, counters)
             counters[N_CYC_BUILD] += cycles() - c0

@@ -32,7 +32,9 @@ N_CYC_BUILD = 11   # CPU cycles in candidate list builds (the tree search that c
 N_CYC_DETECT = 12  # CPU cycles in the response rounds' detections (lists checked, pairs tested), builds excluded
 N_CYC_RESPOND = 13  # CPU cycles in the responses
 N_CYC_FAILSAFE = 14  # CPU cycles in the fail-safe (its detections and reverts), builds excluded
-N_COUNTERS = 15
+N_INVALID_MOVE = 15  # candidate lists invalidated by a particle beyond its motion radius
+N_INVALID_TURN = 16  # ... by a triangle normal beyond its allowed turn
+N_COUNTERS = 17
 
 # ---------------------------------------------------------------------------------------------
 # feature pairs of two triangles, the contact buffer
