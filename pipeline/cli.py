@@ -9,11 +9,20 @@ an earlier recording stays.
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from pathlib import Path
 
 EXIT_USAGE = 2
 EXIT_BUG = 1
+_interrupted = [False]   # a Ctrl-C arrived during this command
+
+
+def _on_sigint(signum, frame):
+    # numba's compiler swallows a KeyboardInterrupt raised inside its callbacks and then fails with
+    # a RuntimeError ("no compiled object yet"): remember the Ctrl-C, so that error is an interrupt
+    _interrupted[0] = True
+    signal.default_int_handler(signum, frame)
 
 
 def _user_errors():
@@ -258,6 +267,9 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr)
         return EXIT_USAGE
     shown, warnings.showwarning = warnings.showwarning, _show_warning
+    _interrupted[0] = False
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:   # not ignored (a background job)
+        signal.signal(signal.SIGINT, _on_sigint)
     try:
         return args.func(args)
     except _user_errors() as e:
@@ -267,6 +279,9 @@ def main(argv: list[str] | None = None) -> int:
         print("\ninterrupted: no recording written", file=sys.stderr)
         return 130
     except Exception as e:   # last resort: a bug. One line, exit 1; the recording was not written
+        if _interrupted[0]:   # a library turned the Ctrl-C into another error
+            print("\ninterrupted: no recording written", file=sys.stderr)
+            return 130
         if args.debug:
             import traceback
             traceback.print_exc()
@@ -274,6 +289,8 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BUG
     finally:
         warnings.showwarning = shown
+        if signal.getsignal(signal.SIGINT) is _on_sigint:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 if __name__ == "__main__":  # pragma: no cover

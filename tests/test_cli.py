@@ -101,3 +101,34 @@ def test_missing_obstacle_mesh_is_found_by_validate(tmp_path):
     f.write_text("obstacles:\n  - {type: mesh, name: rock, path: rock.stl}\n")
     r = cli("validate", str(f), cwd=tmp_path)
     assert r.returncode == 2 and "obstacles[0].path: file not found" in r.stderr and "rock.stl" in r.stderr
+
+
+def test_ctrl_c_turned_into_another_error_by_a_library_exits_130(monkeypatch, capsys):
+    """numba swallows a KeyboardInterrupt raised inside its compile callbacks and then fails with a
+    RuntimeError ("no compiled object yet"): after a Ctrl-C that error is an interrupt (exit 130), not
+    a bug (exit 1); without one it is still a bug. The handler is put back afterwards."""
+    import os
+    import signal
+
+    from pipeline import cli
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)   # a background session ignores it
+    try:
+        def compile_interrupted(args):
+            try:
+                os.kill(os.getpid(), signal.SIGINT)
+                for _ in range(1000):      # the handler runs between bytecodes
+                    pass
+            except KeyboardInterrupt:
+                pass                       # swallowed, as numba's ctypes callback does
+            raise RuntimeError("no compiled object yet for <Library 'lbs_kernel'>")
+
+        def plain_bug(args):
+            raise RuntimeError("a bug")
+        monkeypatch.setattr(cli, "cmd_validate", compile_interrupted)
+        assert cli.main(["validate", "scenes/default.yaml"]) == 130
+        assert "interrupted" in capsys.readouterr().err
+        monkeypatch.setattr(cli, "cmd_validate", plain_bug)
+        assert cli.main(["validate", "scenes/default.yaml"]) == 1
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, previous)
