@@ -341,11 +341,13 @@ def garment_fits(character, motion, skinned, garments, builds, result, layers=No
     floor_y = float((skinned[..., 1] + motion.root_translation[:, None, 1]).min())
     body = SkinDistance(character)
     layers = [0] * len(garments) if layers is None else list(layers)
+    surface = [triangle_grid_points(g.positions, g.triangles) if k < max(layers) else None
+               for g, k in zip(garments, layers)]     # of the garments some other one is worn over
     out = []
     for i, (g, track) in enumerate(zip(garments, result.garments)):
         build = builds.get(g.name, (None, None))[1]
         fit_vertices = build.fit_vertices if build is not None else np.zeros(0, np.int64)
-        below = [triangle_grid_points(u.positions, u.triangles) for u, k in zip(garments, layers) if k < layers[i]]
+        below = [p for p, k in zip(surface, layers) if k < layers[i]]
         out.append(garment_fit(character, skinned[0], g.positions, fit_vertices, track, floor_y, skin_distance=body,
                                under=np.concatenate(below) if below else None))
     return out

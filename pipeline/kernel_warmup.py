@@ -76,10 +76,9 @@ def warm_coverage(threads: int = 1) -> None:
     import numpy as np
 
     from stages.coverage import measure_coverage
+    from stages.hulls.balls_kernels import pairs_in_reach
     from stages.jit import numba_threads
     from stages.sim.scenes import convex_mesh, fibonacci_points, hull_set, toy_character, toy_motion
-
-    from stages.hulls.balls_kernels import pairs_in_reach
 
     mesh = convex_mesh(fibonacci_points(12, (0.2, 0.2, 0.2)))
     with numba_threads(threads):

@@ -469,6 +469,7 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
                               skinned0, pose, under=below, under_gap=under_gap)
             if pattern.fit_band is not None:
                 _band_rest(tri, tri_rest, idx, placed, pattern.fit_band)
+
     def middle_half(idx):
         """The middle half of a run (by length) without its seam vertices: the ends stay free so that
         the seams there can close even where the placement had to stretch the band around a collider;

@@ -34,6 +34,7 @@ from stages.sim.cloth_contact_pairs import (N_BUILDS, N_CAND_OVERFLOW, N_CONTACT
                                             N_COUNTERS, N_CYC_BUILD, N_CYC_DETECT, N_CYC_FAILSAFE, N_CYC_RESPOND, N_INVALID_MOVE, N_INVALID_TURN, N_LEFT, N_NODE_PAIRS, N_OVERFLOW, N_REVERTED, N_ROUNDS,
                                             N_TESTS, N_UNRESOLVED, brute_force_contacts, edges_apart_bounds,
                                             ee_candidate, point_off_triangle, test_ee_pair, test_triangle_pair, test_vf_pair,
+                                            triangle_normal,
                                             vf_candidate)
 
 # kernels below compile in code from these modules: their edits must invalidate the disk cache
@@ -117,9 +118,9 @@ def _step_normal(xs, xe, triangles, t, j):
     (j = 2, at xe), so every normal over the step lies in the cone of these three (n0 and n1
     alone miss a triangle that turns and comes back, or turns far, within the step)."""
     if j == 0:
-        return _normal(xs, triangles, t)
+        return triangle_normal(xs, triangles, t)
     if j == 2:
-        return _normal(xe, triangles, t)
+        return triangle_normal(xe, triangles, t)
     a = triangles[t, 0]
     b = triangles[t, 1]
     c = triangles[t, 2]
@@ -140,21 +141,6 @@ def _step_normal(xs, xe, triangles, t, j):
     my = 0.5 * (s1z * e2x - s1x * e2z + e1z * s2x - e1x * s2z)
     mz = 0.5 * (s1x * e2y - s1y * e2x + e1x * s2y - e1y * s2x)
     return mx, my, mz
-
-
-@njit(cache=True)
-def _normal(xx, triangles, t):
-    """(b - a) x (c - a) of triangle t at positions xx."""
-    a = triangles[t, 0]
-    b = triangles[t, 1]
-    c = triangles[t, 2]
-    e1x = xx[b, 0] - xx[a, 0]
-    e1y = xx[b, 1] - xx[a, 1]
-    e1z = xx[b, 2] - xx[a, 2]
-    e2x = xx[c, 0] - xx[a, 0]
-    e2y = xx[c, 1] - xx[a, 1]
-    e2z = xx[c, 2] - xx[a, 2]
-    return e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
 
 
 @njit(cache=True, _nrt=False)
@@ -327,7 +313,7 @@ def build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, c
     _triangle_bounds(triangles, pt_min, pt_max, tree[8], tree[9])
     _refit_nodes(xs, xe, topo, tree, work[0], True)
     for t in range(triangles.shape[0]):
-        nx, ny, nz = _normal(xe, triangles, t)
+        nx, ny, nz = triangle_normal(xe, triangles, t)
         ln = np.sqrt(nx * nx + ny * ny + nz * nz)
         ln = 1.0 / ln if ln > 0.0 else 0.0   # degenerate: its nodes are not flat (no limit below)
         nrm_ref[t, 0] = nx * ln

@@ -52,6 +52,21 @@ def _vf_forced(p, t, particle_garment, tri_garment, garment_layer, garment_outwa
 
 
 @njit(cache=True)
+def triangle_normal(xx, triangles, t):
+    """(b - a) x (c - a) of triangle t at positions xx."""
+    a = triangles[t, 0]
+    b = triangles[t, 1]
+    c = triangles[t, 2]
+    e1x = xx[b, 0] - xx[a, 0]
+    e1y = xx[b, 1] - xx[a, 1]
+    e1z = xx[b, 2] - xx[a, 2]
+    e2x = xx[c, 0] - xx[a, 0]
+    e2y = xx[c, 1] - xx[a, 1]
+    e2z = xx[c, 2] - xx[a, 2]
+    return e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+
+
+@njit(cache=True)
 def _edge_outward(xe, e, edge_tris, triangles, tri_garment, garment_outward):
     """Outward normal of edge e at the end of the step: the sum of its triangles' outward normals."""
     ox = 0.0
@@ -61,18 +76,7 @@ def _edge_outward(xe, e, edge_tris, triangles, tri_garment, garment_outward):
         t = edge_tris[e, j]
         if t < 0:
             continue
-        a = triangles[t, 0]
-        b = triangles[t, 1]
-        c = triangles[t, 2]
-        e1x = xe[b, 0] - xe[a, 0]
-        e1y = xe[b, 1] - xe[a, 1]
-        e1z = xe[b, 2] - xe[a, 2]
-        e2x = xe[c, 0] - xe[a, 0]
-        e2y = xe[c, 1] - xe[a, 1]
-        e2z = xe[c, 2] - xe[a, 2]
-        nx = e1y * e2z - e1z * e2y
-        ny = e1z * e2x - e1x * e2z
-        nz = e1x * e2y - e1y * e2x
+        nx, ny, nz = triangle_normal(xe, triangles, t)
         ln = np.sqrt(nx * nx + ny * ny + nz * nz)
         if ln > 0.0:
             sg = garment_outward[tri_garment[t]] / ln

@@ -169,7 +169,8 @@ def aero_forces(x, xp, tri_mass, tris, h, s, d_prev, wind, k_drag, k_lift, out, 
     if out.shape[1] != 4 or out.shape[0] < tris.shape[0]:
         raise ValueError("aero_forces: out must have (T, 4) rows")
     ih = 1.0 / (3.0 * h)
-    ihh = 1.0 / (h * h) if hold == 1 else 1.0 / ((hold * h) * (hold * h))
+    span = hold * h                  # the time the forces are held (one step: h, exactly)
+    ihh = 1.0 / (span * span)
     c3x = 3.0 * s * d_prev[0]
     c3y = 3.0 * s * d_prev[1]
     c3z = 3.0 * s * d_prev[2]

@@ -4,6 +4,7 @@ the root translation terms (see stages/sim/simulate.py), attached particles put 
 from __future__ import annotations
 
 import llvmlite.ir as ir
+import numpy as np
 from numba import njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
@@ -147,5 +148,4 @@ def gather_forces(tri_force, vt_table, vertex_force):
 
 def identity_table(n: int):
     """(N, 1) int32: vertex i lists row i (a `vt_table` over per-vertex force rows)."""
-    import numpy as np
     return np.arange(n, dtype=np.int32).reshape(n, 1)
