@@ -431,6 +431,7 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
 
     from stages.garments.placement import (UNDER_REACH, bind_geometry, hug, place_pattern, push_over,
                                           triangle_grid_points)
+    from stages.garments.separation import OVER_CLEARANCE, leg_plane, separate_legs
     from stages.garments.types import attach_indices, bind_pose, build_garment
 
     sp = sew_params if sew_params is not None else SewParams()
@@ -514,11 +515,21 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
                         f"(median) when free, {gap2 * 100:.1f} cm held")
                 sewn, log = sewn2, replace(log2, notes=log2.notes + (note,))
     pos, mtri, remap = merged_mesh(sewn, tri, flat.seam_pairs)
-    if over.any():
+    # start apart (stages.garments.separation): the legs on their own sides of the plane between
+    # the thighs, the whole garment outside the ones worn under it
+    _, origins, _ = bind_geometry(character, motion)
+    names = [p.name for p in flat.panels]
+    if "leg_l" in names and "leg_r" in names:
+        legs = [remap[flat.offsets[names.index(k)]:flat.offsets[names.index(k) + 1]] for k in ("leg_l", "leg_r")]
+        pos = separate_legs(pos, legs[0], legs[1], leg_plane(character, origins))
+    band = np.unique(remap[np.flatnonzero(over)])     # a band hugged over them: placed as it is below
+    if len(under):
+        rest = np.setdiff1d(np.arange(pos.shape[0]), band)
+        pos[rest] = push_over(pos[rest], hug_targets(character, origins, pos[rest], "axis"), under,
+                              under_gap + OVER_CLEARANCE)
+    if band.size:
         # the seams' ends were free while sewing: where one closed inside a garment worn under it (the
         # sharp side seam of a T-shirt), it goes out over it; the band's edges are cut to the new length
-        band = np.unique(remap[np.flatnonzero(over)])
-        _, origins, _ = bind_geometry(character, motion)
         moved = push_over(pos[band], hug_targets(character, origins, pos[band], pattern.fit_hug), under, under_gap)
         changed = band[np.any(moved != pos[band], axis=1)]
         pos[band] = moved
