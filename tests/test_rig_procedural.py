@@ -8,14 +8,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from stages.checks import ContractError
+from stages.rig.capsule_skin import guess_radii, skin_skeleton
 from stages.rig.procedural import (
     BodyParams,
     _girth,
     body_measurements,
-    guess_radii,
     humanoid_skeleton,
     procedural_character,
-    skin_skeleton,
 )
 from stages.rig.transforms import forward_kinematics, trs_to_matrix
 

@@ -557,7 +557,7 @@ def load_bvh_character(path, *, scale: float = 1.0, body=None, bind_pose: str = 
     a skeleton not recognised as a humanoid falls back to frame `bind_frame` with a warning.
     'frame0': frame `bind_frame`'s pose (default 0, the first frame). 'rest': the BVH rest pose
     (offsets only). The root is moved over the origin in every case.
-    Skin: `stages.rig.procedural.skin_skeleton` around the bind-pose joint positions (end sites
+    Skin: `stages.rig.capsule_skin.skin_skeleton` around the bind-pose joint positions (end sites
     included), with `body` (a `BodyParams`, default when None); weights from that generator, and
     in the neutral pose smoothed across the crotch (`stages.rig.neutral_pose.soften_seam`).
     Placement: the bind mesh is shifted to stand on y = 0; the clip's root translation is shifted
@@ -566,7 +566,8 @@ def load_bvh_character(path, *, scale: float = 1.0, body=None, bind_pose: str = 
     pose). Y up, metres after `scale`; the root joint (index 0) is the character's root.
     """
     from stages.rig.neutral_pose import soften_seam, subtree
-    from stages.rig.procedural import BodyParams, skin_skeleton  # the skin generator's own module
+    from stages.rig.capsule_skin import skin_skeleton
+    from stages.rig.procedural import BodyParams
 
     data = parse_bvh(path, scale=scale)
     stem = Path(path).stem
