@@ -8,7 +8,7 @@ from hypothesis import given, settings, strategies as st
 from scipy.optimize import linprog
 from scipy.spatial import ConvexHull
 
-from stages.hulls import kernels
+from stages.hulls import kernels, lp
 from stages.hulls.fit import distance_to_hull, hausdorff_to_hull
 from stages.hulls.hull import convex_hull, inflate_hull, mesh_volume
 from stages.hulls.simplify import simplify_hull
@@ -93,7 +93,7 @@ def test_seidel_lp_matches_highs_on_random_lps(seed, m):
     a /= np.linalg.norm(a, axis=1, keepdims=True)
     b = rng.uniform(-0.5, 1.0, size=m)
     c = rng.normal(size=3)
-    ok, x = kernels.seidel_lp3(a, b, c, 8.0, rng.permutation(m))
+    ok, x = lp.seidel_lp3(a, b, c, 8.0, rng.permutation(m))
     ref = highs(a, b, c, 8.0)
     assert ok == (ref.status == 0)
     if ok:
@@ -120,7 +120,7 @@ def test_collapse_lps_match_highs():
         a, b, c, origin, scale, _ = kernels.collapse_rows(t, v, valive, f, falive, planes, v, np.arange(len(v)), nr, k,
                                                           buf[0], buf[1], vmark, t + 1, 1e-7 * d, 1e-4 * d,
                                                           np.zeros((0, 4)))
-        ok, x = kernels.seidel_lp3(a, b, c, kernels.BOX, np.random.default_rng(t).permutation(len(b)))
+        ok, x = lp.seidel_lp3(a, b, c, kernels.BOX, np.random.default_rng(t).permutation(len(b)))
         ref = highs(a, b, c, kernels.BOX)
         assert ok == (ref.status == 0), t
         if ok:
