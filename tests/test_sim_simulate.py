@@ -173,12 +173,12 @@ def test_stiffness_and_damping_mean_the_same_at_any_substep_count():
 
 
 def test_chunk_poses_of_translation_only_frames_equal_the_general_path():
-    """Skinned balls' frames (translation only, after the joints) take a shortcut in _chunk_poses
+    """Skinned balls' frames (translation only, after the joints) take a shortcut in chunk_poses
     (lerp, negated translation): the same matrices, bit for bit, as interpolating and inverting
     every frame the general way, for one and for many sub-steps."""
     import importlib
     from types import SimpleNamespace
-    S = importlib.import_module("stages.sim.simulate")
+    S = importlib.import_module("stages.sim.poses")
     rng = np.random.default_rng(5)
     from scipy.spatial.transform import Rotation
     f, j, b = 6, 3, 5
@@ -188,10 +188,10 @@ def test_chunk_poses_of_translation_only_frames_equal_the_general_path():
     jw[:, j:, :3, :3] = np.eye(3)
     jw[..., :3, 3] = rng.normal(size=(f, j + b, 3))
     motion = SimpleNamespace(joint_world=jw, root_translation=np.zeros((f, 3)))
-    assert S._shift_tail(jw) == j
+    assert S.shift_tail(jw) == j
     for substeps in (1, 4):
-        fwd, inv, inv0, *_ = S._chunk_poses(motion, 2, 6, substeps, 1.0, None)
-        parts = [S._frame_poses(jw, k, substeps) for k in range(2, 6)]
+        fwd, inv, inv0, *_ = S.chunk_poses(motion, 2, 6, substeps, 1.0, None)
+        parts = [S.frame_poses(jw, k, substeps) for k in range(2, 6)]
         for got, want in zip((fwd, inv, inv0), (np.concatenate([p[i] for p in parts]) for i in range(3))):
             assert np.array_equal(got, want)
 

@@ -3,7 +3,7 @@
 One step, in the paper's order (stages.sim.step.run_steps):
 1. character pose without the root translation (Motion.joint_world is in the relative frame);
    colliders and attached particles follow their bones (poses interpolated between frames at
-   sub-steps: slerp of the rotation, lerp of the translation);
+   sub-steps: slerp of the rotation, lerp of the translation; stages.sim.poses);
 2. forces: gravity, aerodynamic drag and lift per triangle (velocities from Verlet positions);
 3. Verlet integration, damping;
 4. `iterations` rounds of spring position correction (stretch and compression, shared by inverse
@@ -33,7 +33,6 @@ import dataclasses
 import time
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from stages.checks import ContractError
 from stages.jit import for_threads, threaded
@@ -42,6 +41,7 @@ from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER
 from stages.maps.types import KIND_CYLINDER, MapArrays
 from stages.sim import body_collide, collider_grid, forces, integrate, simd, step, winding
 from stages.sim.cloth_contact import ClothPhase
+from stages.sim.poses import chunk_poses
 from stages.sim.springs import pack_springs, partition_springs
 from stages.sim.types import GarmentTrack, SimParams, SimResult, SimulationDiverged
 
@@ -290,96 +290,6 @@ def particles_inside_colliders(points, colliders, maps, pose, method: int = METH
     return out.astype(bool)
 
 
-def _is_rigid(m: np.ndarray) -> bool:
-    r = m[..., :3, :3]
-    return bool(np.allclose(np.einsum("...ij,...kj->...ik", r, r), np.eye(3), atol=1e-6))
-
-
-def interpolate_poses(a: np.ndarray, b: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Poses between (J, 4, 4) a and b at fractions u (S,): (S, J, 4, 4); slerp + lerp when rigid,
-    plain matrix lerp otherwise (scaled rigs)."""
-    s, j = u.size, a.shape[0]
-    if not (_is_rigid(a) and _is_rigid(b)):
-        return (1 - u)[:, None, None, None] * a[None] + u[:, None, None, None] * b[None]
-    from stages.rig.transforms import slerp
-    qa = Rotation.from_matrix(a[:, :3, :3]).as_quat()
-    qb = Rotation.from_matrix(b[:, :3, :3]).as_quat()
-    q = slerp(np.broadcast_to(qa, (s, j, 4)), np.broadcast_to(qb, (s, j, 4)), np.broadcast_to(u[:, None], (s, j)))
-    out = np.zeros((s, j, 4, 4))
-    out[..., :3, :3] = Rotation.from_quat(q.reshape(-1, 4)).as_matrix().reshape(s, j, 3, 3)
-    out[..., :3, 3] = (1 - u)[:, None, None] * a[None, :, :3, 3] + u[:, None, None] * b[None, :, :3, 3]
-    out[..., 3, 3] = 1.0
-    return out
-
-
-def _frame_poses(joint_world: np.ndarray, f: int, substeps: int):
-    """End-of-step poses (S, J, 4, 4), their inverses, and the start-of-step inverses, frame f-1 -> f."""
-    a, b = joint_world[f - 1], joint_world[f]
-    if substeps == 1:
-        fwd = b[None]
-    else:
-        fwd = interpolate_poses(a, b, np.arange(1, substeps + 1) / substeps)
-        fwd[-1] = b  # exact at the frame
-    inv = np.linalg.inv(fwd)
-    inv0 = np.concatenate([np.linalg.inv(a)[None], inv[:-1]])
-    return fwd, inv, inv0
-
-
-def _shift_tail(joint_world: np.ndarray) -> int:
-    """The first of the trailing frames that only translate at every frame (a skinned ball's,
-    ColliderSet.frame_poses); joint_world.shape[1] when none does."""
-    r = joint_world[..., :3, :3]
-    fixed = (r == np.eye(3)).all(axis=(0, 2, 3)) & (joint_world[..., 3, :] == [0, 0, 0, 1]).all(axis=(0, 2))
-    k = fixed.size
-    while k > 0 and fixed[k - 1]:
-        k -= 1
-    return k
-
-
-def _chunk_poses(motion, f0: int, f1: int, substeps: int, s: float, d_last):
-    """Pose and root-translation arrays of the steps of frames f0..f1-1 (frame f steps from f-1 to f).
-
-    Returns fwd, inv, inv0 ((f1 - f0) * substeps, J, 4, 4), d_prev, d_next ((f1 - f0) * substeps, 3),
-    tr (substeps + 1, 3) the root translation at the step boundaries of frame f1 - 1 (relative to
-    world, for obstacles), and the last step's d_next (the next chunk's d_prev).
-    """
-    root = motion.root_translation
-    jw = motion.joint_world
-    k = _shift_tail(jw[f0 - 1:f1])       # frames k.. only translate: lerp and negate, no slerp or inverse
-    n_steps, n = (f1 - f0) * substeps, jw.shape[1]
-    fwd, inv, inv0 = (np.empty((n_steps, n, 4, 4)) for _ in range(3))
-    if substeps == 1:
-        fwd[:, :k] = jw[f0:f1, :k]
-        inv_all = np.linalg.inv(jw[f0 - 1:f1, :k])
-        inv[:, :k], inv0[:, :k] = inv_all[1:], inv_all[:-1]
-    else:
-        for i, f in enumerate(range(f0, f1)):
-            s0 = i * substeps
-            fwd[s0:s0 + substeps, :k], inv[s0:s0 + substeps, :k], inv0[s0:s0 + substeps, :k] = \
-                _frame_poses(jw[:, :k], f, substeps)
-    if k < n:
-        u = np.arange(1, substeps + 1) / substeps
-        ta, tb = jw[f0 - 1:f1 - 1, k:, :3, 3], jw[f0:f1, k:, :3, 3]                  # (F, B, 3)
-        t = (1 - u)[None, :, None, None] * ta[:, None] + u[None, :, None, None] * tb[:, None]
-        t[:, -1] = tb                                                                 # exact at the frame
-        t = t.reshape(n_steps, n - k, 3)
-        t0 = np.concatenate([ta[:1], t[:-1]])
-        for m, sign, tt in ((fwd, 1.0, t), (inv, -1.0, t), (inv0, -1.0, t0)):
-            m[:, k:] = np.eye(4)
-            m[:, k:, :3, 3] = sign * tt
-    u = np.arange(substeps + 1) / substeps
-    tr = root[f0 - 1:f1 - 1, None, :] + (root[f0:f1] - root[f0 - 1:f1 - 1])[:, None, :] * u[None, :, None]
-    if s > 0:
-        d_next = np.diff(tr, axis=1).reshape(-1, 3)
-    else:
-        d_next = np.zeros(((f1 - f0) * substeps, 3))
-    d_prev = np.empty_like(d_next)
-    d_prev[1:] = d_next[:-1]
-    d_prev[0] = d_next[0] if d_last is None else d_last
-    c = np.ascontiguousarray
-    return c(fwd), c(inv), c(inv0), c(d_prev), c(d_next), tr[-1], d_next[-1].copy()
-
-
 # -- body audit -------------------------------------------------------------------------------------
 class BodyAudit:
     """Particles inside the true skinned mesh, by the fast generalised winding number (>= 0.5)."""
@@ -589,7 +499,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
         f1 = min(nf, f0 + (1 if ocol is not None else FRAME_CHUNK))
         cc = cphase.rest if cphase is not None else None
         t0 = time.perf_counter()
-        fwd, inv, inv0, d_prev, d_next, tr, d_last = _chunk_poses(motion, f0, f1, ss, s, d_last)
+        fwd, inv, inv0, d_prev, d_next, tr, d_last = chunk_poses(motion, f0, f1, ss, s, d_last)
         timings["poses"] += time.perf_counter() - t0
         if ocol is None:
             done = run_frames(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, ss, max2,
