@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation
 from stages.hulls.types import ColliderSet, SphereCollider
 from stages.maps.build import build_maps
 from stages.maps.kernels import METHOD_NEAREST_PLANE, METHOD_PAPER, collide_points
-from stages.sim.body_collide import collide
+from stages.sim.body_collide import SCREEN_MAX, collide
 from stages.sim.collider_grid import build_grid, GRID_CELLS, swept_spheres
 from stages.sim.scenes import convex_mesh, fibonacci_points, hull_set
 from tests.test_sim_kernels import _collider_arrays
@@ -210,3 +210,42 @@ def test_a_frames_swept_grid_lists_every_collider_that_holds_a_point_at_any_of_i
             if b >= 0:
                 listed[p, items[start[b]:start[b + 1]]] = True
         assert not (inside & ~listed).any()
+
+
+@pytest.mark.parametrize("method", [METHOD_PAPER, METHOD_NEAREST_PLANE])
+@pytest.mark.parametrize("seed", range(3))
+def test_screened_collide_equals_the_visiting_loop(seed, method):
+    """With at most SCREEN_MAX colliders, collide first screens every particle (_may_hit) and visits
+    only those that may be inside one; with one far collider more (no screening) every particle is
+    visited. Disjoint colliders (the visiting budget, passes x colliders, is not spent): the same
+    positions, previous positions, flags, speeds and face cache, bit for bit, over three calls, each
+    from the last one's positions moved a little and with its face cache (remembered exit faces,
+    separating faces and the planes of outline rejections)."""
+    cs, _, fwd = _scene(seed, disjoint=True)
+    few = ColliderSet(hulls=cs.hulls[:2], spheres=cs.spheres[:2], delta=0.0, min_triangles=4)
+    far = SphereCollider(7, "far", np.array([100.0, 0.0, 0.0]), 0.1, np.zeros((0, 3)))
+    more = ColliderSet(hulls=few.hulls, spheres=few.spheres + (far,), delta=0.0, min_triangles=4)
+    maps = build_maps(few)
+    (ca, grid_a), (cb, grid_b) = (_posed(s, maps, fwd, method) for s in (few, more))
+    nc = ca.joint.size
+    assert nc == SCREEN_MAX and cb.joint.size == nc + 1
+    rng = np.random.default_rng(400 + seed)
+    x = _points(few, fwd, rng, 3000)
+    xp = x + rng.normal(0, 0.01, x.shape)
+    face_a = np.full((x.shape[0], nc), -1, np.int32)
+    face_b = np.full((x.shape[0], nc + 1), -1, np.int32)
+    for _ in range(3):
+        out = []
+        for col, grid, face in ((ca, grid_a, face_a), (cb, grid_b, face_b)):
+            o, p = x.copy(), xp.copy()
+            corr, ins, speed2 = np.zeros(len(x), np.uint8), np.zeros(len(x), np.uint8), np.zeros(len(x))
+            collide(o, p, np.ones(len(x)), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.tq0, col.fq,
+                    col.cw, *grid, col.face_edges, col.src_range, 0.5, 4, corr, ins, speed2, face, 1 / 30)
+            out.append((o, p, corr, ins, speed2))
+        for u, v in zip(*out):
+            assert np.array_equal(u, v)
+        assert np.array_equal(face_a, face_b[:, :nc]) and (face_b[:, nc] == -1).all()
+        assert out[0][2].sum() > 50 and (out[0][2] == 0).sum() > 1000     # pushed and untouched particles
+        x, xp = out[0][0] + rng.normal(0, 0.003, x.shape), out[0][0]
+    if method == METHOD_PAPER:
+        assert (face_a >= 0).any() and (face_a <= -2).any()

@@ -15,7 +15,7 @@ from stages.sim.forces import aero_forces, vertex_triangles
 from stages.sim.integrate import integrate
 from stages.sim.simd import padded_rows
 from stages.jit import for_threads
-from stages.sim.springs import correct_springs, pack_springs, partition_springs, spring_colours
+from stages.sim.springs import PIPELINE, correct_springs, pack_springs, partition_springs, spring_colours
 from stages.sim import winding_number
 from scipy.spatial.transform import Rotation
 
@@ -407,11 +407,14 @@ def test_springs_skip_coincident_ends_and_leave_pinned_particles():
     si, sj = np.array([0, 1]), np.array([1, 2])
     rest, wi, wj = np.array([0.1, 0.25]), np.array([0.5, 0.0]), np.array([0.5, 1.0])
     ij, sp, group_start = pack_springs(si, sj, rest, wi, wj, np.array([0, 2, 2], np.int64), 3)
-    # spring 1 shares particle 1 with spring 0: two groups, each padded with dummies on row 3
-    assert ij.dtype == np.uint32 and list(group_start) == [0, 2, 2]
-    assert list(ij) == [0, 12, 12, 12, 4, 12, 12, 12, 4, 12, 12, 12, 8, 12, 12, 12]
+    # spring 1 shares particle 1 with spring 0: two groups, each padded with dummies on row 3, with
+    # PIPELINE - 1 groups of dummies between (a group is read that far ahead of the stores before it)
+    gap = PIPELINE - 1
+    assert ij.dtype == np.uint32 and list(group_start) == [0, 2 + gap, 2 + gap]
+    assert list(ij) == [0, 12, 12, 12, 4, 12, 12, 12] + [12] * 8 * gap + [4, 12, 12, 12, 8, 12, 12, 12]
     assert list(sp[:12]) == [0.1, 0, 0, 0, 0.5, 0, 0, 0, 0.5, 0, 0, 0]
-    assert list(sp[12:]) == [0.25, 0, 0, 0, 0.0, 0, 0, 0, 1.0, 0, 0, 0]
+    assert not sp[12:12 * (1 + gap)].any()
+    assert list(sp[12 * (1 + gap):]) == [0.25, 0, 0, 0, 0.0, 0, 0, 0, 1.0, 0, 0, 0]
     no = np.zeros(0, np.int32)
     correct_springs(x, padded_rows(3), ij, sp, group_start, no, no, np.zeros(0), 1)
     np.testing.assert_array_equal(x[:2], 0.0)

@@ -6,7 +6,7 @@ from numba import njit
 
 from stages.fastmath import inv_sqrt
 from stages.sim.simd import padded_rows
-from stages.sim.springs import correct_springs, pack_springs
+from stages.sim.springs import PIPELINE, correct_springs, pack_springs
 
 
 @njit(fastmath=True)   # not cached: it inlines inv_sqrt
@@ -63,6 +63,10 @@ def test_groups_hold_each_spring_once_in_order_on_distinct_particles(seed, n, s,
         for g in range(gi.shape[0]):
             ends = np.concatenate([gi[g][real[g]], gj[g][real[g]]])
             assert np.unique(ends).size == ends.size
+            # no particle of the PIPELINE - 1 groups before it (correct_springs reads that far ahead)
+            before = slice(max(g - PIPELINE + 1, 0), g)
+            near = np.concatenate([gi[before][real[before]], gj[before][real[before]]])
+            assert not np.intersect1d(ends, near).size
 
 
 @settings(max_examples=40, deadline=None)
