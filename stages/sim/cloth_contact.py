@@ -105,8 +105,9 @@ class ClothContact:
       box_lo[:, 3] how far each particle may move: motion_margin or more when it moves fast), nrm_ref
       (T, 4) (unit normals, cosine of the allowed turn), node_slack (n,) (the culled nodes' turn margins).
     The narrow phase's filter over the lists (stages.sim.cloth_contact_narrow): pbox (N, 8), ebox (E, 8),
-      tbox (T, 8) float32 (min x y z, moved flag, max x y z, 0): each particle's, edge's and
-      triangle's swept box, inflated, rounded outwards; p_move (N,) float64: each particle's move.
+      tbox (T, 8) float32 (min x y z, 0, max x y z, 0): each particle's, edge's and
+      triangle's swept box, inflated, rounded outwards; p_move (N,) float64: each particle's move;
+      feat_moved (E + T,) uint8: the edges' then the triangles' moved flags.
     """
 
     triangles: np.ndarray
@@ -151,6 +152,7 @@ class ClothContact:
     ebox: np.ndarray
     tbox: np.ndarray
     p_move: np.ndarray
+    feat_moved: np.ndarray
     thickness: float = DEFAULT_THICKNESS
     layer_depth: float = DEFAULT_THICKNESS
     rounds: int = 4
@@ -234,6 +236,7 @@ class ClothContact:
         check_array(o, "ebox", self.ebox, (ne, 8), np.float32, finite=False)
         check_array(o, "tbox", self.tbox, (t, 8), np.float32, finite=False)
         check_array(o, "p_move", self.p_move, (n,), np.float64, finite=False)
+        check_array(o, "feat_moved", self.feat_moved, (ne + t,), np.uint8)
         if not (float(self.motion_margin) >= 0.0 and 0.0 < float(self.rotation) < float(np.arccos(CK.FLAT_COS))):
             raise ContractError(f"{o}: motion_margin must be >= 0 and rotation in (0, {np.arccos(CK.FLAT_COS):.3f}) rad, "
                                 f"got {self.motion_margin}, {self.rotation}")
@@ -262,7 +265,7 @@ class ClothContact:
                 self.node_dirty, self.tri_min, self.tri_max, self.pt_min, self.pt_max, self.nrm_min, self.nrm_max,
                 self.node_patch, self.stack, self.border_start, self.border_vert, self.cand_vf, self.cand_ee,
                 self.cand_n, self.cand_f, self.box_lo, self.box_hi, self.nrm_ref, self.node_slack,
-                self.pbox, self.ebox, self.tbox, self.p_move)
+                self.pbox, self.ebox, self.tbox, self.p_move, self.feat_moved)
         work = (self.moved, self.corrected, self.c_kind, self.c_feat, self.c_idx, self.c_w, self.c_dir)
         prm = (float(self.thickness), float(self.layer_depth), int(self.rounds), int(self.failsafe_rounds),
                bool(self.cull), float(self.motion_margin), float(self.rotation))
@@ -427,6 +430,7 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
         node_slack=np.zeros(tree.node_min.shape[0]),
         pbox=np.zeros((n, 8), np.float32), ebox=np.zeros((edges.shape[0], 8), np.float32),
         tbox=np.zeros((tris.shape[0], 8), np.float32), p_move=np.zeros(n),
+        feat_moved=np.zeros(edges.shape[0] + tris.shape[0], np.uint8),
         motion_margin=float(motion_margin), rotation=float(rotation))
 
 

@@ -385,7 +385,9 @@ def candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation, counter
         for j in range(3):   # the normals over the step: the cone of these three (_step_normal)
             nx, ny, nz = _step_normal(xs, xe, triangles, t, j)
             dot = nx * nrm_ref[t, 0] + ny * nrm_ref[t, 1] + nz * nrm_ref[t, 2]
-            if dot < cr * np.sqrt(nx * nx + ny * ny + nz * nz):
+            # dot < cr |n| (turned too far), without the square root
+            q = cr * cr * (nx * nx + ny * ny + nz * nz)
+            if (dot < 0.0 or dot * dot < q) if cr >= 0.0 else (dot < 0.0 and dot * dot > q):
                 counters[N_INVALID_TURN] += 1
                 return False
     return True
