@@ -168,22 +168,6 @@ def _point_off_corners(pt_min, pt_max, p, a, b, c):
 
 
 @njit(cache=True)
-def vf_apart_moves(xs, p_move, p, a, b, c, reach):
-    """stages.sim.cloth_contact_ccd.vf_apart with the particles' moves precomputed (p_move)."""
-    cx = (xs[a, 0] + xs[b, 0] + xs[c, 0]) / 3.0
-    cy = (xs[a, 1] + xs[b, 1] + xs[c, 1]) / 3.0
-    cz = (xs[a, 2] + xs[b, 2] + xs[c, 2]) / 3.0
-    r2 = 0.0
-    for i in (a, b, c):
-        r2 = max(r2, (xs[i, 0] - cx) ** 2 + (xs[i, 1] - cy) ** 2 + (xs[i, 2] - cz) ** 2)
-    d = np.sqrt((xs[p, 0] - cx) ** 2 + (xs[p, 1] - cy) ** 2 + (xs[p, 2] - cz) ** 2) - np.sqrt(r2)
-    room = reach + APART_SLACK
-    if d <= room:
-        return False
-    return d > room + p_move[p] + max(p_move[a], max(p_move[b], p_move[c]))
-
-
-@njit(cache=True)
 def ee_apart_moves(xs, p_move, a, b, c, d, reach):
     """stages.sim.cloth_contact_ccd.ee_apart with the particles' moves precomputed (p_move)."""
     room = reach + APART_SLACK
