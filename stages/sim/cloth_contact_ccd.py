@@ -178,6 +178,28 @@ def cubic_roots01(c0, c1, c2, c3, f0, f1):
     return r[0], r[1], r[2], n
 
 
+BERNSTEIN_TOL = 1e-12  # relative to sum |c_k|: far above the rounding of the Bernstein coefficients and of
+                       # a Horner evaluation (a few 1e-16 of sum |c_k|)
+
+
+@njit(cache=True)
+def cubic_clear01(c0, c1, c2, c3, f1):
+    """The cubic c0 + c1 t + c2 t^2 + c3 t^3 keeps one strict sign on [0, 1], with margin (Tang et al.
+    2010, non-penetration filters): its Bernstein coefficients on [0, 1] (b0 = c0, b1 = c0 + c1 / 3,
+    b2 = c0 + (2 c1 + c2) / 3, b3 = c0 + c1 + c2 + c3; the cubic lies in their convex hull) and f1 (the
+    caller's value at 1) all share one sign and exceed BERNSTEIN_TOL sum |c_k| in size. Then
+    cubic_roots01 finds no root either: every value it evaluates has that sign."""
+    tol = BERNSTEIN_TOL * (abs(c0) + abs(c1) + abs(c2) + abs(c3))
+    b1 = c0 + c1 / 3.0
+    b2 = c0 + (2.0 * c1 + c2) / 3.0
+    b3 = c0 + c1 + c2 + c3
+    if c0 > tol:
+        return b1 > tol and b2 > tol and b3 > tol and f1 > 0.0
+    if c0 < -tol:
+        return b1 < -tol and b2 < -tol and b3 < -tol and f1 < 0.0
+    return False
+
+
 @njit(cache=True)
 def _bary(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
     """Barycentric (wa, wb, wc) of p's projection on the plane of abc; ok False if degenerate."""
@@ -338,7 +360,9 @@ def test_edge_edge(xs, xe, a, b, c, d, forced, ox, oy, oz, h, layer_depth):
     parallel1 = not (l1sq > PARALLEL_TOL * (e1x * e1x + e1y * e1y + e1z * e1z) * (e2x * e2x + e2y * e2y + e2z * e2z))
     f1 = n1x * (xe[c, 0] - xe[a, 0]) + n1y * (xe[c, 1] - xe[a, 1]) + n1z * (xe[c, 2] - xe[a, 2])
     c0, c1, c2, c3 = triple_cubic(xs, xe, b, a, d, c, c, a)
-    r0, r1, r2, nr = cubic_roots01(c0, c1, c2, c3, c0, f1)
+    r0, r1, r2, nr = 2.0, 2.0, 2.0, 0
+    if not cubic_clear01(c0, c1, c2, c3, f1):
+        r0, r1, r2, nr = cubic_roots01(c0, c1, c2, c3, c0, f1)
     crossings = 0
     v = 0.0
     u = 0.0
@@ -393,6 +417,30 @@ def test_edge_edge(xs, xe, a, b, c, d, forced, ox, oy, oz, h, layer_depth):
         if ok and -BARY_TOL <= v <= 1.0 + BARY_TOL and -BARY_TOL <= u <= 1.0 + BARY_TOL:
             return EE_NEAR, v, u, 0.0, s * n1x / l1, s * n1y / l1, s * n1z / l1
     return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+
+
+@njit(cache=True)
+def ee_clear(xs, xe, a, b, c, d, reach):
+    """test_edge_edge reports nothing for edges ab and cd, whatever the layers prescribe: the
+    coplanarity cubic keeps its sign over the step (cubic_clear01: no crossing) and the edges end
+    parallel or farther than `reach` (>= max(h, layer_depth)) apart along their normal. The first
+    half of test_edge_edge, so a caller can skip what the rest needs (the inner edge's outward normal)."""
+    e1x = xe[b, 0] - xe[a, 0]
+    e1y = xe[b, 1] - xe[a, 1]
+    e1z = xe[b, 2] - xe[a, 2]
+    e2x = xe[d, 0] - xe[c, 0]
+    e2y = xe[d, 1] - xe[c, 1]
+    e2z = xe[d, 2] - xe[c, 2]
+    n1x = e1y * e2z - e1z * e2y
+    n1y = e1z * e2x - e1x * e2z
+    n1z = e1x * e2y - e1y * e2x
+    l1sq = n1x * n1x + n1y * n1y + n1z * n1z
+    f1 = n1x * (xe[c, 0] - xe[a, 0]) + n1y * (xe[c, 1] - xe[a, 1]) + n1z * (xe[c, 2] - xe[a, 2])
+    parallel1 = not (l1sq > PARALLEL_TOL * (e1x * e1x + e1y * e1y + e1z * e1z) * (e2x * e2x + e2y * e2y + e2z * e2z))
+    if not (parallel1 or f1 * f1 > reach * reach * l1sq):
+        return False
+    c0, c1, c2, c3 = triple_cubic(xs, xe, b, a, d, c, c, a)
+    return cubic_clear01(c0, c1, c2, c3, f1)
 
 
 # ---------------------------------------------------------------------------------------------

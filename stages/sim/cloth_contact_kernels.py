@@ -23,6 +23,7 @@ from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.obstacles.kdop import refit_range
+from stages.sim.cloth_contact_narrow import narrow
 from stages.sim.cloth_contact_response import contact_velocity, respond, revert, settled  # noqa: F401
 from stages.sim.simd import cycles
 from stages.sim.cloth_contact_cull import FLAT_COS, UNION_COS, flat_patch, flat_union, patch_nodes  # noqa: F401
@@ -39,7 +40,8 @@ from stages.sim.cloth_contact_pairs import (N_BUILDS, N_CAND_OVERFLOW, N_CONTACT
 
 # kernels below compile in code from these modules: their edits must invalidate the disk cache
 NUMBA_CACHE_DEPENDS = ("stages.obstacles.kdop", "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_cull",
-                       "stages.sim.cloth_contact_pairs", "stages.sim.cloth_contact_response", "stages.sim.simd")
+                       "stages.sim.cloth_contact_narrow", "stages.sim.cloth_contact_pairs",
+                       "stages.sim.cloth_contact_response", "stages.sim.simd")
 
 STEPS_AHEAD = 8      # a candidate list is built wide enough for this many steps at each particle's speed,
 MAX_MOTION_STEPS = 4  # but at most this many times the motion margin
@@ -383,83 +385,12 @@ def candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation, counter
         for j in range(3):   # the normals over the step: the cone of these three (_step_normal)
             nx, ny, nz = _step_normal(xs, xe, triangles, t, j)
             dot = nx * nrm_ref[t, 0] + ny * nrm_ref[t, 1] + nz * nrm_ref[t, 2]
-            if dot < cr * np.sqrt(nx * nx + ny * ny + nz * nz):
+            # dot < cr |n| (turned too far), without the square root
+            q = cr * cr * (nx * nx + ny * ny + nz * nz)
+            if (dot < 0.0 or dot * dot < q) if cr >= 0.0 else (dot < 0.0 and dot * dot > q):
                 counters[N_INVALID_TURN] += 1
                 return False
     return True
-
-
-@njit(cache=True, _nrt=False)
-def narrow(xs, xe, topo, tree, work, margin, h, layer_depth, only_cross, counters, full):
-    """The tree search's tests over the candidate lists: every candidate with a particle moved since
-    the last detection (work[0]) whose features' bounds over xs -> xe, inflated by `margin`, overlap
-    (the same filter as the tree search's) is tested exactly. Returns the number of contacts stored."""
-    triangles = topo[0]
-    edges = topo[1]
-    moved = work[0]
-    tri_min = tree[8]
-    tri_max = tree[9]
-    pt_min = tree[10]
-    pt_max = tree[11]
-    cand_vf = tree[18]
-    cand_ee = tree[19]
-    cand_n = tree[20]
-    if full:
-        _segment_bounds(xs, xe, tree[0], margin, pt_min, pt_max)
-        _triangle_bounds(triangles, pt_min, pt_max, tri_min, tri_max)
-    else:   # the others' bounds are the last call's (same xs, and xe where it was)
-        _moved_bounds(xs, xe, topo, tree, moved, margin)
-    n = 0
-    for k in range(cand_n[0]):
-        p = cand_vf[k, 0]
-        t = cand_vf[k, 1]
-        if not (moved[p] | moved[triangles[t, 0]] | moved[triangles[t, 1]] | moved[triangles[t, 2]]):
-            continue
-        if point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t):
-            continue
-        n = vf_candidate(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters)
-    for k in range(cand_n[1]):
-        e = cand_ee[k, 0]
-        f = cand_ee[k, 1]
-        a = edges[e, 0]
-        b = edges[e, 1]
-        c = edges[f, 0]
-        d = edges[f, 1]
-        if not (moved[a] | moved[b] | moved[c] | moved[d]):
-            continue
-        if edges_apart_bounds(pt_min, pt_max, a, b, c, d):
-            continue
-        n = ee_candidate(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
-    return n
-
-
-@njit(cache=True, _nrt=False)
-def _moved_bounds(xs, xe, topo, tree, moved, margin):
-    """_segment_bounds and _triangle_bounds for the moved particles and their triangles only."""
-    triangles = topo[0]
-    directions = tree[0]
-    tri_min = tree[8]
-    tri_max = tree[9]
-    pt_min = tree[10]
-    pt_max = tree[11]
-    h = directions.shape[0]
-    for p in range(xs.shape[0]):
-        if not moved[p]:
-            continue
-        for i in range(h):
-            a = xs[p, 0] * directions[i, 0] + xs[p, 1] * directions[i, 1] + xs[p, 2] * directions[i, 2]
-            b = xe[p, 0] * directions[i, 0] + xe[p, 1] * directions[i, 1] + xe[p, 2] * directions[i, 2]
-            pt_min[p, i] = min(a, b) - margin
-            pt_max[p, i] = max(a, b) + margin
-    for t in range(triangles.shape[0]):
-        a = triangles[t, 0]
-        b = triangles[t, 1]
-        c = triangles[t, 2]
-        if not (moved[a] | moved[b] | moved[c]):
-            continue
-        for i in range(h):
-            tri_min[t, i] = min(pt_min[a, i], min(pt_min[b, i], pt_min[c, i]))
-            tri_max[t, i] = max(pt_max[a, i], max(pt_max[b, i], pt_max[c, i]))
 
 
 @njit(cache=True, _nrt=False)

@@ -11,7 +11,8 @@ import numpy as np
 from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
-from stages.sim.cloth_contact_ccd import EE_CROSS, VF_CROSS, ee_apart, test_edge_edge, test_vertex_face, vf_apart
+from stages.sim.cloth_contact_ccd import (EE_CROSS, VF_CROSS, ee_apart, ee_clear, test_edge_edge, test_vertex_face,
+                                          vf_apart)
 
 NUMBA_CACHE_DEPENDS = ("stages.sim.cloth_contact_ccd",)
 
@@ -134,6 +135,9 @@ def test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counte
     b = edges[e, 1]
     c = edges[f, 0]
     d = edges[f, 1]
+    counters[N_TESTS] += 1
+    if ee_clear(xs, xe, a, b, c, d, max(h, layer_depth)):
+        return n   # no crossing, ends apart: nothing whatever the layers' side (no outward normal needed)
     forced = 0
     ox = 0.0
     oy = 0.0
@@ -144,7 +148,6 @@ def test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counte
         inner = e if le < lf else f
         forced = 1 if le < lf else -1
         ox, oy, oz = _edge_outward(xe, inner, edge_tris, triangles, tri_garment, garment_outward)
-    counters[N_TESTS] += 1
     kind, v, u, _, dx, dy, dz = test_edge_edge(xs, xe, a, b, c, d, forced, ox, oy, oz, h, layer_depth)
     if kind < 0 or (only_cross and kind != EE_CROSS):
         return n
