@@ -429,7 +429,7 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
     from stages.garments.triangulate import run_vertices, triangulate_pattern
     from scipy.spatial import cKDTree
 
-    from stages.garments.placement import (UNDER_REACH, bind_geometry, hug, place_pattern, push_over,
+    from stages.garments.placement import (UNDER_REACH, bind_geometry, hug, place_pattern, push_over, respace,
                                           triangle_grid_points)
     from stages.garments.separation import OVER_CLEARANCE, leg_plane, separate_legs
     from stages.garments.types import attach_indices, bind_pose, build_garment
@@ -462,12 +462,15 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
         skinned0, origins, _ = bind_geometry(character, motion)
         below = (np.concatenate([triangle_grid_points(g.positions, g.triangles) for g in under])
                  if len(under) else None)
+        pinned = {(a.panel, a.edges) for a in pattern.attachments}
         for side in pattern.fit_edges:
             idx = run_vertices(pattern, flat, side)
             if below is not None:
                 over[idx] = cKDTree(below).query(placed[idx], distance_upper_bound=UNDER_REACH + under_gap)[0] < np.inf
             placed[idx] = hug(placed[idx], hug_targets(character, origins, placed[idx], pattern.fit_hug), character,
                               skinned0, pose, under=below, under_gap=under_gap)
+            if (side.panel, side.edges) in pinned:    # a waistband, pinned where it ends up: evenly
+                placed[idx] = respace(placed[idx], uv[idx])   # spaced (a free collar: as hugged)
             if pattern.fit_band is not None:
                 _band_rest(tri, tri_rest, idx, placed, pattern.fit_band)
 
