@@ -337,16 +337,9 @@ def test_vertex_face(xs, xe, p, a, b, c, forced, h, layer_depth):
 
 
 @njit(cache=True)
-def test_edge_edge(xs, xe, a, b, c, d, forced, ox, oy, oz, h, layer_depth):
-    """Edge ab against edge cd. forced: 0; +1 if cd is the outer garment's edge and ab the inner's,
-    -1 the other way round; (ox, oy, oz): the inner edge's outward normal at the end of the step.
-    Weights returned: (v, u, 0) with v on ab, u on cd; the constraint is
-    dir . ((c + u (d - c)) - (a + v (b - a))) >= h.
-
-    Unlike a triangle's normal, n = (b-a) x (d-c) flips whenever the edges turn through parallel, and
-    f = n . (c - a) also changes sign where the lines meet outside the segments: the sign of f is no
-    side. So the cubic's roots are always searched, and the side is the end's sign of f flipped by
-    each real crossing (segments meeting, edges not parallel)."""
+def _edges_end(xe, a, b, c, d):
+    """Edges ab and cd at the end of the step: their normal n1 = (b-a) x (d-c), its squared length,
+    f1 = n1 . (c - a) and whether they are (nearly) parallel (PARALLEL_TOL)."""
     e1x = xe[b, 0] - xe[a, 0]
     e1y = xe[b, 1] - xe[a, 1]
     e1z = xe[b, 2] - xe[a, 2]
@@ -359,6 +352,21 @@ def test_edge_edge(xs, xe, a, b, c, d, forced, ox, oy, oz, h, layer_depth):
     l1sq = n1x * n1x + n1y * n1y + n1z * n1z
     parallel1 = not (l1sq > PARALLEL_TOL * (e1x * e1x + e1y * e1y + e1z * e1z) * (e2x * e2x + e2y * e2y + e2z * e2z))
     f1 = n1x * (xe[c, 0] - xe[a, 0]) + n1y * (xe[c, 1] - xe[a, 1]) + n1z * (xe[c, 2] - xe[a, 2])
+    return n1x, n1y, n1z, l1sq, f1, parallel1
+
+
+@njit(cache=True)
+def test_edge_edge(xs, xe, a, b, c, d, forced, ox, oy, oz, h, layer_depth):
+    """Edge ab against edge cd. forced: 0; +1 if cd is the outer garment's edge and ab the inner's,
+    -1 the other way round; (ox, oy, oz): the inner edge's outward normal at the end of the step.
+    Weights returned: (v, u, 0) with v on ab, u on cd; the constraint is
+    dir . ((c + u (d - c)) - (a + v (b - a))) >= h.
+
+    Unlike a triangle's normal, n = (b-a) x (d-c) flips whenever the edges turn through parallel, and
+    f = n . (c - a) also changes sign where the lines meet outside the segments: the sign of f is no
+    side. So the cubic's roots are always searched, and the side is the end's sign of f flipped by
+    each real crossing (segments meeting, edges not parallel)."""
+    n1x, n1y, n1z, l1sq, f1, parallel1 = _edges_end(xe, a, b, c, d)
     c0, c1, c2, c3 = triple_cubic(xs, xe, b, a, d, c, c, a)
     r0, r1, r2, nr = 2.0, 2.0, 2.0, 0
     if not cubic_clear01(c0, c1, c2, c3, f1):
@@ -425,18 +433,7 @@ def ee_clear(xs, xe, a, b, c, d, reach):
     coplanarity cubic keeps its sign over the step (cubic_clear01: no crossing) and the edges end
     parallel or farther than `reach` (>= max(h, layer_depth)) apart along their normal. The first
     half of test_edge_edge, so a caller can skip what the rest needs (the inner edge's outward normal)."""
-    e1x = xe[b, 0] - xe[a, 0]
-    e1y = xe[b, 1] - xe[a, 1]
-    e1z = xe[b, 2] - xe[a, 2]
-    e2x = xe[d, 0] - xe[c, 0]
-    e2y = xe[d, 1] - xe[c, 1]
-    e2z = xe[d, 2] - xe[c, 2]
-    n1x = e1y * e2z - e1z * e2y
-    n1y = e1z * e2x - e1x * e2z
-    n1z = e1x * e2y - e1y * e2x
-    l1sq = n1x * n1x + n1y * n1y + n1z * n1z
-    f1 = n1x * (xe[c, 0] - xe[a, 0]) + n1y * (xe[c, 1] - xe[a, 1]) + n1z * (xe[c, 2] - xe[a, 2])
-    parallel1 = not (l1sq > PARALLEL_TOL * (e1x * e1x + e1y * e1y + e1z * e1z) * (e2x * e2x + e2y * e2y + e2z * e2z))
+    _, _, _, l1sq, f1, parallel1 = _edges_end(xe, a, b, c, d)
     if not (parallel1 or f1 * f1 > reach * reach * l1sq):
         return False
     c0, c1, c2, c3 = triple_cubic(xs, xe, b, a, d, c, c, a)
