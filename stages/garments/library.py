@@ -455,11 +455,11 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
         joint = character.joint_names[character.root_joint] if a.joint == "root" else a.joint
         return idx, joint
 
+    skinned0, origins, _ = bind_geometry(character, motion)
     over = np.zeros(placed.shape[0], bool)   # fit-edge vertices hugged over a garment worn under
     if pattern.fit_edges:
         # the edges meant to sit on the body (waistband, collar, a cape's top) are brought onto the
         # colliders (see hug); a waistband is then pinned there
-        skinned0, origins, _ = bind_geometry(character, motion)
         below = (np.concatenate([triangle_grid_points(g.positions, g.triangles) for g in under])
                  if len(under) else None)
         pinned = {(a.panel, a.edges) for a in pattern.attachments}
@@ -520,7 +520,6 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
     pos, mtri, remap = merged_mesh(sewn, tri, flat.seam_pairs)
     # start apart (stages.garments.separation): the legs on their own sides of the plane between
     # the thighs, the whole garment outside the ones worn under it
-    _, origins, _ = bind_geometry(character, motion)
     names = [p.name for p in flat.panels]
     if "leg_l" in names and "leg_r" in names:
         legs = [remap[flat.offsets[names.index(k)]:flat.offsets[names.index(k) + 1]] for k in ("leg_l", "leg_r")]

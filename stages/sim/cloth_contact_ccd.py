@@ -26,6 +26,9 @@ import numpy as np
 from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.affine import triangle_cross
+
+NUMBA_CACHE_DEPENDS = ("stages.affine",)
 
 BARY_TOL = 1e-9      # NEAR: projection inside the triangle / closest points inside the edges
 CROSS_TOL = 1e-6     # CROSS: generous, so a path through a shared edge is caught by both sides
@@ -271,27 +274,13 @@ def test_vertex_face(xs, xe, p, a, b, c, forced, h, layer_depth):
     """Particle p against triangle abc. forced: 0, or the side (+-1) the layers prescribe for p
     relative to the triangle's normal (b-a) x (c-a). Weights returned: (wa, wb, wc) barycentric;
     the constraint is dir . (p - wa a - wb b - wc c) >= h."""
-    e1x = xe[b, 0] - xe[a, 0]
-    e1y = xe[b, 1] - xe[a, 1]
-    e1z = xe[b, 2] - xe[a, 2]
-    e2x = xe[c, 0] - xe[a, 0]
-    e2y = xe[c, 1] - xe[a, 1]
-    e2z = xe[c, 2] - xe[a, 2]
-    n1x = e1y * e2z - e1z * e2y
-    n1y = e1z * e2x - e1x * e2z
-    n1z = e1x * e2y - e1y * e2x
+    n1x, n1y, n1z = triangle_cross(xe, a, b, c)
     l1sq = n1x * n1x + n1y * n1y + n1z * n1z
     if l1sq == 0.0:
         return -1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     f1 = n1x * (xe[p, 0] - xe[a, 0]) + n1y * (xe[p, 1] - xe[a, 1]) + n1z * (xe[p, 2] - xe[a, 2])
-    s1x = xs[b, 0] - xs[a, 0]
-    s1y = xs[b, 1] - xs[a, 1]
-    s1z = xs[b, 2] - xs[a, 2]
-    s2x = xs[c, 0] - xs[a, 0]
-    s2y = xs[c, 1] - xs[a, 1]
-    s2z = xs[c, 2] - xs[a, 2]
-    f0 = ((s1y * s2z - s1z * s2y) * (xs[p, 0] - xs[a, 0]) + (s1z * s2x - s1x * s2z) * (xs[p, 1] - xs[a, 1])
-          + (s1x * s2y - s1y * s2x) * (xs[p, 2] - xs[a, 2]))
+    n0x, n0y, n0z = triangle_cross(xs, a, b, c)
+    f0 = n0x * (xs[p, 0] - xs[a, 0]) + n0y * (xs[p, 1] - xs[a, 1]) + n0z * (xs[p, 2] - xs[a, 2])
     sg1 = _sign(f1, -_sign(f0, 1.0))
     # crossings: roots of the coplanarity cubic with p inside the triangle. Searched only when the
     # side changes (a point passing through and back within one step ends where it started).

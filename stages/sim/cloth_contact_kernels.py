@@ -39,7 +39,7 @@ from stages.sim.cloth_contact_pairs import (N_BUILDS, N_CAND_OVERFLOW, N_CONTACT
                                             vf_candidate)
 
 # kernels below compile in code from these modules: their edits must invalidate the disk cache
-NUMBA_CACHE_DEPENDS = ("stages.obstacles.kdop", "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_cull",
+NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.obstacles.kdop", "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_cull",
                        "stages.sim.cloth_contact_narrow", "stages.sim.cloth_contact_pairs",
                        "stages.sim.cloth_contact_response", "stages.sim.simd")
 

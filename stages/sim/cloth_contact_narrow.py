@@ -29,7 +29,7 @@ import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.sim.cloth_contact_ccd import APART_SLACK, segment_distance
 from stages.sim.cloth_contact_pairs import edges_apart_bounds, test_ee_pair, test_vf_pair
 
-NUMBA_CACHE_DEPENDS = ("stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_pairs")
+NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_pairs")
 
 ROUND32 = 1e-6   # relative widening of the float32 boxes: float32 rounds by at most 6e-8 of the value
 

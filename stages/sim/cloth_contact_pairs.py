@@ -11,10 +11,11 @@ import numpy as np
 from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.affine import triangle_cross
 from stages.sim.cloth_contact_ccd import (EE_CROSS, VF_CROSS, ee_apart, ee_clear, test_edge_edge, test_vertex_face,
                                           vf_apart)
 
-NUMBA_CACHE_DEPENDS = ("stages.sim.cloth_contact_ccd",)
+NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.sim.cloth_contact_ccd")
 
 # counters (int64, accumulated with +=; the caller zeroes them)
 N_CONTACTS = 0     # contacts found over all rounds
@@ -55,16 +56,7 @@ def _vf_forced(p, t, particle_garment, tri_garment, garment_layer, garment_outwa
 @njit(cache=True)
 def triangle_normal(xx, triangles, t):
     """(b - a) x (c - a) of triangle t at positions xx."""
-    a = triangles[t, 0]
-    b = triangles[t, 1]
-    c = triangles[t, 2]
-    e1x = xx[b, 0] - xx[a, 0]
-    e1y = xx[b, 1] - xx[a, 1]
-    e1z = xx[b, 2] - xx[a, 2]
-    e2x = xx[c, 0] - xx[a, 0]
-    e2y = xx[c, 1] - xx[a, 1]
-    e2z = xx[c, 2] - xx[a, 2]
-    return e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    return triangle_cross(xx, triangles[t, 0], triangles[t, 1], triangles[t, 2])
 
 
 @njit(cache=True)

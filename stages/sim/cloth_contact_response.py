@@ -13,7 +13,7 @@ from numba import njit
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.sim.cloth_contact_ccd import EE_CROSS, VF_CROSS
 
-NUMBA_CACHE_DEPENDS = ("stages.sim.cloth_contact_ccd",)
+NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.sim.cloth_contact_ccd")
 
 SETTLED = 0.25       # a round that finds no crossing and no pair closer than (1 - SETTLED) h ends the call
 
