@@ -216,6 +216,9 @@ SCENE_SPEC = {
         "cloth_collision": Field("bool", None, "on | off (preset; off in both presets: it costs 10-30x the rest of "
                                  "the step) garment-garment and self collision (cloth x cloth, last phase of every "
                                  "step); garments keep their `layer` order"),
+        "pinch": Field("str", None, "midpoint | escape (preset; paper: escape): cloth pressed between the colliders of two "
+                       "joints (an arm lowered onto the torso) stays in the middle of their overlap, or leaves their union",
+                       choices=("midpoint", "escape")),
         "cloth_thickness": Field("float", 0.003, "distance kept between cloth layers, m", lo=0.0, lo_open=True, hi=0.1),
         "body_audit": Field("bool", True, "count particles inside the true skinned mesh per frame"),
         "cloth_audit": Field("bool", True, "per frame edge strain and cloth edges crossing cloth triangles (sim/<garment>/strain, sim/intersections/...)"),

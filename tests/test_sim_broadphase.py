@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation
 from stages.hulls.types import ColliderSet, SphereCollider
 from stages.maps.build import build_maps
 from stages.maps.kernels import METHOD_NEAREST_PLANE, METHOD_PAPER, collide_points
-from stages.sim.body_collide import SCREEN_MAX, collide
+from stages.sim.body_collide import PINCHED, SCREEN_MAX, collide
 from stages.sim.collider_grid import build_grid, GRID_CELLS, swept_spheres
 from stages.sim.scenes import convex_mesh, fibonacci_points, hull_set
 from tests.test_sim_kernels import _collider_arrays
@@ -112,12 +112,13 @@ def test_grid_lists_every_collider_that_holds_a_point(seed, method):
     assert listed.sum(axis=1).mean() < 0.5 * nc
 
 
-def _collide_with(col, grid, x, xp, contact, method, passes, friction=0.5):
+def _collide_with(col, grid, x, xp, contact, method, passes, friction=0.5, pinch=True):
     out, xp = x.copy(), xp.copy()
     n = x.shape[0]
     corr, ins, sp = np.zeros(n, np.uint8), np.zeros(n, np.uint8), np.zeros(n)
     collide(out, xp, np.ones(n), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.tq0, col.fq,
-              col.cw, *grid, col.face_edges, col.src_range, friction, passes, corr, ins, sp, contact, 1 / 30)
+              col.cw, *grid, col.face_edges, col.src_range, friction, passes, corr, ins, sp, contact, 1 / 30,
+              col.joint, pinch)
     return out, xp, corr, ins
 
 
@@ -162,17 +163,22 @@ def test_collide_with_the_grid_equals_every_collider_as_candidate(seed, method):
 @pytest.mark.parametrize("seed", range(3))
 def test_collide_with_the_grid_leaves_overlapping_colliders(seed):
     """Overlapping colliders: with the grid as with every collider listed, every particle ends
-    outside all of them (the visiting budget counts visits, so pinched particles may take other
-    escapes: positions are not compared)."""
+    outside all of them, or (pinch) pinched between two joints' colliders and then inside at least
+    one (the visiting budget counts visits, so pinched particles may take other escapes: positions
+    are not compared)."""
     cs, maps, fwd = _scene(seed)
     col, grid = _posed(cs, maps, fwd, METHOD_PAPER)
     nc = col.joint.size
     rng = np.random.default_rng(300 + seed)
     x = _points(cs, fwd, rng, 3000)
-    for g in (grid, _every_collider(nc)):
-        out, _, corr, ins = _collide_with(col, g, x, x, np.full((x.shape[0], nc), -1, np.int32), METHOD_PAPER, 4)
-        assert corr.sum() > 100 and not ins.any()
-        assert not _inside_matrix(cs, maps, fwd, out, METHOD_PAPER).any()
+    for pinch in (False, True):
+        for g in (grid, _every_collider(nc)):
+            out, _, corr, ins = _collide_with(col, g, x, x, np.full((x.shape[0], nc), -1, np.int32), METHOD_PAPER, 4,
+                                              pinch=pinch)
+            inside = _inside_matrix(cs, maps, fwd, out, METHOD_PAPER).any(axis=1)
+            pinched = ins == PINCHED
+            assert corr.sum() > 100 and not (ins == 1).any() and (pinch or not pinched.any())
+            assert not inside[~pinched].any() and inside[pinched].all()
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -240,7 +246,8 @@ def test_screened_collide_equals_the_visiting_loop(seed, method):
             o, p = x.copy(), xp.copy()
             corr, ins, speed2 = np.zeros(len(x), np.uint8), np.zeros(len(x), np.uint8), np.zeros(len(x))
             collide(o, p, np.ones(len(x)), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.tq0, col.fq,
-                    col.cw, *grid, col.face_edges, col.src_range, 0.5, 4, corr, ins, speed2, face, 1 / 30)
+                    col.cw, *grid, col.face_edges, col.src_range, 0.5, 4, corr, ins, speed2, face, 1 / 30,
+                    col.joint, True)
             out.append((o, p, corr, ins, speed2))
         for u, v in zip(*out):
             assert np.array_equal(u, v)

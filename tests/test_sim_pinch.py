@@ -7,7 +7,7 @@ from hypothesis import given, settings, strategies as st
 
 from stages.hulls.types import ColliderSet, SphereCollider
 from stages.maps.kernels import METHOD_BRUTE, METHOD_PAPER, collide_points
-from stages.sim.body_collide import PUSH_EPS
+from stages.sim.body_collide import PINCHED, PUSH_EPS
 from tests.test_sim_kernels import _collide, _collider_arrays, _one_hull_maps
 
 
@@ -126,3 +126,56 @@ def test_escape_follows_the_bones_pose():
     # the lens-centred particle: every direction perpendicular to the centre line escapes by the
     # same length, so it does not depend on which world axes the perpendicular candidates come from
     np.testing.assert_allclose(np.linalg.norm(out[0] - pw[0]), np.linalg.norm(ref[0] - p0[0]), atol=1e-6)
+
+
+# -- SimParams.pinch 'midpoint': cloth pressed between two joints' colliders stays in their overlap --
+
+def test_lens_between_two_joints_is_pinched_at_its_middle():
+    """The lens above with the two spheres on different joints and pinch on: the budget ends on one
+    sphere's boundary (x = 0.5 or 1.0) inside the other, whose push runs along x into the first: the
+    particle is left halfway, x = 0.75 (by hand), marked PINCHED, not counted as inside."""
+    centres = np.array([[0.0, 0.0, 0.0], [1.5, 0.0, 0.0]])
+    col = _collider_arrays(_spheres(*zip(centres, [1.0, 1.0])), None, np.tile(np.eye(4), (2, 1, 1)))
+    p0 = np.array([[0.75, 0.0, 0.0], [0.6, 0.0, 0.0], [2.0, 3.0, 0.0]])
+    for passes in (1, 4, 50):
+        out, xp, corr, ins = _collide(col, p0, p0, passes=passes, pinch=True)
+        np.testing.assert_allclose(out[:2], [[0.75, 0.0, 0.0]] * 2, atol=1e-6)
+        assert list(ins) == [PINCHED, PINCHED, 0] and list(corr) == [1, 1, 0]
+        np.testing.assert_array_equal(out[2], p0[2])           # a free particle is left alone
+        assert ((out[:2] - xp[:2]) @ np.array([1.0, 0.0, 0.0]) <= 1e-12).all()   # inelastic
+
+
+def test_one_joints_overlap_is_still_escaped():
+    """A hull and a sphere of the same joint overlapping (one bone's own colliders), a tight budget:
+    no pinch, issue 6's escape bit for bit, every particle outside both."""
+    rng = np.random.default_rng(11)
+    cs_h, maps = _one_hull_maps(3)
+    joint = cs_h.hulls[0].bone
+    s = SphereCollider(joint, "s", np.array([0.12, 0.0, 0.0]), 0.25, np.zeros((0, 3)))
+    col = _collider_arrays(ColliderSet(hulls=cs_h.hulls, spheres=(s,), delta=0.0, min_triangles=4), maps,
+                           np.tile(np.eye(4), (joint + 1, 1, 1)))
+    pts = rng.uniform(-0.45, 0.45, (400, 3))
+    a = _collide(col, pts, pts, method=METHOD_PAPER, passes=1, pinch=True)
+    b = _collide(col, pts, pts, method=METHOD_PAPER, passes=1, pinch=False)
+    for u, v in zip(a, b):
+        np.testing.assert_array_equal(u, v)
+    in_h, _ = collide_points(maps, a[0], 0, METHOD_BRUTE)
+    assert not in_h.any() and (np.linalg.norm(a[0] - s.center, axis=1) >= s.radius).all()
+    assert not (a[3] == PINCHED).any() and a[2].sum() > 50
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(0.3, 2.0), st.floats(0.3, 2.0), st.floats(0.05, 0.95), st.floats(0.0, 1.0),
+       st.integers(1, 6))
+def test_pinch_on_the_axis_ends_in_the_middle_of_the_lens(r1, r2, overlap, where, passes):
+    """Spheres of radii r1, r2 on two joints overlapping by a share of the smaller radius, a particle
+    anywhere on the axis inside their lens: the pushes run along the axis between the lens' ends
+    a = d - r2 and b = r1 until the budget is spent; the particle ends at (a + b) / 2, pinched."""
+    d = r1 + r2 - overlap * min(r1, r2)
+    a, b = d - r2, r1
+    x0 = a + (b - a) * (0.05 + 0.9 * where)
+    col = _collider_arrays(_spheres(([0.0, 0.0, 0.0], r1), ([d, 0.0, 0.0], r2)), None, np.tile(np.eye(4), (2, 1, 1)))
+    out, _, corr, ins = _collide(col, np.array([[x0, 0.0, 0.0]]), np.array([[x0, 0.0, 0.0]]), passes=passes,
+                                 pinch=True)
+    assert ins[0] == PINCHED and corr[0] == 1
+    np.testing.assert_allclose(out[0], [(a + b) / 2, 0.0, 0.0], atol=1e-6 * max(1.0, d))

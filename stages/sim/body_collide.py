@@ -351,6 +351,7 @@ def escape_union(c, last, col_kind, col_index, sph_radius, method, tq, cw,
     return True, px + best * ex, py + best * ey, pz + best * ez
 
 
+PINCHED = 4         # collide's mark in inside[i]: left in the middle of two bones' colliders pressing on it
 OPEN = 2            # collide's screening mark in inside[i]: the particle may be inside a collider
 SCREEN_MAX = 4      # collide screens every particle against every collider up to this many colliders
 
@@ -358,7 +359,7 @@ SCREEN_MAX = 4      # collide screens every particle against every collider up t
 @serial_and_parallel(cache=True, _nrt=False)
 def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
             grid_start, grid_items, grid_box, grid_dims, face_edges, src_range, friction, passes, corrected, inside,
-            speed2, contact, h):
+            speed2, contact, h, col_joint, pinch):
     """Collision detection and response of every free particle against every collider.
 
     Per particle: the colliders listed in its grid cell (build_grid) whose world bounding sphere
@@ -368,11 +369,14 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
     position are then visited cyclically after c (world sphere test first) until every one has been
     checked at the current position without a push, at most `passes` x (number of colliders) visits.
     A particle still inside one when the budget is spent is being pushed back and forth between
-    overlapping colliders: `escape_union` moves it to a point outside all of them (no friction,
-    inelastic along the escape). The response gets Coulomb friction relative to the collider: its
+    overlapping colliders. With `pinch`, if collider c (holding it) and the collider of its last push
+    belong to different joints (col_joint (C,) int) and c's push points into the last one (they press
+    from opposite sides: an arm lowered onto the torso), it is pinched: it moves halfway along c's
+    push, to the middle of their overlap (no friction, inelastic; inside[i] = PINCHED). Otherwise
+    `escape_union` moves it to a point outside all of them (no friction, inelastic along the escape). The response gets Coulomb friction relative to the collider: its
     tangential travel over the step loses up to `friction` times the push's normal depth.
     corrected[i] |= 1 if the particle was pushed; inside[i] = 1 if it is still inside a collider at
-    the end; speed2[i] = |x - xp|^2 / h^2 at the end (divergence check).
+    the end (PINCHED if pinched); speed2[i] = |x - xp|^2 / h^2 at the end (divergence check).
     Temporal coherence (METHOD_PAPER): contact (N, C) int32 holds per particle and hull the face of
     its last verdict (the exit face of a push, or a separating face), -1 unknown; the next query of
     that hull first tries that face (_cached_face: the same answer when it gives one), which is right
@@ -529,6 +533,24 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
                     if hit:
                         if stage == 2:
                             if (r0 - q0) ** 2 + (r1 - q1) ** 2 + (r2 - q2) ** 2 >= TOUCH_EPS * TOUCH_EPS:
+                                if pinch and last >= 0 and col_joint[c] != col_joint[last]:
+                                    wx, wy, wz = apply12(fq, c, r0, r1, r2)
+                                    ux = wx - px
+                                    uy = wy - py
+                                    uz = wz - pz
+                                    nx, ny, nz = _outward(last, col_kind, face_start, planes, col_index[last], tq,
+                                                          px, py, pz)
+                                    if ux * nx + uy * ny + uz * nz < 0.0:
+                                        # pinched between two bones pressing from opposite sides
+                                        wx = px + 0.5 * ux
+                                        wy = py + 0.5 * uy
+                                        wz = pz + 0.5 * uz
+                                        _settle(xp, i, px, py, pz, wx, wy, wz)
+                                        px = wx
+                                        py = wy
+                                        pz = wz
+                                        inside[i] = PINCHED
+                                        break
                                 # budget spent between overlapping colliders: leave their union
                                 ok, wx, wy, wz = escape_union(
                                     c, last, col_kind, col_index, sph_radius, method, tq, cw,

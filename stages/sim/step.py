@@ -23,7 +23,7 @@ Cloth-side argument tuples (built once by simulate.py, unpacked for free inside 
     cols  = (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
              tq, tq0, fq, cw, grid_start, grid_items, grid_runs, grid_box, grid_dims, face_edges, src_range, cws)
             cws (C, 5): the swept spheres of a frame's broad phase (collider_grid.swept_spheres)
-    prm   = (h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method, aero_every)
+    prm   = (h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method, aero_every, pinch)
             aero_every: steps per aerodynamic force computation (SimParams.aero_steps): the forces of
             step k with k % aero_every == 0 are held over the next aero_every steps, summed per vertex
             into vertex_force (N + 1, 4) once (integrate then reads it through vt_eye, (N, 1)).
@@ -43,7 +43,7 @@ from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.jit import opt_level, with_parallel_calls
-from stages.sim.body_collide import collide
+from stages.sim.body_collide import PINCHED, collide
 from stages.sim.cloth_contact_kernels import collide_cloth, contact_velocity
 from stages.maps.kernels import METHOD_NEAREST_PLANE
 from stages.sim.collider_grid import build_grid, collider_frames, swept_spheres
@@ -86,7 +86,7 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
      tri_force, vt_table, x4, vertex_force, vt_eye) = cloth
     (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
      tq, tq0, fq, cw, grid_start, grid_items, grid_runs, grid_box, grid_dims, face_edges, src_range, cws) = cols
-    h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method, aero_every = prm
+    h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method, aero_every, pinch = prm
     corrected, inside, speed2, contact = flags
     for k in range(k0, k1):
         if cc is not None:
@@ -118,7 +118,7 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
                        grid_runs, grid_box, grid_dims)
         collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
                 grid_start, grid_items, grid_box, grid_dims, face_edges, src_range, friction, passes, corrected, inside,
-                speed2, contact, h)
+                speed2, contact, h, col_joint, pinch)
         t3 = cycles()
         if cc is not None:
             cloth_phase(x, xp, k, cc)
@@ -156,7 +156,7 @@ def cloth_phase(x, xp, k, cc):
 @njit(cache=True, _nrt=False)
 def record_frame(x, flags, max_speed2, goff, pos, pen, counts):
     """Store one frame: pos (N, 3) float32 <- x; pen (G,) particles inside a collider per garment
-    (garment g = goff[g]..goff[g+1]); counts = (corrected particles, max speed^2).
+    (garment g = goff[g]..goff[g+1]); counts = (corrected particles, max speed^2, pinched particles).
     Returns False (storing nothing) if a particle is non-finite or faster than sqrt(max_speed2)."""
     corrected, inside, speed2, _ = flags
     vmax = 0.0
@@ -166,17 +166,20 @@ def record_frame(x, flags, max_speed2, goff, pos, pen, counts):
             return False
         vmax = max(vmax, v)
     nc = 0
+    n_pinched = 0
     for g in range(goff.size - 1):
         n_in = 0
         for i in range(goff[g], goff[g + 1]):
             pos[i, 0] = x[i, 0]
             pos[i, 1] = x[i, 1]
             pos[i, 2] = x[i, 2]
-            n_in += inside[i]
+            n_in += inside[i] == 1
+            n_pinched += inside[i] == PINCHED
             nc += corrected[i]
         pen[g] = n_in
     counts[0] = nc
     counts[1] = vmax
+    counts[2] = n_pinched
     return True
 
 
