@@ -502,7 +502,7 @@ class ClothPhase:
         z = np.zeros((k, 3))
         f, n, g = self.settle_frames, cloth[0].shape[0], goff.size - 1
         step.run_frames(cloth, cols, m, prm, gravity, wind, fwd, inv, inv, z, z, substeps, max_speed2, goff,
-                        np.zeros((f, n, 3), np.float32), np.zeros((f, g), np.int32), np.zeros((f, 2)),
+                        np.zeros((f, n, 3), np.float32), np.zeros((f, g), np.int32), np.zeros((f, step.N_COUNTS)),
                         np.zeros(f, np.int64), flags, np.zeros(step.N_TIMERS, np.int64), self.first)
         cloth[1][:] = cloth[0]
 

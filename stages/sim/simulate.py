@@ -429,7 +429,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     rel = np.zeros((nf, n, 3), np.float32)       # relative frame; root translation added at the end
     pen_col = np.zeros((nf, len(garments)), np.int32)
     pen_body = np.full((nf, len(garments)), -1, np.int32)
-    counts = np.zeros((nf, 3))                    # corrected particles, max speed^2, pinched particles
+    counts = np.zeros((nf, step.N_COUNTS))        # corrected particles, max speed^2, pinched particles
     step_cycles = np.zeros(nf, np.int64)
     n_obst = np.zeros(nf, np.int32)                                # obstacle contacts per frame
     obst_points = [np.zeros((0, 3), np.float32) for _ in range(nf)]

@@ -153,6 +153,9 @@ def cloth_phase(x, xp, k, cc):
         contact_velocity(x_before, x, xp, work[1])
 
 
+N_COUNTS = 3    # record_frame's counts per frame: corrected particles, max speed^2, pinched particles
+
+
 @njit(cache=True, _nrt=False)
 def record_frame(x, flags, max_speed2, goff, pos, pen, counts):
     """Store one frame: pos (N, 3) float32 <- x; pen (G,) particles inside a collider per garment
