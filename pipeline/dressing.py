@@ -94,9 +94,10 @@ def _garment_where(scene: Scene, index: int, character) -> str:
     return f"{scene.path or '<scene>'}: garments[{index}] ({g['name']!r}, kind {g['kind']}) on {character.name!r}"
 
 
-def scene_pattern(scene: Scene, index: int, character, motion, colliders):
-    """The built-in pattern of a pattern garment, sized for the character; a body it cannot be
-    sized for is a SceneError naming the scene file and the garment."""
+def scene_pattern(scene: Scene, index: int, character, motion, colliders, under=()):
+    """The built-in pattern of a pattern garment, sized for the character and the garments worn
+    under it (`under`, Garments); a body it cannot be sized for is a SceneError naming the scene
+    file and the garment."""
     from stages.checks import ContractError
     from stages.errors import InputError
     from stages.garments.library import ANCHORS, library_pattern
@@ -109,7 +110,8 @@ def scene_pattern(scene: Scene, index: int, character, motion, colliders):
     except InputError as err:
         raise SceneError(f"{_garment_where(scene, index, character)}: {err.problem}") from None
     try:
-        return library_pattern(g["kind"], garment_measurements(character, colliders, motion),
+        below = np.concatenate([u.positions for u in under]) if len(under) else None
+        return library_pattern(g["kind"], garment_measurements(character, colliders, motion, under=below),
                                edge_length=g["edge_length"], name=g["name"],
                                **{k: float(v) for k, v in g["options"].items()})
     except (ContractError, InputError) as err:
@@ -141,7 +143,7 @@ def build_pattern_garment(scene: Scene, index: int, character, motion, colliders
     from stages.garments.sewing import SewParams
     g = scene["garments"][index]
     where = _garment_where(scene, index, character)
-    pattern = scene_pattern(scene, index, character, motion, colliders)
+    pattern = scene_pattern(scene, index, character, motion, colliders, under=under)
     sw = g["sewing"]
     sew = SewParams(tolerance=sw["tolerance"], max_iterations=sw["max_iterations"],
                     gravity_scale=sw["gravity_scale"], iterations=sw["iterations"])

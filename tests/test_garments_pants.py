@@ -75,3 +75,23 @@ def test_trousers_sew(rest_scene):
     beside the bent right knee and stalls at ~5.5 mm: scenes dress on the bind pose and blend in.)"""
     g, log, meas = _sew_and_check(rest_scene, "trousers")
     assert log.converged and log.gap_max[-1] <= 0.004
+
+
+def test_a_garment_worn_over_others_is_measured_round_them(scene):
+    """under (points of the garments worn under it) enters the slab girths only: a ring of radius R
+    round the body at the hip line gives clear_hips = its hull perimeter (72-gon, 2 n R sin(pi/n))
+    + 2 pi clearance, clear_waist / clear_chest (other heights) and every other measure unchanged;
+    the T-shirt cut from it is wider at the hem."""
+    c, m, cols, maps, body = scene
+    base = garment_measurements(c, cols, m)
+    n, r = 72, 0.5 * base["clear_hips"] / np.pi + 0.03
+    a = np.arange(n) * 2 * np.pi / n
+    root = m.joint_world[0][c.root_joint, :3, 3]
+    ring = np.stack([root[0] + r * np.cos(a), np.full(n, base["hips_y"]), root[2] + r * np.sin(a)], axis=1)
+    over = garment_measurements(c, cols, m, under=ring)
+    clearance = 0.008
+    assert over["clear_hips"] == pytest.approx(2 * n * r * np.sin(np.pi / n) + 2 * np.pi * clearance, rel=1e-9)
+    assert over["clear_hips"] > base["clear_hips"] + 0.1
+    assert {k: v for k, v in over.items() if k != "clear_hips"} == {k: v for k, v in base.items() if k != "clear_hips"}
+    hem = [4 * _run_length(library_pattern("tshirt", meas), "front", "hem") for meas in (base, over)]
+    assert hem[1] > hem[0]
