@@ -36,6 +36,12 @@ def test_simulation_preset_and_overrides():
     mixed = sim_params(parse_scene_text("simulation: {preset: paper, tethers: true, substeps: 2}", source="s.yaml"))
     assert (mixed.substeps, mixed.iterations, mixed.tethers) == (2, 3, True)
     assert "not one of default, paper" in error_of("simulation: {preset: fast}")
+    # pinched cloth: held in the middle by default, the paper preset escapes (issue 6), a scene may choose
+    assert (default.pinch, paper.pinch) == ("midpoint", "escape")
+    assert sim_params(parse_scene_text("simulation: {pinch: escape}", source="s.yaml")).pinch == "escape"
+    assert sim_params(parse_scene_text("simulation: {preset: paper, pinch: midpoint}", source="s.yaml")).pinch == "midpoint"
+    msg = error_of("simulation: {pinch: squeeze}")
+    assert "simulation.pinch" in msg and "squeeze" in msg and "midpoint" in msg
 
 
 def test_yaml_syntax_error_has_line_and_column():
