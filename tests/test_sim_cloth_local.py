@@ -48,9 +48,12 @@ def _reference_pairs(cc):
 
 
 def _drop_some(rng, x, off, count, depth):
-    """x with `count` random particles of the upper sheet moved down by `depth`."""
+    """x with `count` random inner particles of the upper sheet (n x n, over the lower one) moved
+    down by `depth`."""
     xe = x.copy()
-    idx = rng.choice(np.arange(off[1], off[2]), size=count, replace=False)
+    n = int(round(np.sqrt(off[2] - off[1])))
+    i, j = np.meshgrid(np.arange(1, n - 1), np.arange(1, n - 1), indexing="ij")
+    idx = rng.choice(off[1] + (i * n + j).ravel(), size=count, replace=False)
     xe[idx, 1] -= depth
     return xe, idx
 
