@@ -109,6 +109,13 @@ class ClothContact:
       tbox (T, 8) float32 (min x y z, 0, max x y z, 0): each particle's, edge's and
       triangle's swept box, inflated, rounded outwards; p_move (N,) float64: each particle's move;
       feat_moved (E + T,) uint8: the edges' then the triangles' moved flags.
+    Lists updated in place when a few particles leave their boxes (stages.sim.cloth_contact_local):
+      loc_list (L,) int32 those particles, loc_n (2,) int64 (their count, 1: a full build instead),
+      vt_start (N + 1,) int64 / vt_tri (3T,) int32 each particle's triangles, ring (T,) int32 and
+      flag (N + T,) uint8 work arrays (flags zero between calls), bld_min / bld_max (N, h) the
+      particles' bounds the lists were made with, parent (n,) int32 each node's parent (-1: a root),
+      tri_leaf (T,) int32 each triangle's leaf, self_cull (n,) uint8 the nodes the last build culled
+      as one flat patch.
     """
 
     triangles: np.ndarray
@@ -154,6 +161,17 @@ class ClothContact:
     tbox: np.ndarray
     p_move: np.ndarray
     feat_moved: np.ndarray
+    loc_list: np.ndarray
+    loc_n: np.ndarray
+    vt_start: np.ndarray
+    vt_tri: np.ndarray
+    ring: np.ndarray
+    flag: np.ndarray
+    bld_min: np.ndarray
+    bld_max: np.ndarray
+    parent: np.ndarray
+    tri_leaf: np.ndarray
+    self_cull: np.ndarray
     thickness: float = DEFAULT_THICKNESS
     layer_depth: float = DEFAULT_THICKNESS
     rounds: int = 4
@@ -238,6 +256,20 @@ class ClothContact:
         check_array(o, "tbox", self.tbox, (t, 8), np.float32, finite=False)
         check_array(o, "p_move", self.p_move, (n,), np.float64, finite=False)
         check_array(o, "feat_moved", self.feat_moved, (ne + t,), np.uint8)
+        check_array(o, "loc_list", self.loc_list, (None,), np.int32)
+        check_array(o, "loc_n", self.loc_n, (2,), np.int64)
+        vs = check_array(o, "vt_start", self.vt_start, (n + 1,), np.int64)
+        vt = check_array(o, "vt_tri", self.vt_tri, (3 * t,), np.int32)
+        if vs[0] != 0 or vs[-1] != 3 * t or np.any(np.diff(vs) < 0):
+            raise ContractError(f"{o}.vt_start: expected offsets rising from 0 to {3 * t}")
+        check_index(o, "vt_tri", vt, t)
+        check_array(o, "ring", self.ring, (t,), np.int32)
+        check_array(o, "flag", self.flag, (n + t,), np.uint8)
+        check_array(o, "bld_min", self.bld_min, (n, h), np.float64, finite=False)
+        check_array(o, "bld_max", self.bld_max, (n, h), np.float64, finite=False)
+        check_index(o, "parent", check_array(o, "parent", self.parent, (nn,), np.int32), nn, allow=-1)
+        check_index(o, "tri_leaf", check_array(o, "tri_leaf", self.tri_leaf, (t,), np.int32), nn)
+        check_array(o, "self_cull", self.self_cull, (nn,), np.uint8)
         if not (float(self.motion_margin) >= 0.0 and 0.0 < float(self.rotation) < float(np.arccos(CK.FLAT_COS))):
             raise ContractError(f"{o}: motion_margin must be >= 0 and rotation in (0, {np.arccos(CK.FLAT_COS):.3f}) rad, "
                                 f"got {self.motion_margin}, {self.rotation}")
@@ -266,7 +298,9 @@ class ClothContact:
                 self.node_dirty, self.tri_min, self.tri_max, self.pt_min, self.pt_max, self.nrm_min, self.nrm_max,
                 self.node_patch, self.stack, self.border_start, self.border_vert, self.cand_vf, self.cand_ee,
                 self.cand_n, self.cand_f, self.box_lo, self.box_hi, self.nrm_ref, self.node_slack,
-                self.pbox, self.ebox, self.tbox, self.p_move, self.feat_moved)
+                self.pbox, self.ebox, self.tbox, self.p_move, self.feat_moved, self.loc_list, self.loc_n,
+                self.vt_start, self.vt_tri, self.ring, self.flag, self.bld_min, self.bld_max, self.parent,
+                self.tri_leaf, self.self_cull)
         work = (self.moved, self.corrected, self.c_kind, self.c_feat, self.c_idx, self.c_w, self.c_dir)
         prm = (float(self.thickness), float(self.layer_depth), int(self.rounds), int(self.failsafe_rounds),
                bool(self.cull), float(self.motion_margin), float(self.rotation))
@@ -358,6 +392,23 @@ def outward_signs(x: np.ndarray, triangles: np.ndarray, tri_garment: np.ndarray,
     return np.where(s >= 0.0, 1.0, -1.0)
 
 
+def _parents(children: np.ndarray) -> np.ndarray:
+    """(n,) int32 each node's parent, -1 at a root."""
+    par = np.full(children.shape[0], -1, np.int32)
+    inner = np.nonzero(children[:, 0] >= 0)[0]
+    par[children[inner, 0]] = inner
+    par[children[inner, 1]] = inner
+    return par
+
+
+def _tri_leaves(leaf_prim: np.ndarray, t: int) -> np.ndarray:
+    """(T,) int32 the leaf node of each triangle."""
+    leaf = np.zeros(t, np.int32)
+    nodes = np.nonzero(leaf_prim >= 0)[0]
+    leaf[leaf_prim[nodes]] = nodes
+    return leaf
+
+
 def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, layers=None, outward=None,
                         thickness: float = DEFAULT_THICKNESS, layer_depth: float | None = None,
                         k: int = DEFAULT_K, rounds: int = 4, failsafe_rounds: int = 8, cull: bool = True,
@@ -432,6 +483,12 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
         pbox=np.zeros((n, 8), np.float32), ebox=np.zeros((edges.shape[0], 8), np.float32),
         tbox=np.zeros((tris.shape[0], 8), np.float32), p_move=np.zeros(n),
         feat_moved=np.zeros(edges.shape[0] + tris.shape[0], np.uint8),
+        loc_list=np.zeros(CK.LOCAL_MAX + 1, np.int32), loc_n=np.zeros(2, np.int64),
+        vt_start=np.concatenate([[0], np.cumsum(np.bincount(tris.ravel(), minlength=n))]).astype(np.int64),
+        vt_tri=np.argsort(tris.ravel(), kind="stable").astype(np.int32) // 3, ring=np.zeros(tris.shape[0], np.int32),
+        flag=np.zeros(n + tris.shape[0], np.uint8), bld_min=np.zeros((n, h)), bld_max=np.zeros((n, h)),
+        parent=_parents(tree.children), tri_leaf=_tri_leaves(tree.leaf_prim, tris.shape[0]),
+        self_cull=np.zeros(tree.node_min.shape[0], np.uint8),
         motion_margin=float(motion_margin), rotation=float(rotation))
 
 
@@ -516,6 +573,7 @@ class ClothPhase:
                 "candidate_builds": int(c[CK.N_BUILDS]), "candidate_overflow": int(c[CK.N_CAND_OVERFLOW]),
                 "cycles_build": int(c[CK.N_CYC_BUILD]), "cycles_detect": int(c[CK.N_CYC_DETECT]),
                 "cycles_respond": int(c[CK.N_CYC_RESPOND]), "cycles_failsafe": int(c[CK.N_CYC_FAILSAFE]),
+                "candidate_updates": int(c[CK.N_LOCAL]),
                 "invalid_move": int(c[CK.N_INVALID_MOVE]), "invalid_turn": int(c[CK.N_INVALID_TURN]),
                 "layers": [int(v) for v in self.cc.garment_layer],
                 "outward": [int(v) for v in self.cc.garment_outward]}

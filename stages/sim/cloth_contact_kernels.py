@@ -24,6 +24,8 @@ from numba import njit
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.obstacles.kdop import refit_range
 from stages.sim.cloth_contact_narrow import narrow
+from stages.sim.cloth_contact_local import (LOCAL_MAX, MAX_MOTION_STEPS, STEPS_AHEAD, box_bounds,  # noqa: F401
+                                            particle_box, update_candidates)
 from stages.sim.cloth_contact_response import contact_velocity, respond, revert, settled  # noqa: F401
 from stages.sim.simd import cycles
 from stages.sim.cloth_contact_cull import FLAT_COS, UNION_COS, flat_patch, flat_union, patch_nodes  # noqa: F401
@@ -32,7 +34,7 @@ from stages.sim.cloth_contact_ccd import (EE_CROSS, EE_NEAR, VF_CROSS, VF_NEAR, 
                                           segment_crosses_triangle, test_edge_edge, test_vertex_face,
                                           triple_cubic)
 from stages.sim.cloth_contact_pairs import (N_BUILDS, N_CAND_OVERFLOW, N_CONTACTS, N_CORRECTED,  # noqa: F401
-                                            N_COUNTERS, N_CYC_BUILD, N_CYC_DETECT, N_CYC_FAILSAFE, N_CYC_RESPOND, N_INVALID_MOVE, N_INVALID_TURN, N_LEFT, N_NODE_PAIRS, N_OVERFLOW, N_REVERTED, N_ROUNDS,
+                                            N_COUNTERS, N_CYC_BUILD, N_CYC_DETECT, N_CYC_FAILSAFE, N_CYC_RESPOND, N_INVALID_MOVE, N_INVALID_TURN, N_LEFT, N_LOCAL, N_NODE_PAIRS, N_OVERFLOW, N_REVERTED, N_ROUNDS,
                                             N_TESTS, N_UNRESOLVED, brute_force_contacts, edges_apart_bounds,
                                             ee_candidate, point_off_triangle, test_ee_pair, test_triangle_pair, test_vf_pair,
                                             triangle_normal,
@@ -40,11 +42,10 @@ from stages.sim.cloth_contact_pairs import (N_BUILDS, N_CAND_OVERFLOW, N_CONTACT
 
 # kernels below compile in code from these modules: their edits must invalidate the disk cache
 NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.obstacles.kdop", "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_cull",
+                       "stages.sim.cloth_contact_local",
                        "stages.sim.cloth_contact_narrow", "stages.sim.cloth_contact_pairs",
                        "stages.sim.cloth_contact_response", "stages.sim.simd")
 
-STEPS_AHEAD = 8      # a candidate list is built wide enough for this many steps at each particle's speed,
-MAX_MOTION_STEPS = 4  # but at most this many times the motion margin
 MIN_TURN = 0.5       # rad: a candidate list culls only patches whose normals can turn this far and stay flat
 PUSH_OVER = 1.02     # responses push to 1.02 h so a contact just resolved is not found again at h
 SWEEPS = 3           # Gauss-Seidel sweeps over a round's contacts before the next detection
@@ -177,6 +178,8 @@ def _note_cull(tree, a, b):
     slack = np.arccos(FLAT_COS if a == b else UNION_COS) - np.arccos(min(c, 1.0))
     node_slack[a] = min(node_slack[a], slack)
     node_slack[b] = min(node_slack[b], slack)
+    if a == b:
+        tree[41][a] = 1   # no pair within it is listed (update_candidates skips it too)
 
 
 @njit(cache=True, _nrt=False)
@@ -272,7 +275,8 @@ def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters,
 # i8 (VF count, EE count, overflowed, state: 0 invalid, 1 valid, 2 valid with the build's bounds in
 # pt_min ...), cand_f (2,) f8 (margin, motion built with), box_lo / box_hi (N, 4) each particle's box
 # at the build (box_lo[:, 3]: how far it may move from it), nrm_ref (T, 4) unit normals at the build
-# and the cosine of how far each may turn, node_slack (n,) f8 the culled nodes' turn margins)
+# and the cosine of how far each may turn, node_slack (n,) f8 the culled nodes' turn margins);
+# tree[31:42]: the in-place updates' arrays (stages.sim.cloth_contact_local)
 
 @njit(cache=True, _nrt=False)
 def build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, counters):
@@ -291,27 +295,8 @@ def build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, c
     box_hi = tree[23]
     nrm_ref = tree[24]
     for p in range(xs.shape[0]):
-        step2 = 0.0
-        for k in range(3):
-            box_lo[p, k] = min(xs[p, k], xe[p, k])
-            box_hi[p, k] = max(xs[p, k], xe[p, k])
-            step2 += (xe[p, k] - xs[p, k]) ** 2
-        # how far the particle may go: `motion`, more for one moving fast now (its step x STEPS_AHEAD)
-        box_lo[p, 3] = max(motion, min(STEPS_AHEAD * np.sqrt(step2), MAX_MOTION_STEPS * motion))
-        grow = margin + box_lo[p, 3]
-        for i in range(directions.shape[0]):
-            lo = 0.0
-            hi = 0.0
-            for k in range(3):   # the box's extent along a direction: its extreme corners
-                d = directions[i, k]
-                if d >= 0.0:
-                    lo += d * box_lo[p, k]
-                    hi += d * box_hi[p, k]
-                else:
-                    lo += d * box_hi[p, k]
-                    hi += d * box_lo[p, k]
-            pt_min[p, i] = lo - grow
-            pt_max[p, i] = hi + grow
+        particle_box(xs, xe, p, motion, box_lo, box_hi)
+        box_bounds(p, directions, margin, box_lo, box_hi, pt_min, pt_max)
     _triangle_bounds(triangles, pt_min, pt_max, tree[8], tree[9])
     _refit_nodes(xs, xe, topo, tree, work[0], True)
     for t in range(triangles.shape[0]):
@@ -328,6 +313,7 @@ def build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, c
     children = tree[5]
     leaf_prim = tree[6]
     node_slack[:] = np.inf
+    tree[41][:] = 0
     # culled only with room to turn (MIN_TURN), else a list would last a step
     detect(xs, xe, topo, tree, work, 0.0, 0.0, False, cull, counters, True, MIN_TURN)
     # a triangle may turn as far as the tightest culled node above it allows (at most `rotation`);
@@ -341,6 +327,12 @@ def build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, c
         for j in range(2):
             ch = children[node, j]
             node_slack[ch] = min(node_slack[ch], node_slack[node])
+    bld_min = tree[37]   # the lists' bounds, for update_candidates (narrow() reuses pt_min)
+    bld_max = tree[38]
+    for p in range(pt_min.shape[0]):
+        for i in range(pt_min.shape[1]):
+            bld_min[p, i] = pt_min[p, i]
+            bld_max[p, i] = pt_max[p, i]
     cand_n[3] = 2   # valid, the bounds now the build's
     cand_f[0] = margin
     cand_f[1] = motion
@@ -353,16 +345,23 @@ def candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation, counter
     """The candidate lists cover the step xs -> xe: built for this margin and motion, every particle
     within its motion radius (box_lo[:, 3]) of its box at the build (at xs and at xe; its straight
     path between them then too) and every triangle's normal within its allowed turn of its normal
-    at the build (nrm_ref[:, 3]: the cosine; the build's culled patches then stay flat). Checked for the particles moved since the last check (work[0]) and their triangles."""
+    at the build (nrm_ref[:, 3]: the cosine; the build's culled patches then stay flat). Checked for the particles moved since the last check (work[0]) and their triangles.
+    When only particles out of their boxes (up to LOCAL_MAX) make them fail, those are left in
+    loc_list (tree[31]) with loc_n = (count, 0) for update_candidates; else loc_n[1] = 1."""
     triangles = topo[0]
     cand_n = tree[20]
     cand_f = tree[21]
     box_lo = tree[22]
     box_hi = tree[23]
     nrm_ref = tree[24]
+    loc_list = tree[31]
+    loc_n = tree[32]
+    loc_n[0] = 0
+    loc_n[1] = 1
     if cand_n[3] == 0 or cand_f[0] != margin or cand_f[1] != motion:
         return False
     moved = work[0]
+    nout = 0
     for p in range(xs.shape[0]):
         if not moved[p]:
             continue   # where it was at the last check
@@ -376,8 +375,13 @@ def candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation, counter
                 elif v > box_hi[p, k]:
                     d2 += (v - box_hi[p, k]) ** 2
             if d2 > m2:
-                counters[N_INVALID_MOVE] += 1
-                return False
+                if nout < loc_list.shape[0]:
+                    loc_list[nout] = p
+                nout += 1
+                break
+        if nout > LOCAL_MAX:
+            counters[N_INVALID_MOVE] += 1
+            return False   # too many out of their boxes: a full build
     for t in range(triangles.shape[0]):
         cr = nrm_ref[t, 3]
         if cr < -1.5 or not (moved[triangles[t, 0]] | moved[triangles[t, 1]] | moved[triangles[t, 2]]):
@@ -390,13 +394,19 @@ def candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation, counter
             if (dot < 0.0 or dot * dot < q) if cr >= 0.0 else (dot < 0.0 and dot * dot > q):
                 counters[N_INVALID_TURN] += 1
                 return False
+    if nout > 0:
+        counters[N_INVALID_MOVE] += 1
+        loc_n[0] = nout   # a few out of their boxes: update_candidates may do
+        loc_n[1] = 0
+        return False
     return True
 
 
 @njit(cache=True, _nrt=False)
 def find_contacts(xs, xe, topo, tree, work, prm, only_cross, counters):
     """One detection over xs -> xe into the contact buffer: over the candidate lists (rebuilt when
-    they no longer cover the step) when prm's motion margin is > 0, else by the tree search."""
+    they no longer cover the step; updated in place when only up to LOCAL_MAX particles left their
+    boxes, stages.sim.cloth_contact_local) when prm's motion margin is > 0, else by the tree search."""
     thickness, layer_depth, rounds, failsafe_rounds, cull, motion, rotation = prm
     margin = 0.5 * max(thickness, layer_depth)
     if motion > 0.0:
@@ -404,9 +414,12 @@ def find_contacts(xs, xe, topo, tree, work, prm, only_cross, counters):
         full = tree[20][3] == 0 or tree[20][3] == 2
         if not candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation, counters):
             c0 = cycles()
-            build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, counters)
+            if not (tree[32][1] == 0 and tree[20][2] == 0 and update_candidates(xs, xe, topo, tree, margin, motion)):
+                build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, counters)
+                full = True
+            else:
+                counters[N_LOCAL] += 1
             counters[N_CYC_BUILD] += cycles() - c0
-            full = True
         if tree[20][2] == 0:
             tree[20][3] = 1
             return narrow(xs, xe, topo, tree, work, margin, thickness, layer_depth, only_cross, counters, full)

@@ -36,7 +36,8 @@ N_CYC_RESPOND = 13  # CPU cycles in the responses
 N_CYC_FAILSAFE = 14  # CPU cycles in the fail-safe (its detections and reverts), builds excluded
 N_INVALID_MOVE = 15  # candidate lists invalidated by a particle beyond its motion radius
 N_INVALID_TURN = 16  # ... by a triangle normal beyond its allowed turn
-N_COUNTERS = 17
+N_LOCAL = 17       # candidate lists updated in place (stages.sim.cloth_contact_local), not built afresh
+N_COUNTERS = 18
 
 # ---------------------------------------------------------------------------------------------
 # feature pairs of two triangles, the contact buffer
