@@ -369,12 +369,13 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
     position are then visited cyclically after c (world sphere test first) until every one has been
     checked at the current position without a push, at most `passes` x (number of colliders) visits.
     A particle still inside one when the budget is spent is being pushed back and forth between
-    overlapping colliders. With `pinch`, if collider c (holding it) and the collider of its last push
-    belong to different joints (col_joint (C,) int) and c's push points into the last one (they press
-    from opposite sides: an arm lowered onto the torso), it is pinched: it moves halfway along c's
-    push, to the middle of their overlap (no friction, inelastic; inside[i] = PINCHED). Otherwise
-    `escape_union` moves it to a point outside all of them (no friction, inelastic along the escape). The response gets Coulomb friction relative to the collider: its
-    tangential travel over the step loses up to `friction` times the push's normal depth.
+    overlapping colliders. With `pinch` (bool), if collider c (holding it) and the collider of its
+    last push belong to different joints (col_joint (C,) int) and c's push points into the last one
+    (they press from opposite sides: an arm lowered onto the torso), it is pinched: it moves halfway
+    along c's push, to the middle of their overlap (no friction, inelastic; inside[i] = PINCHED).
+    Otherwise `escape_union` moves it to a point outside all of them (no friction, inelastic along
+    the escape). The response gets Coulomb friction relative to the collider: its tangential travel
+    over the step loses up to `friction` times the push's normal depth.
     corrected[i] |= 1 if the particle was pushed; inside[i] = 1 if it is still inside a collider at
     the end (PINCHED if pinched); speed2[i] = |x - xp|^2 / h^2 at the end (divergence check).
     Temporal coherence (METHOD_PAPER): contact (N, C) int32 holds per particle and hull the face of
