@@ -66,8 +66,10 @@ def box_bounds(p, directions, margin, box_lo, box_hi, pt_min, pt_max):
         pt_max[p, i] = hi + grow
 
 
-@njit(cache=True)
-def _tri_bounds(triangles, t, pt_min, pt_max, tri_min, tri_max):
+@njit(cache=True, _nrt=False)
+def tri_bounds(triangles, t, pt_min, pt_max, tri_min, tri_max):
+    """Triangle t's bounds from its corners' (as stages.obstacles.kdop.triangle_bounds, exactly:
+    min(p - m, q - m) == min(p, q) - m), 3 times fewer projections."""
     a = triangles[t, 0]
     b = triangles[t, 1]
     c = triangles[t, 2]
@@ -180,7 +182,7 @@ def update_candidates(xs, xe, topo, tree, margin, motion):
                 flag[n + t] = 1
                 ring[nr] = t
                 nr += 1
-                _tri_bounds(triangles, t, bld_min, bld_max, tri_min, tri_max)
+                tri_bounds(triangles, t, bld_min, bld_max, tri_min, tri_max)
     h = node_min.shape[1]
     for j in range(nr):   # refit the leaves' ancestors (all leaves first: see the walk's merge)
         t = ring[j]
