@@ -71,12 +71,14 @@ class SimParams:
     max_speed: m/s; a particle faster than this (or NaN / inf) stops the run as diverged.
     body_audit: count particles inside the true skinned mesh per frame (generalised winding number).
     cloth_collision: the cloth x cloth phase (garment-garment and self collision, stages.sim.cloth_contact)
-        last in every step; garments keep the order of their layers (simulate's `layers`).
+        last in every step; garments keep the order of their layers (simulate's `layers`: sorted
+        into it before frame 1, then kept, as no pair passes through another).
     cloth_thickness: m > 0, distance kept between cloth layers.
     cloth_contact_every: sub-steps per cloth-contact call (1: every sub-step; k > 1: one call swept
         over k sub-steps; must divide substeps).
     cloth_layer_depth0: m >= cloth_thickness, how deep garments may interpenetrate at frame 0 and be
-        sorted by their layers during the first frame (afterwards the depth is the thickness). Deeper
+        sorted by their layers during the settling frames before frame 1 (afterwards no pair is put
+        on the layers' side: each keeps its own, stages.sim.cloth_contact.ClothPhase). Deeper
         is not safer: at 3 cm the sorting found ~5,700 contacts a round in the shipped walk (each
         outer feature against inner triangles up to 3 cm off, pushing it several ways), its rounds
         never converged and the fail-safe undid the sorting (on the skinned balls 200-300 crossing
