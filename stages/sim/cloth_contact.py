@@ -109,8 +109,8 @@ class ClothContact:
     The narrow phase's filter over the lists (stages.sim.cloth_contact_narrow): pbox (N, 8), ebox (E, 8),
       tbox (T, 8) float32 (min x y z, 0, max x y z, 0): each particle's, edge's and
       triangle's swept box, inflated, rounded outwards; p_move (N,) float64: each particle's move;
-      feat_moved (E + T,) uint8: the edges' then the triangles' moved flags; pdiag (N, 2 L) float32
-      (L = DIAG_LANES: the k-DOP's directions beyond the axes, minima then maxima, padded with 0).
+      feat_moved (E + T,) uint8: the edges' then the triangles' moved flags; pdiag (N, 2 D) float32
+      (D = DIAG_LANES: the k-DOP's directions beyond the axes, minima then maxima, padded with 0).
     Lists updated in place when a few particles leave their boxes (stages.sim.cloth_contact_local):
       loc_list (L,) int32 those particles, loc_n (2,) int64 (their count, 1: a full build instead),
       vt_start (N + 1,) int64 / vt_tri (3T,) int32 each particle's triangles, ring (T,) int32 and

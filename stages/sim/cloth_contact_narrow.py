@@ -20,7 +20,7 @@ filter passes, and a few more at float32's rounding):
 Arrays: `tree` of stages.sim.cloth_contact.ClothContact.kernel_args; tree[26:31] = (pbox (N, 8) f4,
 ebox (E, 8) f4, tbox (T, 8) f4, p_move (N,) f8, feat_moved (E + T,) u1: the edges' then the triangles'
 moved flags (the rounds after the first test only pairs with a moved feature: compact flags, whose
-reads stay in the L1 cache)); tree[42] = pdiag (N, 2 L) f4 (L = DIAG_LANES lanes per half).
+reads stay in the L1 cache)); tree[42] = pdiag (N, 2 D) f4 (D = DIAG_LANES lanes per half).
 """
 from __future__ import annotations
 
@@ -52,7 +52,7 @@ def _hi32(v):
 @njit(cache=True, _nrt=False)
 def _particle_bounds(xs, xe, p, directions, margin, pdiag, pbox, p_move):
     """Particle p's bounds over its step xs -> xe inflated by `margin`: its float32 box (pbox), its
-    k-DOP's other directions in float32 (pdiag: minima in lanes 0.., maxima in lanes L..; both
+    k-DOP's other directions in float32 (pdiag: minima in lanes 0.., maxima in lanes D..; both
     rounded outwards) and how far it moves (p_move). The 6 diagonals of the 18-DOP
     (stages.obstacles.kdop: (x+y, x+z, y+z, x-y, x-z, y-z) / sqrt 2) are projected without the
     multiplications by 0 and 1; other direction sets by their dot products."""
