@@ -86,7 +86,8 @@ def test_a_clear_edge_pair_is_no_contact_on_any_side():
 @pytest.mark.parametrize("offset", [0.0, 900.0])
 def test_float32_boxes_hold_the_float64_bounds(offset):
     """The float32 boxes contain each particle's, edge's and triangle's float64 bounds (rounded
-    outwards, also far from the origin), and the 18-DOP projections match the direction dot products."""
+    outwards, also far from the origin), and each particle's float32 diagonal bounds (pdiag) its
+    18-DOP's other projections, by the direction dot products (the unused lanes 0)."""
     rng = np.random.default_rng(3)
     xa, ta = grid_sheet(12, 12, 0.5, 0.5, (offset, 0.3, -offset))
     xb, tb = grid_sheet(12, 12, 0.5, 0.5, (offset, 0.31, -offset))
@@ -102,8 +103,18 @@ def test_float32_boxes_hold_the_float64_bounds(offset):
     CN.feature_bounds(xs, xe, topo, tree, work[0], margin, True)
     d = tree[0]
     pa, pb = xs @ d.T, xe @ d.T
-    assert np.allclose(cc.pt_min, np.minimum(pa, pb) - margin, rtol=0, atol=1e-12 * (1 + offset))
-    assert np.allclose(cc.pt_max, np.maximum(pa, pb) + margin, rtol=0, atol=1e-12 * (1 + offset))
+    lo_d = np.minimum(pa, pb)[:, 3:] - margin
+    hi_d = np.maximum(pa, pb)[:, 3:] + margin
+    nd = d.shape[0] - 3
+    hp = cc.pdiag.shape[1] // 2
+    assert nd == 6 and hp >= nd
+    # rounded outwards: below / above by at most float32's rounding of the value plus the widening
+    tol = 4e-6 * (1.0 + np.abs(lo_d))
+    assert np.all(cc.pdiag[:, :nd].astype(np.float64) <= lo_d)
+    assert np.all(cc.pdiag[:, :nd].astype(np.float64) >= lo_d - tol)
+    assert np.all(cc.pdiag[:, hp:hp + nd].astype(np.float64) >= hi_d)
+    assert np.all(cc.pdiag[:, hp:hp + nd].astype(np.float64) <= hi_d + 4e-6 * (1.0 + np.abs(hi_d)))
+    assert not cc.pdiag[:, nd:hp].any() and not cc.pdiag[:, hp + nd:].any()
     lo64 = np.minimum(xs, xe) - margin
     hi64 = np.maximum(xs, xe) + margin
     assert np.all(cc.pbox[:, :3].astype(np.float64) <= lo64) and np.all(cc.pbox[:, 4:7].astype(np.float64) >= hi64)

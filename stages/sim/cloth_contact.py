@@ -48,6 +48,7 @@ from stages.checks import ContractError, check_array, check_index, check_positiv
 from stages.obstacles.kdop import DEFAULT_K, build_tree, kdop_directions, merge_forest, triangle_bounds
 from stages.obstacles.types import KdopTree
 from stages.sim import cloth_contact_kernels as CK
+from stages.sim import cloth_contact_narrow as CN
 from stages.sim.cloth_contact_cull import node_borders, patch_nodes
 
 DEFAULT_THICKNESS = 0.003  # m: about two layers of shirt fabric
@@ -109,7 +110,8 @@ class ClothContact:
     The narrow phase's filter over the lists (stages.sim.cloth_contact_narrow): pbox (N, 8), ebox (E, 8),
       tbox (T, 8) float32 (min x y z, 0, max x y z, 0): each particle's, edge's and
       triangle's swept box, inflated, rounded outwards; p_move (N,) float64: each particle's move;
-      feat_moved (E + T,) uint8: the edges' then the triangles' moved flags.
+      feat_moved (E + T,) uint8: the edges' then the triangles' moved flags; pdiag (N, 2 D) float32
+      (D = DIAG_LANES: the k-DOP's directions beyond the axes, minima then maxima, padded with 0).
     Lists updated in place when a few particles leave their boxes (stages.sim.cloth_contact_local):
       loc_list (L,) int32 those particles, loc_n (2,) int64 (their count, 1: a full build instead),
       vt_start (N + 1,) int64 / vt_tri (3T,) int32 each particle's triangles, ring (T,) int32 and
@@ -173,6 +175,7 @@ class ClothContact:
     parent: np.ndarray
     tri_leaf: np.ndarray
     self_cull: np.ndarray
+    pdiag: np.ndarray
     thickness: float = DEFAULT_THICKNESS
     layer_depth: float = DEFAULT_THICKNESS
     rounds: int = 4
@@ -271,6 +274,9 @@ class ClothContact:
         check_index(o, "parent", check_array(o, "parent", self.parent, (nn,), np.int32), nn, allow=-1)
         check_index(o, "tri_leaf", check_array(o, "tri_leaf", self.tri_leaf, (t,), np.int32), nn)
         check_array(o, "self_cull", self.self_cull, (nn,), np.uint8)
+        if h - 3 > CN.DIAG_LANES:
+            raise ContractError(f"{o}: at most {CN.DIAG_LANES + 3} k-DOP directions (pdiag's lanes), got {h}")
+        check_array(o, "pdiag", self.pdiag, (n, 2 * CN.DIAG_LANES), np.float32, finite=False)
         if not (float(self.motion_margin) >= 0.0 and 0.0 < float(self.rotation) < float(np.arccos(CK.FLAT_COS))):
             raise ContractError(f"{o}: motion_margin must be >= 0 and rotation in (0, {np.arccos(CK.FLAT_COS):.3f}) rad, "
                                 f"got {self.motion_margin}, {self.rotation}")
@@ -301,7 +307,7 @@ class ClothContact:
                 self.cand_n, self.cand_f, self.box_lo, self.box_hi, self.nrm_ref, self.node_slack,
                 self.pbox, self.ebox, self.tbox, self.p_move, self.feat_moved, self.loc_list, self.loc_n,
                 self.vt_start, self.vt_tri, self.ring, self.flag, self.bld_min, self.bld_max, self.parent,
-                self.tri_leaf, self.self_cull)
+                self.tri_leaf, self.self_cull, self.pdiag)
         work = (self.moved, self.corrected, self.c_kind, self.c_feat, self.c_idx, self.c_w, self.c_dir)
         prm = (float(self.thickness), float(self.layer_depth), int(self.rounds), int(self.failsafe_rounds),
                bool(self.cull), float(self.motion_margin), float(self.rotation))
@@ -489,7 +495,7 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
         vt_tri=np.argsort(tris.ravel(), kind="stable").astype(np.int32) // 3, ring=np.zeros(tris.shape[0], np.int32),
         flag=np.zeros(n + tris.shape[0], np.uint8), bld_min=np.zeros((n, h)), bld_max=np.zeros((n, h)),
         parent=_parents(tree.children), tri_leaf=_tri_leaves(tree.leaf_prim, tris.shape[0]),
-        self_cull=np.zeros(tree.node_min.shape[0], np.uint8),
+        self_cull=np.zeros(tree.node_min.shape[0], np.uint8), pdiag=np.zeros((n, 2 * CN.DIAG_LANES), np.float32),
         motion_margin=float(motion_margin), rotation=float(rotation))
 
 

@@ -270,7 +270,8 @@ def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters,
 # pt_min ...), cand_f (2,) f8 (margin, motion built with), box_lo / box_hi (N, 4) each particle's box
 # at the build (box_lo[:, 3]: how far it may move from it), nrm_ref (T, 4) unit normals at the build
 # and the cosine of how far each may turn, node_slack (n,) f8 the culled nodes' turn margins);
-# tree[31:42]: the in-place updates' arrays (stages.sim.cloth_contact_local)
+# tree[31:42]: the in-place updates' arrays (stages.sim.cloth_contact_local); tree[42]: pdiag
+# (stages.sim.cloth_contact_narrow)
 
 @njit(cache=True, _nrt=False)
 def build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, counters):

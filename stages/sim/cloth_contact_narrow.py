@@ -2,14 +2,16 @@
 every listed vertex-face and edge-edge pair with a particle moved since the last detection is
 filtered by its features' swept bounds and then tested exactly (stages.sim.cloth_contact_pairs).
 
-The filter, cheapest first (each conservative; together they pass exactly the pairs the tree
-search's own filter passes, so the contacts are the same):
+The filter, cheapest first (each conservative; together they pass the pairs the tree search's own
+filter passes, and a few more at float32's rounding):
   1. float32 axis-aligned boxes, one 32-byte row per particle, edge and triangle (pbox / ebox /
      tbox (., 8): min x y z, 0, max x y z, 0), rounded outwards: one row per feature and a
      short compare, where the k-DOP filter gathered the rows of 3-4 particles (measured on the
      shipped walk, 2026-11-24: 20 k candidates per detection, 730 k -> ~120 k cycles);
-  2. the k-DOP check in float64 (pt_min / pt_max, as the tree search's `point_off_triangle` /
-     `edges_apart_bounds`);
+  2. the k-DOP's other directions (the 18-DOP's 6 diagonals; the axes are step 1's) in float32,
+     rounded outwards, one 64-byte row per particle (pdiag: 8 lanes of minima, 8 of maxima, the
+     unused lanes 0, which separate nothing): the float64 rows (pt_min / pt_max, 2 x 72 bytes a
+     particle) cost 3-4 cache lines per particle gathered, and their writes a third of the bounds;
   3. for edge pairs, the conservative separation of stages.sim.cloth_contact_ccd (ee_apart, with each
      particle's move over the step computed once per detection, p_move; it drops about half of the
      edge pairs left, while vf_apart dropped none of the vertex-face pairs on the shipped walk: the
@@ -18,7 +20,7 @@ search's own filter passes, so the contacts are the same):
 Arrays: `tree` of stages.sim.cloth_contact.ClothContact.kernel_args; tree[26:31] = (pbox (N, 8) f4,
 ebox (E, 8) f4, tbox (T, 8) f4, p_move (N,) f8, feat_moved (E + T,) u1: the edges' then the triangles'
 moved flags (the rounds after the first test only pairs with a moved feature: compact flags, whose
-reads stay in the L1 cache)).
+reads stay in the L1 cache)); tree[42] = pdiag (N, 2 D) f4 (D = DIAG_LANES lanes per half).
 """
 from __future__ import annotations
 
@@ -27,11 +29,12 @@ from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.sim.cloth_contact_ccd import APART_SLACK, segment_distance
-from stages.sim.cloth_contact_pairs import edges_apart_bounds, test_ee_pair, test_vf_pair
+from stages.sim.cloth_contact_pairs import test_ee_pair, test_vf_pair
 
 NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_pairs")
 
 ROUND32 = 1e-6   # relative widening of the float32 boxes: float32 rounds by at most 6e-8 of the value
+DIAG_LANES = 8   # lanes per half of a pdiag row (k-DOP directions beyond the 3 axes, padded with 0)
 
 
 @njit(cache=True)
@@ -47,32 +50,22 @@ def _hi32(v):
 
 
 @njit(cache=True, _nrt=False)
-def _particle_bounds(xs, xe, p, directions, margin, pt_min, pt_max, pbox, p_move):
-    """Particle p's k-DOP over its step xs -> xe inflated by `margin` (float64, pt_min / pt_max),
-    its float32 box (pbox) and how far it moves (p_move). The 9 directions of the 18-DOP
-    (stages.obstacles.kdop: the axes, then (x+y, x+z, y+z, x-y, x-z, y-z) / sqrt 2) are projected
-    without the multiplications by 0 and 1; other direction sets by their dot products."""
+def _particle_bounds(xs, xe, p, directions, margin, pdiag, pbox, p_move):
+    """Particle p's bounds over its step xs -> xe inflated by `margin`: its float32 box (pbox), its
+    k-DOP's other directions in float32 (pdiag: minima in lanes 0.., maxima in lanes D..; both
+    rounded outwards) and how far it moves (p_move). The 6 diagonals of the 18-DOP
+    (stages.obstacles.kdop: (x+y, x+z, y+z, x-y, x-z, y-z) / sqrt 2) are projected without the
+    multiplications by 0 and 1; other direction sets by their dot products."""
     ax = xs[p, 0]
     ay = xs[p, 1]
     az = xs[p, 2]
     bx = xe[p, 0]
     by = xe[p, 1]
     bz = xe[p, 2]
-    lx = min(ax, bx)
-    ly = min(ay, by)
-    lz = min(az, bz)
-    hx = max(ax, bx)
-    hy = max(ay, by)
-    hz = max(az, bz)
     h = directions.shape[0]
+    hp = pdiag.shape[1] // 2
     if h == 9:
         s = directions[3, 0]
-        pt_min[p, 0] = lx - margin
-        pt_max[p, 0] = hx + margin
-        pt_min[p, 1] = ly - margin
-        pt_max[p, 1] = hy + margin
-        pt_min[p, 2] = lz - margin
-        pt_max[p, 2] = hz + margin
         for i in range(6):
             if i == 0:
                 u = s * (ax + ay)
@@ -92,20 +85,20 @@ def _particle_bounds(xs, xe, p, directions, margin, pt_min, pt_max, pbox, p_move
             else:
                 u = s * (ay - az)
                 v = s * (by - bz)
-            pt_min[p, 3 + i] = min(u, v) - margin
-            pt_max[p, 3 + i] = max(u, v) + margin
+            pdiag[p, i] = _lo32(min(u, v) - margin)
+            pdiag[p, hp + i] = _hi32(max(u, v) + margin)
     else:
-        for i in range(h):
+        for i in range(3, h):
             u = ax * directions[i, 0] + ay * directions[i, 1] + az * directions[i, 2]
             v = bx * directions[i, 0] + by * directions[i, 1] + bz * directions[i, 2]
-            pt_min[p, i] = min(u, v) - margin
-            pt_max[p, i] = max(u, v) + margin
-    pbox[p, 0] = _lo32(lx - margin)
-    pbox[p, 1] = _lo32(ly - margin)
-    pbox[p, 2] = _lo32(lz - margin)
-    pbox[p, 4] = _hi32(hx + margin)
-    pbox[p, 5] = _hi32(hy + margin)
-    pbox[p, 6] = _hi32(hz + margin)
+            pdiag[p, i - 3] = _lo32(min(u, v) - margin)
+            pdiag[p, hp + i - 3] = _hi32(max(u, v) + margin)
+    pbox[p, 0] = _lo32(min(ax, bx) - margin)
+    pbox[p, 1] = _lo32(min(ay, by) - margin)
+    pbox[p, 2] = _lo32(min(az, bz) - margin)
+    pbox[p, 4] = _hi32(max(ax, bx) + margin)
+    pbox[p, 5] = _hi32(max(ay, by) + margin)
+    pbox[p, 6] = _hi32(max(az, bz) + margin)
     p_move[p] = np.sqrt((bx - ax) ** 2 + (by - ay) ** 2 + (bz - az) ** 2)
 
 
@@ -117,8 +110,7 @@ def feature_bounds(xs, xe, topo, tree, moved, margin, full):
     triangles = topo[0]
     edges = topo[1]
     directions = tree[0]
-    pt_min = tree[10]
-    pt_max = tree[11]
+    pdiag = tree[42]
     pbox = tree[26]
     ebox = tree[27]
     tbox = tree[28]
@@ -128,7 +120,7 @@ def feature_bounds(xs, xe, topo, tree, moved, margin, full):
     for p in range(xs.shape[0]):
         m = moved[p]
         if full or m:
-            _particle_bounds(xs, xe, p, directions, margin, pt_min, pt_max, pbox, p_move)
+            _particle_bounds(xs, xe, p, directions, margin, pdiag, pbox, p_move)
     for e in range(edges.shape[0]):
         a = edges[e, 0]
         b = edges[e, 1]
@@ -157,12 +149,26 @@ def _boxes_apart(b1, i, b2, j):
 
 
 @njit(cache=True)
-def _point_off_corners(pt_min, pt_max, p, a, b, c):
-    """point_off_triangle with the triangle's bounds taken from its corners' (the same values)."""
-    for i in range(pt_min.shape[1]):
-        if pt_max[p, i] < min(pt_min[a, i], min(pt_min[b, i], pt_min[c, i])):
+def _point_off_diag(pdiag, p, a, b, c):
+    """Particle p's and triangle abc's pdiag bounds are disjoint along a direction (the triangle's
+    from its corners')."""
+    hp = pdiag.shape[1] // 2
+    for i in range(hp):
+        if pdiag[p, hp + i] < min(pdiag[a, i], min(pdiag[b, i], pdiag[c, i])):
             return True
-        if max(pt_max[a, i], max(pt_max[b, i], pt_max[c, i])) < pt_min[p, i]:
+        if max(pdiag[a, hp + i], max(pdiag[b, hp + i], pdiag[c, hp + i])) < pdiag[p, i]:
+            return True
+    return False
+
+
+@njit(cache=True)
+def _edges_apart_diag(pdiag, a, b, c, d):
+    """Edges ab's and cd's pdiag bounds (their particles' unions) are disjoint along a direction."""
+    hp = pdiag.shape[1] // 2
+    for i in range(hp):
+        if max(pdiag[a, hp + i], pdiag[b, hp + i]) < min(pdiag[c, i], pdiag[d, i]):
+            return True
+        if max(pdiag[c, hp + i], pdiag[d, hp + i]) < min(pdiag[a, i], pdiag[b, i]):
             return True
     return False
 
@@ -186,8 +192,6 @@ def narrow(xs, xe, topo, tree, work, margin, h, layer_depth, only_cross, counter
     number of contacts stored."""
     triangles = topo[0]
     edges = topo[1]
-    pt_min = tree[10]
-    pt_max = tree[11]
     cand_vf = tree[18]
     cand_ee = tree[19]
     cand_n = tree[20]
@@ -196,6 +200,7 @@ def narrow(xs, xe, topo, tree, work, margin, h, layer_depth, only_cross, counter
     tbox = tree[28]
     p_move = tree[29]
     feat_moved = tree[30]
+    pdiag = tree[42]
     moved = work[0]
     ne = edges.shape[0]
     feature_bounds(xs, xe, topo, tree, moved, margin, full)
@@ -211,7 +216,7 @@ def narrow(xs, xe, topo, tree, work, margin, h, layer_depth, only_cross, counter
         a = triangles[t, 0]
         b = triangles[t, 1]
         c = triangles[t, 2]
-        if _point_off_corners(pt_min, pt_max, p, a, b, c):
+        if _point_off_diag(pdiag, p, a, b, c):
             continue   # (no vf_apart: on the shipped walk it dropped none of the pairs left here)
         n = test_vf_pair(xs, xe, p, t, topo, h, layer_depth, only_cross, work, n, counters)
     for k in range(cand_n[1]):
@@ -225,7 +230,7 @@ def narrow(xs, xe, topo, tree, work, margin, h, layer_depth, only_cross, counter
         b = edges[e, 1]
         c = edges[f, 0]
         d = edges[f, 1]
-        if edges_apart_bounds(pt_min, pt_max, a, b, c, d) or ee_apart_moves(xs, p_move, a, b, c, d, reach):
+        if _edges_apart_diag(pdiag, a, b, c, d) or ee_apart_moves(xs, p_move, a, b, c, d, reach):
             continue
         n = test_ee_pair(xs, xe, e, f, topo, h, layer_depth, only_cross, work, n, counters)
     return n
