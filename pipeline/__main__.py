@@ -1,11 +1,10 @@
 import signal
 import sys
 
-from pipeline.cli import main
+from pipeline import cli
 
-code = main()
-if code == 130 and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
-    # interrupted: a further Ctrl-C while the process shuts down (stopping its compile process takes
-    # seconds on a loaded machine) would end it by SIGINT instead of exit 130 (seen in CI)
+cli._cli_process[0] = True   # after a Ctrl-C, further ones are ignored until the process exits (cli._interrupted_exit)
+code = cli.main()
+if code == 130:   # interrupted elsewhere (a sweep's own report): ignore further Ctrl-Cs while the process ends
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 sys.exit(code)

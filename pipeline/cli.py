@@ -16,6 +16,7 @@ from pathlib import Path
 EXIT_USAGE = 2
 EXIT_BUG = 1
 _interrupted = [False]   # a Ctrl-C arrived during this command
+_cli_process = [False]   # set by `python -m pipeline`: after a Ctrl-C, further ones stay ignored until exit
 
 
 def _on_sigint(signum, frame):
@@ -23,6 +24,15 @@ def _on_sigint(signum, frame):
     # a RuntimeError ("no compiled object yet"): remember the Ctrl-C, so that error is an interrupt
     _interrupted[0] = True
     signal.default_int_handler(signum, frame)
+
+
+def _interrupted_exit() -> int:
+    """Report the interrupt, exit code 130. Further Ctrl-Cs are ignored from here on: the process
+    is ending, and one landing while it reports or stops its compile process (seconds on a loaded
+    machine) ended it by SIGINT instead (CI: exit -2 right after the message)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    print("\ninterrupted: no recording written", file=sys.stderr)
+    return 130
 
 
 def _user_errors():
@@ -268,7 +278,8 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USAGE
     shown, warnings.showwarning = warnings.showwarning, _show_warning
     _interrupted[0] = False
-    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:   # not ignored (a background job)
+    installed = signal.getsignal(signal.SIGINT) is signal.default_int_handler   # not ignored (a background job)
+    if installed:
         signal.signal(signal.SIGINT, _on_sigint)
     try:
         return args.func(args)
@@ -276,12 +287,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {_user_message(e, scene)}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
-        print("\ninterrupted: no recording written", file=sys.stderr)
-        return 130
+        return _interrupted_exit()
     except Exception as e:   # last resort: a bug. One line, exit 1; the recording was not written
         if _interrupted[0]:   # a library turned the Ctrl-C into another error
-            print("\ninterrupted: no recording written", file=sys.stderr)
-            return 130
+            return _interrupted_exit()
         if args.debug:
             import traceback
             traceback.print_exc()
@@ -289,8 +298,9 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BUG
     finally:
         warnings.showwarning = shown
-        if signal.getsignal(signal.SIGINT) is _on_sigint:
-            signal.signal(signal.SIGINT, signal.default_int_handler)
+        handler = signal.getsignal(signal.SIGINT)
+        if handler is _on_sigint or (handler is signal.SIG_IGN and installed and not _cli_process[0]):
+            signal.signal(signal.SIGINT, signal.default_int_handler)   # called in-process: as found
 
 
 if __name__ == "__main__":  # pragma: no cover
