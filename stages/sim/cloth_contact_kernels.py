@@ -236,8 +236,8 @@ def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters,
         la = leaf_prim[a] >= 0
         lb = leaf_prim[b] >= 0
         if la and lb:
-            n = test_triangle_pair(xs, xe, leaf_prim[a], leaf_prim[b], topo, tree, h, layer_depth, only_cross,
-                                   work, n, counters, collect)
+            n = test_triangle_pair(xs, xe, leaf_prim[a], leaf_prim[b], topo, tree, pt_min, pt_max, h, layer_depth,
+                                   only_cross, work, n, counters, collect, False)
             continue
         if top + 2 > cap:
             counters[N_OVERFLOW] += 1
@@ -409,7 +409,8 @@ def find_contacts(xs, xe, topo, tree, work, prm, only_cross, counters):
         full = tree[20][3] == 0 or tree[20][3] == 2
         if not candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation, counters):
             c0 = cycles()
-            if not (tree[32][1] == 0 and tree[20][2] == 0 and update_candidates(xs, xe, topo, tree, margin, motion)):
+            if not (tree[32][1] == 0 and tree[20][2] == 0
+                    and update_candidates(xs, xe, topo, tree, work, margin, motion, counters)):
                 build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, counters)
                 full = True
             else:

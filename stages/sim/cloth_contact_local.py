@@ -25,7 +25,7 @@ import numpy as np
 from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
-from stages.sim.cloth_contact_pairs import _append, _in_triangle, edges_apart_bounds, point_off_triangle
+from stages.sim.cloth_contact_pairs import test_triangle_pair
 
 NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.obstacles.kdop", "stages.sim.cloth_contact_ccd",
                        "stages.sim.cloth_contact_pairs")
@@ -79,55 +79,6 @@ def tri_bounds(triangles, t, pt_min, pt_max, tri_min, tri_max):
 
 
 @njit(cache=True)
-def _collect_pair(t1, t2, topo, tree, pt_min, pt_max, flag):
-    """test_triangle_pair's collection (stages.sim.cloth_contact_pairs) for the features t1 and t2
-    own, only the feature pairs with a flagged particle (the others are listed already)."""
-    triangles = topo[0]
-    edges = topo[1]
-    tri_edges = topo[2]
-    tri_owns = topo[3]
-    tri_min = tree[8]
-    tri_max = tree[9]
-    o1 = tri_owns[t1]
-    o2 = tri_owns[t2]
-    f1 = flag[triangles[t1, 0]] | flag[triangles[t1, 1]] | flag[triangles[t1, 2]]
-    f2 = flag[triangles[t2, 0]] | flag[triangles[t2, 1]] | flag[triangles[t2, 2]]
-    for k in range(3):
-        if o1 & (1 << k):
-            p = triangles[t1, k]
-            if ((flag[p] or f2) and not _in_triangle(triangles, p, t2)
-                    and not point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t2)):
-                _append(tree[18], tree[20], 0, p, t2)
-        if o2 & (1 << k):
-            p = triangles[t2, k]
-            if ((flag[p] or f1) and not _in_triangle(triangles, p, t1)
-                    and not point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t1)):
-                _append(tree[18], tree[20], 0, p, t1)
-    for i in range(3):
-        if not (o1 & (8 << i)):
-            continue
-        for j in range(3):
-            if not (o2 & (8 << j)):
-                continue
-            e = tri_edges[t1, i]
-            f = tri_edges[t2, j]
-            a = edges[e, 0]
-            b = edges[e, 1]
-            c = edges[f, 0]
-            d = edges[f, 1]
-            if not (flag[a] | flag[b] | flag[c] | flag[d]):
-                continue
-            if a == c or a == d or b == c or b == d:
-                continue
-            if edges_apart_bounds(pt_min, pt_max, a, b, c, d):
-                continue
-            if e < f:
-                _append(tree[19], tree[20], 1, e, f)
-            else:
-                _append(tree[19], tree[20], 1, f, e)
-
-
-@njit(cache=True)
 def _overlap(node_min, node_max, a, tri_min, tri_max, t):
     for i in range(node_min.shape[1]):
         if node_max[a, i] < tri_min[t, i] or tri_max[t, i] < node_min[a, i]:
@@ -136,7 +87,7 @@ def _overlap(node_min, node_max, a, tri_min, tri_max, t):
 
 
 @njit(cache=True, _nrt=False)
-def update_candidates(xs, xe, topo, tree, margin, motion):
+def update_candidates(xs, xe, topo, tree, work, margin, motion, counters):
     """The lists after the particles in loc_list (tree[31], count tree[32][0]) left their boxes:
     new boxes for them, their pairs dropped and searched again (module doc). Returns False if the
     stack ran out (the caller then builds the lists afresh)."""
@@ -243,7 +194,9 @@ def update_candidates(xs, xe, topo, tree, margin, motion):
             t2 = leaf_prim[a]
             if t2 >= 0:
                 if t2 != t and not (flag[n + t2] and t2 < t):
-                    _collect_pair(t, t2, topo, tree, bld_min, bld_max, flag)
+                    # the tree search's collection (cloth_contact_pairs), for the new pairs only
+                    test_triangle_pair(xs, xe, t, t2, topo, tree, bld_min, bld_max, 0.0, 0.0, False, work, 0,
+                                       counters, True, True)
                 continue
             if top + 2 > cap:
                 ok = False

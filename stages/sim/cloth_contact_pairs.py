@@ -221,28 +221,38 @@ def _ee(xs, xe, e, f, topo, tree, h, layer_depth, only_cross, work, n, counters,
 
 
 @njit(cache=True)
-def test_triangle_pair(xs, xe, t1, t2, topo, tree, h, layer_depth, only_cross, work, n, counters, collect):
+def test_triangle_pair(xs, xe, t1, t2, topo, tree, pt_min, pt_max, h, layer_depth, only_cross, work, n, counters,
+                       collect, flagged_only):
     """Every pair of features owned by the two triangles that share no vertex themselves (see the
-    module doc), after a k-DOP check of the two features' own bounds (refit_cloth_tree): tested,
-    or with `collect` appended to the candidate lists (the bounds then span the lists' lifetime)."""
+    module doc), after a k-DOP check of the two features' own bounds (pt_min / pt_max per particle,
+    the triangles' in tree[8:10]): tested, or with `collect` appended to the candidate lists (the
+    bounds then span the lists' lifetime). flagged_only: only the feature pairs with a particle
+    flagged in tree[36] (the in-place list updates, stages.sim.cloth_contact_local: the others are
+    listed already)."""
     triangles = topo[0]
     edges = topo[1]
     tri_edges = topo[2]
     tri_owns = topo[3]
     tri_min = tree[8]
     tri_max = tree[9]
-    pt_min = tree[10]
-    pt_max = tree[11]
     o1 = tri_owns[t1]
     o2 = tri_owns[t2]
+    flag = tree[36]
+    f1 = True
+    f2 = True
+    if flagged_only:
+        f1 = (flag[triangles[t1, 0]] | flag[triangles[t1, 1]] | flag[triangles[t1, 2]]) != 0
+        f2 = (flag[triangles[t2, 0]] | flag[triangles[t2, 1]] | flag[triangles[t2, 2]]) != 0
     for k in range(3):
         if o1 & (1 << k):
             p = triangles[t1, k]
-            if not _in_triangle(triangles, p, t2) and not point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t2):
+            if ((f2 or flag[p] != 0) and not _in_triangle(triangles, p, t2)
+                    and not point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t2)):
                 n = _vf(xs, xe, p, t2, topo, tree, h, layer_depth, only_cross, work, n, counters, collect)
         if o2 & (1 << k):
             p = triangles[t2, k]
-            if not _in_triangle(triangles, p, t1) and not point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t1):
+            if ((f1 or flag[p] != 0) and not _in_triangle(triangles, p, t1)
+                    and not point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t1)):
                 n = _vf(xs, xe, p, t1, topo, tree, h, layer_depth, only_cross, work, n, counters, collect)
     for i in range(3):
         if not (o1 & (8 << i)):
@@ -252,6 +262,8 @@ def test_triangle_pair(xs, xe, t1, t2, topo, tree, h, layer_depth, only_cross, w
                 continue
             e = tri_edges[t1, i]
             f = tri_edges[t2, j]
+            if flagged_only and not (flag[edges[e, 0]] | flag[edges[e, 1]] | flag[edges[f, 0]] | flag[edges[f, 1]]):
+                continue
             if (edges[e, 0] == edges[f, 0] or edges[e, 0] == edges[f, 1] or edges[e, 1] == edges[f, 0]
                     or edges[e, 1] == edges[f, 1]):
                 continue
