@@ -220,6 +220,9 @@ SCENE_SPEC = {
                        "joints (an arm lowered onto the torso) stays in the middle of their overlap, or leaves their union",
                        choices=("midpoint", "escape")),
         "cloth_thickness": Field("float", 0.003, "distance kept between cloth layers, m", lo=0.0, lo_open=True, hi=0.1),
+        "cloth_contact_every": Field("int", None, "sub-steps per cloth collision call (the largest divisor of substeps "
+                                     "up to it); the sub-steps between calls hold the pairs the last call found within "
+                                     "two thicknesses. 1: a call every sub-step", lo=1, hi=1000),
         "body_audit": Field("bool", True, "count particles inside the true skinned mesh per frame"),
         "cloth_audit": Field("bool", True, "per frame edge strain and cloth edges crossing cloth triangles (sim/<garment>/strain, sim/intersections/...)"),
         "strain_colors": Field("bool", False, "colour the cloth meshes by per-vertex edge strain (blue 0 -> red 10 %)"),

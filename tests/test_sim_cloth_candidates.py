@@ -92,6 +92,37 @@ def test_turning_beyond_the_rotation_rebuilds_the_lists():
     assert counters[CK.N_BUILDS] == 2
 
 
+def _turned(x, angle):
+    c, s = np.cos(angle), np.sin(angle)
+    return x @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
+
+
+@pytest.mark.parametrize("kept_for", [1, CK.YOUNG_LIST])
+def test_a_culled_list_a_turn_undoes_young_is_followed_by_plain_lists(kept_for):
+    # a flat sheet's lists cull it whole; turned past the rotation limit after `kept_for` more
+    # detections they are rebuilt. Undone that young (fewer than YOUNG_LIST detections), the next
+    # PLAIN_BUILDS builds cull nothing: such lists hold more pairs and no turn undoes them (bvh_walk
+    # rebuilt culled lists twice a sub-step); a list that lived longer is followed by culled ones
+    x, t = grid_sheet(6, 6, 0.1, 0.1)
+    cc = build_cloth_contact(x, t, [0, x.shape[0]], thickness=H, motion_margin=0.2, rotation=0.3,
+                             candidate_capacity=100_000)
+    counters = np.zeros(CK.N_COUNTERS, np.int64)
+    _same(cc, x, x, counters)
+    culled = int(cc.cand_n[0] + cc.cand_n[1])
+    for _ in range(kept_for - 1):
+        _same(cc, x, x, counters)
+    assert counters[CK.N_BUILDS] == 1 and cc.cand_n[5] == 0
+    _same(cc, x, _turned(x, 0.4), counters)      # past the limit: rebuilt
+    assert counters[CK.N_BUILDS] == 2 and counters[CK.N_INVALID_TURN] == 1
+    if kept_for < CK.YOUNG_LIST:
+        assert cc.cand_n[5] == CK.PLAIN_BUILDS - 1       # this build was the first plain one
+        assert cc.cand_n[0] + cc.cand_n[1] > culled
+        _same(cc, x, _turned(x, 0.8), counters)  # a plain list: no turn undoes it
+        assert counters[CK.N_BUILDS] == 2
+    else:
+        assert cc.cand_n[5] == 0 and cc.cand_n[0] + cc.cand_n[1] == culled
+
+
 def test_culling_on_a_folded_sheet_keeps_the_contacts_across_the_fold():
     # a sheet folded over a gap under the thickness: without culling the tree search and the kept
     # lists equal the brute force; with it both find a subset (normal-cone culling has no contour

@@ -28,7 +28,7 @@ def inner_flap_over_outer(dip=0.0015):
 def one_call(tup, xs, xe):
     x = xe.copy()
     counters = np.zeros(CK.N_COUNTERS, np.int64)
-    _, _, cinv, topo, tree, work, prm, _, _ = tup
+    _, _, cinv, topo, tree, work, prm, _, _, _ = tup
     CK.collide_cloth(xs, x, cinv, topo, tree, work, prm, counters)
     return x, counters
 

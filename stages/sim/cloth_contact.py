@@ -56,6 +56,7 @@ DEFAULT_MOTION = 0.003     # m: how far particles may move before the candidate 
                            # fewer candidates per detection for more builds, 5-10 % less CPU per call on the shipped walk)
 DEFAULT_ROTATION = 1.5     # rad: the most a normal may turn before they are rebuilt (less where a culled
                            # patch would stop being flat)
+KEEP_REACH = 2.0           # calls every few sub-steps keep the pairs within this many thicknesses (step.cloth_phase)
 SETTLE_FRAMES = 3          # frames at the frame-0 pose before frame 1 that sort garments starting interpenetrating
 
 
@@ -103,7 +104,8 @@ class ClothContact:
       box it spanned at the build and every normal within what keeps the culled patches flat (at
       most `rotation` rad) of its direction then;
       each step tests only the listed pairs. cand_vf (Cv, 2) int32 (particle, triangle), cand_ee
-      (Ce, 2) int32 (edge, edge), cand_n (4,) int64 (VF count, EE count, overflowed, valid),
+      (Ce, 2) int32 (edge, edge), cand_n (6,) int64 (VF count, EE count, overflowed, valid, detections since the build,
+      builds left without culling),
       cand_f (2,) float64 (margin, motion built with), box_lo / box_hi (N, 4) (the boxes, and in
       box_lo[:, 3] how far each particle may move: motion_margin or more when it moves fast), nrm_ref
       (T, 4) (unit normals, cosine of the allowed turn), node_slack (n,) (the culled nodes' turn margins).
@@ -249,7 +251,7 @@ class ClothContact:
         check_array(o, "c_dir", self.c_dir, (c, 3), np.float64, finite=False)
         cv = check_array(o, "cand_vf", self.cand_vf, (None, 2), np.int32)
         check_array(o, "cand_ee", self.cand_ee, (cv.shape[0], 2), np.int32)
-        check_array(o, "cand_n", self.cand_n, (4,), np.int64)
+        check_array(o, "cand_n", self.cand_n, (6,), np.int64)
         check_array(o, "cand_f", self.cand_f, (2,), np.float64)
         check_array(o, "box_lo", self.box_lo, (n, 4), np.float64, finite=False)
         check_array(o, "box_hi", self.box_hi, (n, 4), np.float64, finite=False)
@@ -484,7 +486,7 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
         c_w=np.zeros((cap, 4)), c_dir=np.zeros((cap, 3)),
         thickness=float(thickness), layer_depth=float(layer_depth if layer_depth is not None else thickness),
         rounds=int(rounds), failsafe_rounds=int(failsafe_rounds), cull=bool(cull),
-        cand_vf=np.zeros((ccap, 2), np.int32), cand_ee=np.zeros((ccap, 2), np.int32), cand_n=np.zeros(4, np.int64),
+        cand_vf=np.zeros((ccap, 2), np.int32), cand_ee=np.zeros((ccap, 2), np.int32), cand_n=np.zeros(6, np.int64),
         cand_f=np.zeros(2), box_lo=np.zeros((n, 4)), box_hi=np.zeros((n, 4)), nrm_ref=np.zeros((tris.shape[0], 4)),
         node_slack=np.zeros(tree.node_min.shape[0]),
         pbox=np.zeros((n, 8), np.float32), ebox=np.zeros((edges.shape[0], 8), np.float32),
@@ -545,8 +547,15 @@ class ClothPhase:
         # its fail-safe fought (2026-11-24: bvh_walk 665 -> 0 particles reverted, 7 -> 0 crossings
         # left; CesiumMan's outfit 20,669 -> 251 and 39 -> 0, 44 -> 0 edges through the other garment)
         one_layer = topo[:8] + (np.zeros_like(topo[8]),) + topo[9:]
-        self.first = (self.x_start, self.x_before, self.cinv, topo, tree, work, first, self.counters, int(every))
-        self.rest = (self.x_start, self.x_before, self.cinv, one_layer, tree, work, rest, self.counters, int(every))
+        cap = work[2].shape[0]
+        self.keep = (np.zeros(n, np.uint8), np.zeros(n, np.uint8), np.zeros(cap, np.int8), np.zeros((cap, 2), np.int32),
+                     np.zeros((cap, 4), np.int32), np.zeros((cap, 4)), np.zeros((cap, 3)), np.zeros(1, np.int64),
+                     np.array([KEEP_REACH * thickness]))
+        # the settling frames call the phase every sub-step whatever `every` (sorting garments that start
+        # through each other takes many calls; CesiumMan's outfit at every 5: 5 edges between them left)
+        self.first = (self.x_start, self.x_before, self.cinv, topo, tree, work, first, self.counters, 1, self.keep)
+        self.rest = (self.x_start, self.x_before, self.cinv, one_layer, tree, work, rest, self.counters, int(every),
+                     self.keep)
         self.settle_frames = SETTLE_FRAMES
 
     @classmethod
@@ -564,7 +573,7 @@ class ClothPhase:
             body = skin(character, motion, frames=[0])[0]
         cinv = np.where(sysm.attach_joint >= 0, 0.0, sysm.inv_mass)
         return cls(sysm.x, sysm.tris, sysm.offsets, cinv, layers, body, params.cloth_thickness,
-                   params.cloth_contact_every, params.cloth_layer_depth0)
+                   params.contact_steps(), params.cloth_layer_depth0)
 
     def settle(self, cloth, cols, m, prm, gravity, wind, fwd0, inv0, substeps, max_speed2, goff, flags) -> None:
         """SETTLE_FRAMES frames of the step loop at the frame-0 pose (fwd0 / inv0 (J, 4, 4)) with the

@@ -50,6 +50,35 @@ def respond(x, inv_mass, work, n, target):
 
 
 @njit(cache=True, _nrt=False)
+def keep_contacts(work, n, keep):
+    """Append contacts 0..n-1 of the buffer `work` to the kept buffer `keep` (the same 7 arrays, then
+    k_n (1,) i8 its count, then the reach (1,) f8 collide_cloth detects them within; contacts past its
+    capacity are not kept). A pair found in several rounds is
+    kept once per round: projecting it twice is harmless."""
+    k_n = keep[7]
+    c_idx = work[4]
+    c_w = work[5]
+    c_dir = work[6]
+    k_idx = keep[4]
+    k_w = keep[5]
+    k_dir = keep[6]
+    m = k_n[0]
+    for k in range(n):
+        if m >= k_idx.shape[0]:
+            break
+        for j in range(4):
+            k_idx[m, j] = c_idx[k, j]
+            k_w[m, j] = c_w[k, j]
+        for j in range(3):
+            k_dir[m, j] = c_dir[k, j]
+        keep[2][m] = work[2][k]
+        keep[3][m, 0] = work[3][k, 0]
+        keep[3][m, 1] = work[3][k, 1]
+        m += 1
+    k_n[0] = m
+
+
+@njit(cache=True, _nrt=False)
 def settled(x, inv_mass, work, n, h):
     """Contacts 0..n-1 need no response: none is a crossing (VF_CROSS / EE_CROSS) and every pair
     with a particle the response can move is at least (1 - SETTLED) h apart on its side

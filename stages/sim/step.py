@@ -31,10 +31,11 @@ Cloth-side argument tuples (built once by simulate.py, unpacked for free inside 
     cc    = None (no cloth-cloth phase: its kernels are then neither typed nor compiled: numba prunes
             the `cc is not None` branches for a None argument) or, built by simulate.py from
             stages.sim.cloth_contact.ClothContact.kernel_args():
-            (x_start, x_before, cinv, topo, tree, work, cprm, counters, every)
+            (x_start, x_before, cinv, topo, tree, work, cprm, counters, every, keep)
             x_start / x_before (N, 3) work arrays; cinv (N,) inverse masses with attached particles 0;
             every: sub-steps per cloth-contact call (1: every sub-step; k: one call swept over k
-            sub-steps, its correction not turned into velocity, see contact_velocity).
+            sub-steps, its correction not turned into velocity, see contact_velocity); keep: the
+            contacts the last call found, projected in every step (cloth_contact_response.keep_contacts).
 """
 from __future__ import annotations
 
@@ -44,7 +45,7 @@ from numba import njit
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.jit import opt_level, with_parallel_calls
 from stages.sim.body_collide import PINCHED, collide
-from stages.sim.cloth_contact_kernels import collide_cloth, contact_velocity
+from stages.sim.cloth_contact_kernels import PUSH_OVER, SWEEPS, collide_cloth, contact_velocity, respond
 from stages.maps.kernels import METHOD_NEAREST_PLANE
 from stages.sim.collider_grid import build_grid, collider_frames, swept_spheres
 from stages.sim.forces import aero_forces
@@ -141,15 +142,21 @@ def copy_rows(dst, src):
 def cloth_phase(x, xp, k, cc):
     """The cloth x cloth phase after step k: every `every` steps, one collide_cloth over the
     interval since x_start; when that interval is longer than one step, the correction is not
-    turned into Verlet velocity (contact_velocity: only the approach along it is dropped)."""
-    x_start, x_before, cinv, topo, tree, work, cprm, counters, every = cc
+    turned into Verlet velocity (contact_velocity: only the approach along it is dropped), and every
+    step first projects the contacts the last call found (kept: a layer resting on another is held
+    in the steps between calls instead of falling through the gap and being caught by the next)."""
+    x_start, x_before, cinv, topo, tree, work, cprm, counters, every, keep = cc
+    if every > 1 and keep[7][0] > 0:
+        target = PUSH_OVER * cprm[0]
+        for _ in range(SWEEPS):
+            respond(x, cinv, keep[:7], keep[7][0], target)
     if (k + 1) % every != 0:
         return
     if every == 1:
         collide_cloth(x_start, x, cinv, topo, tree, work, cprm, counters)
     else:
         copy_rows(x_before, x)
-        collide_cloth(x_start, x, cinv, topo, tree, work, cprm, counters)
+        collide_cloth(x_start, x, cinv, topo, tree, work, cprm, counters, keep)
         contact_velocity(x_before, x, xp, work[1])
 
 

@@ -143,8 +143,8 @@ class SimParams:
         rng("cloth_thickness", 0.0, 0.1, lo_open=True)
         rng("cloth_layer_depth0", self.cloth_thickness, 1.0)
         v = self.cloth_contact_every
-        if not (isinstance(v, (int, np.integer)) and v >= 1 and self.substeps % v == 0):
-            raise ContractError(f"{o}.cloth_contact_every: expected an integer >= 1 dividing substeps ({self.substeps}), got {v!r}")
+        if not (isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_)) and v >= 1):
+            raise ContractError(f"{o}.cloth_contact_every: expected an integer >= 1, got {v!r}")
         if self.pinch not in PINCH_RULES:
             raise ContractError(f"{o}.pinch: expected one of {', '.join(PINCH_RULES)}, got {self.pinch!r}")
         if not isinstance(self.cloth_collision, (bool, np.bool_)):
@@ -173,6 +173,10 @@ class SimParams:
             if self.substeps % k == 0 and k * self.step <= self.aero_interval * (1 + 1e-9):
                 return k
         return 1
+
+    def contact_steps(self) -> int:
+        """Sub-steps per cloth x cloth call: the largest divisor of substeps up to cloth_contact_every."""
+        return max(k for k in range(1, min(self.cloth_contact_every, self.substeps) + 1) if self.substeps % k == 0)
 
     def round_stiffness(self, k: float) -> float:
         """The share of a correction one round applies for stiffness k stated at REFERENCE_RATE."""

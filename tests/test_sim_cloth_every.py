@@ -1,0 +1,59 @@
+"""The cloth x cloth phase called once every few sub-steps (SimParams.cloth_contact_every > 1,
+stages.sim.step.cloth_phase): the sub-steps between calls project the contacts the last call found,
+so a layer resting on another is held there instead of falling into the gap and being caught by the
+next call's continuous test."""
+from __future__ import annotations
+
+import numpy as np
+
+from stages.sim import step
+from stages.sim import cloth_contact_kernels as CK
+from stages.sim.cloth_contact import ClothPhase
+from tests.test_sim_cloth_contact import H, two_sheets
+
+EVERY = 4
+DT = 1.0 / 120.0   # over EVERY sub-steps a sheet falls g (EVERY DT)^2 / 2 = 5.4 mm from rest, past the gap
+
+
+def rest_on_lower_sheet(keep_contacts: bool):
+    """The upper of two 9 x 9 sheets (10 cm, layers 0 / 1) starts at rest H above the pinned lower
+    one and falls under gravity for 40 sub-steps, the phase called every EVERY. Returns the upper
+    sheet's lowest interior height after every sub-step (m) and the counters."""
+    x, t, off, layers = two_sheets(n=9, gap=1.05 * H)
+    cinv = np.ones(len(x))
+    cinv[:off[1]] = 0.0
+    phase = ClothPhase(x, t, off, cinv, np.array(layers), None, H, EVERY, H)
+    xp = x.copy()
+    top = np.arange(off[1], off[2])
+    inner = top[(x[top, 0] > 0.015) & (x[top, 0] < 0.085) & (x[top, 2] > 0.015) & (x[top, 2] < 0.085)]
+    lowest = []
+    for k in range(40):
+        if k % EVERY == 0:
+            phase.x_start[:] = x
+        elif not keep_contacts:
+            phase.keep[7][0] = 0     # the control: nothing held between calls
+        v = x[top] - xp[top]
+        xp[top] = x[top]
+        x[top] += v
+        x[top, 1] -= 9.81 * DT * DT
+        step.cloth_phase(x, xp, k, phase.rest)
+        lowest.append(x[inner, 1].min())
+    return np.array(lowest), phase.counters
+
+
+def test_kept_contacts_hold_a_resting_layer_between_calls():
+    lowest, counters = rest_on_lower_sheet(True)
+    assert lowest[EVERY:].min() > 0.9 * H               # every sub-step after the first call, not only the calls
+    assert counters[CK.N_UNRESOLVED] == 0 and counters[CK.N_REVERTED] == 0
+    assert counters[CK.N_CONTACTS] > 0
+
+
+def test_control_without_kept_contacts_the_layer_falls_into_the_gap():
+    lowest, counters = rest_on_lower_sheet(False)
+    assert lowest.min() < 0.0      # through the lower sheet's plane between calls
+
+
+def test_the_calls_keep_the_layers_apart():
+    lowest, counters = rest_on_lower_sheet(True)
+    assert lowest[EVERY - 1::EVERY].min() > 0.9 * H      # after each call
+    assert counters[CK.N_LEFT] == 0
