@@ -57,3 +57,19 @@ def test_the_calls_keep_the_layers_apart():
     lowest, counters = rest_on_lower_sheet(True)
     assert lowest[EVERY - 1::EVERY].min() > 0.9 * H      # after each call
     assert counters[CK.N_LEFT] == 0
+
+
+def test_sub_steps_per_call_divide_the_frame():
+    from stages.checks import ContractError
+    from stages.sim.types import SimParams
+    assert SimParams(substeps=20, cloth_contact_every=5).contact_steps() == 5
+    assert SimParams(substeps=12, cloth_contact_every=5).contact_steps() == 4   # the largest divisor up to it
+    assert SimParams(substeps=1, cloth_contact_every=5).contact_steps() == 1    # the paper preset's one step
+    assert SimParams(substeps=7, cloth_contact_every=5).contact_steps() == 1
+    for bad in (0, True, 2.5):
+        try:
+            SimParams(cloth_contact_every=bad)
+        except ContractError as err:
+            assert "cloth_contact_every" in str(err)
+        else:
+            raise AssertionError(f"{bad!r} accepted")

@@ -273,7 +273,8 @@ def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters,
 # candidate lists: the tree search once for several steps, only the exact tests every step.
 # tree[18:25] = (cand_vf (Cv, 2) (particle, triangle), cand_ee (Ce, 2) (edge, edge), cand_n (4,)
 # i8 (VF count, EE count, overflowed, state: 0 invalid, 1 valid, 2 valid with the build's bounds in
-# pt_min ..., detections since the build, builds left without culling: YOUNG_LIST), cand_f (2,) f8 (margin, motion built with), box_lo / box_hi (N, 4) each particle's box
+# pt_min ..., detections since the build, builds left without culling: YOUNG_LIST), cand_f (2,) f8
+# (margin, motion built with), box_lo / box_hi (N, 4) each particle's box
 # at the build (box_lo[:, 3]: how far it may move from it), nrm_ref (T, 4) unit normals at the build
 # and the cosine of how far each may turn, node_slack (n,) f8 the culled nodes' turn margins);
 # tree[31:42]: the in-place updates' arrays (stages.sim.cloth_contact_local); tree[42]: pdiag

@@ -51,10 +51,10 @@ def respond(x, inv_mass, work, n, target):
 
 @njit(cache=True, _nrt=False)
 def keep_contacts(work, n, keep):
-    """Append contacts 0..n-1 of the buffer `work` to the kept buffer `keep` (the same 7 arrays, then
-    k_n (1,) i8 its count, then the reach (1,) f8 collide_cloth detects them within; contacts past its
-    capacity are not kept). A pair found in several rounds is
-    kept once per round: projecting it twice is harmless."""
+    """Append contacts 0..n-1 of the buffer `work` to the kept buffer `keep`: the same 7 arrays (its
+    moved / corrected flags are respond's scratch, not read), then k_n (1,) i8 its count, then the
+    reach (1,) f8 collide_cloth detects them within. Contacts past its capacity are not kept; a pair
+    found in several rounds is kept once per round (projecting it twice is harmless)."""
     k_n = keep[7]
     c_idx = work[4]
     c_w = work[5]

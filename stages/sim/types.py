@@ -75,7 +75,9 @@ class SimParams:
         into it before frame 1, then kept, as no pair passes through another).
     cloth_thickness: m > 0, distance kept between cloth layers.
     cloth_contact_every: sub-steps per cloth-contact call (1: every sub-step; k > 1: one call swept
-        over k sub-steps; must divide substeps).
+        over k sub-steps, the contacts it finds within two thicknesses projected again in every sub-step
+        until the next: stages.sim.step.cloth_phase); the largest divisor of substeps up to it is used
+        (contact_steps).
     cloth_layer_depth0: m >= cloth_thickness, how deep garments may interpenetrate at frame 0 and be
         sorted by their layers during the settling frames before frame 1 (afterwards no pair is put
         on the layers' side: each keeps its own, stages.sim.cloth_contact.ClothPhase). Deeper
