@@ -24,14 +24,13 @@ back through cloth). Either
 
 - once per sub-step (recommended): `x_start[:] = x` before integrate, `collide_cloth(...)` after the
   obstacles; the correction becomes Verlet velocity like every other position correction; or
-- once per frame: at the frame's start `x_start[:] = x`; after the frame's last sub-step
-  `x_before[:] = x; collide_cloth(x_start, x, inv_mass, topo, tree, work, prm, counters)` then
-  `contact_velocity(x_before, x, xp, work[1])` (else the correction would enter the next sub-step
-  as a velocity of correction / dt_sub); the tree's bounds sweep the whole frame. Only sound while
-  layers move less than the thickness relative to each other per frame: a layer resting on another
-  falls g dt^2 / 2 = 5.4 mm per 1/30 s frame in the free sub-steps, through a 3-4 mm gap, so every
-  frame starts with crossings that the rounds cannot all undo and the fail-safe freezes particles
-  (the benchmark's per-frame line: ~200 particles reverted per call).
+- once every k sub-steps (SimParams.cloth_contact_every; stages.sim.step.cloth_phase): `x_start[:] = x`
+  at the first; after the k-th `x_before[:] = x; collide_cloth(x_start, x, ..., keep)` then
+  `contact_velocity(x_before, x, xp, work[1])` (else the correction would enter the next sub-step as
+  a velocity of correction / dt_sub). `keep` holds the pairs the call found within KEEP_REACH
+  thicknesses; the sub-steps in between project them again. Without that a layer resting on another
+  falls into the gap between calls (5.4 mm in a 1/30 s frame, past a 3-4 mm gap) and every call
+  starts from crossings the rounds cannot all undo.
 
 x_start must be free of cloth crossings (the fail-safe reverts to it): true from the first frame on
 if the garments start apart; garments that start interpenetrating are sorted by the layer rule up
