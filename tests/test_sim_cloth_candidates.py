@@ -40,7 +40,7 @@ def test_kept_candidate_lists_find_what_brute_force_finds(seed, layered, cull):
     # rotation near its limit: the normals of this jittered pair of sheets turn freely, and the test
     # is about the kept lists, not how often they are rebuilt
     cc = build_cloth_contact(x, t, off, layers, thickness=H, layer_depth=3 * H, cull=cull, motion_margin=MOTION, candidate_capacity=100_000,
-                             rotation=1.4)
+                             rotation=1.2)
     counters = np.zeros(CK.N_COUNTERS, np.int64)
     xs0 = x + rng.normal(0.0, 0.001, x.shape)
     xe0 = xs0 + rng.normal(0.0, 0.001, x.shape)

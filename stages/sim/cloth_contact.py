@@ -53,8 +53,8 @@ from stages.sim.cloth_contact_cull import node_borders, patch_nodes
 DEFAULT_THICKNESS = 0.003  # m: about two layers of shirt fabric
 DEFAULT_MOTION = 0.003     # m: how far particles may move before the candidate lists are rebuilt (0.005 -> 0.003:
                            # fewer candidates per detection for more builds, 5-10 % less CPU per call on the shipped walk)
-DEFAULT_ROTATION = 1.5     # rad: the most a normal may turn before they are rebuilt (less where a culled
-                           # patch would stop being flat)
+DEFAULT_ROTATION = 1.2     # rad: the most a normal may turn before they are rebuilt (less where a culled
+                           # patch would stop being flat; below arccos(FLAT_COS))
 KEEP_REACH = 2.0           # calls every few sub-steps keep the pairs within this many thicknesses (step.cloth_phase)
 SETTLE_FRAMES = 3          # frames at the frame-0 pose before frame 1 that sort garments starting interpenetrating
 
