@@ -549,7 +549,7 @@ class ClothPhase:
         # left; CesiumMan's outfit 20,669 -> 251 and 39 -> 0, 44 -> 0 edges through the other garment)
         one_layer = topo[:8] + (np.zeros_like(topo[8]),) + topo[9:]
         cap = work[2].shape[0]
-        self.keep = (np.zeros(n, np.uint8), np.zeros(n, np.uint8), np.zeros(cap, np.int8), np.zeros((cap, 2), np.int32),
+        self.keep = (np.zeros(n, np.uint8), np.zeros(n, np.uint8), np.zeros(0, np.int8), np.zeros((0, 2), np.int32),
                      np.zeros((cap, 4), np.int32), np.zeros((cap, 4)), np.zeros((cap, 3)), np.zeros(1, np.int64),
                      np.array([KEEP_REACH * thickness]))
         # the settling frames call the phase every sub-step whatever `every` (sorting garments that start

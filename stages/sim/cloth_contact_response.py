@@ -51,10 +51,11 @@ def respond(x, inv_mass, work, n, target):
 
 @njit(cache=True, _nrt=False)
 def keep_contacts(work, n, keep):
-    """Append contacts 0..n-1 of the buffer `work` to the kept buffer `keep`: the same 7 arrays (its
-    moved / corrected flags are respond's scratch, not read), then k_n (1,) i8 its count, then the
-    reach (1,) f8 collide_cloth detects them within. Contacts past its capacity are not kept; a pair
-    found in several rounds is kept once per round (projecting it twice is harmless)."""
+    """Append contacts 0..n-1 of the buffer `work` to the kept buffer `keep`: work's 7 arrays in its
+    layout, so `respond` projects it (its moved / corrected flags are respond's scratch, its kind and
+    feature arrays empty: respond reads neither), then k_n (1,) i8 its count, then the reach (1,) f8
+    collide_cloth detects them within. Contacts past its capacity are not kept; a pair found in
+    several rounds is kept once per round (projecting it twice is harmless)."""
     k_n = keep[7]
     c_idx = work[4]
     c_w = work[5]
@@ -71,9 +72,6 @@ def keep_contacts(work, n, keep):
             k_w[m, j] = c_w[k, j]
         for j in range(3):
             k_dir[m, j] = c_dir[k, j]
-        keep[2][m] = work[2][k]
-        keep[3][m, 0] = work[3][k, 0]
-        keep[3][m, 1] = work[3][k, 1]
         m += 1
     k_n[0] = m
 

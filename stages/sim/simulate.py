@@ -512,7 +512,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
             sysm.corrected[:] = 0
             c0 = simd.read_cycles()
             for k in range(ss):
-                if cc is not None and k % params.contact_steps() == 0:
+                if cc is not None and k % cc[8] == 0:   # x_start: the start of the phase's sweep (as run_steps)
                     cc[0][:] = sysm.x
                 run_steps(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, k, k + 1,
                           flags, timers, None)
