@@ -130,10 +130,12 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
     budget = max(1, params.max_iterations // (2 * len(stages)))
     in_stage = 0
     # no tethers: they would tie each panel's free particles to its own pins at flat-panel
-    # distances, against the seam springs (a waistband placed a little stretched never closes)
+    # distances, against the seam springs (a waistband placed a little stretched never closes).
+    # Bend springs as stiff as the edges (not the simulation's 0.2): the panels wrap round the body
+    # as stiff sheets; softer, CesiumMan's trousers were sewn with 5 edges through themselves.
     sp = SimParams(dt=params.dt, substeps=params.substeps, iterations=params.iterations,
                    gravity=(0.0, -9.81 * params.gravity_scale, 0.0), damping=params.damping, drag=0.0, lift=0.0,
-                   friction=params.friction, body_audit=False, tethers=False)
+                   friction=params.friction, body_audit=False, tethers=False, bend_stiffness=1.0)
     hold = hold_motion(motion, params.frames_per_iteration, params.dt)
     gaps = seam_gaps(x, pairs)
     gmax, gmean = [float(gaps.max(initial=0.0))], [float(gaps.mean()) if gaps.size else 0.0]
