@@ -5,6 +5,7 @@ next call's continuous test."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from stages.sim import step
 from stages.sim import cloth_contact_kernels as CK
@@ -73,3 +74,44 @@ def test_sub_steps_per_call_divide_the_frame():
             assert "cloth_contact_every" in str(err)
         else:
             raise AssertionError(f"{bad!r} accepted")
+
+
+def _contact_buffer(n, idx, w, d):
+    return (np.zeros(n, np.int32), np.zeros(n, np.int32), np.zeros(0, np.int8), np.zeros((0, 2), np.int32),
+            np.ascontiguousarray(idx, np.int32), np.ascontiguousarray(w, np.float64), np.ascontiguousarray(d, np.float64))
+
+
+def test_held_contacts_project_as_respond_where_every_particle_moves():
+    from stages.sim.cloth_contact_response import respond, respond_held
+    rng = np.random.default_rng(7)
+    n, m = 40, 60
+    x = rng.normal(scale=0.004, size=(n, 3))
+    idx = np.array([rng.choice(n, 4, replace=False) for _ in range(m)])
+    w = np.concatenate([np.ones((m, 1)), -rng.dirichlet(np.ones(3), size=m)], axis=1)   # a point minus a triangle point
+    d = rng.normal(size=(m, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    inv_mass = np.ones(n)      # all movable: no move exceeds its contact's depth, so the bound never binds
+    a, b = x.copy(), x.copy()
+    respond(a, inv_mass, _contact_buffer(n, idx, w, d), m, 0.003)
+    respond_held(b, inv_mass, _contact_buffer(n, idx, w, d), m, 0.003)
+    assert np.any(a != x)
+    np.testing.assert_array_equal(a, b)
+
+
+def test_a_held_contact_moves_no_particle_farther_than_its_depth():
+    # a point against a triangle two of whose corners are pinned: the third, weight 0.01, is the only
+    # one to move; respond moves it 100 depths, respond_held one
+    from stages.sim.cloth_contact_response import respond, respond_held
+    x = np.array([[0.0, 0.001, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    inv_mass = np.array([0.0, 0.0, 0.0, 1.0])
+    idx = np.array([[0, 1, 2, 3]])
+    w = np.array([[1.0, -0.98, -0.01, -0.01]])
+    d = np.array([[0.0, 1.0, 0.0]])
+    target = 0.003
+    depth = target - 0.001
+    a, b = x.copy(), x.copy()
+    respond(a, inv_mass, _contact_buffer(4, idx, w, d), 1, target)
+    respond_held(b, inv_mass, _contact_buffer(4, idx, w, d), 1, target)
+    assert np.linalg.norm(a[3] - x[3]) > 50 * depth
+    assert np.linalg.norm(b[3] - x[3]) == pytest.approx(depth)
+    np.testing.assert_array_equal(b[:3], x[:3])
