@@ -81,8 +81,8 @@ def _contact_buffer(n, idx, w, d):
             np.ascontiguousarray(idx, np.int32), np.ascontiguousarray(w, np.float64), np.ascontiguousarray(d, np.float64))
 
 
-def test_held_contacts_project_as_respond_where_every_particle_moves():
-    from stages.sim.cloth_contact_response import respond, respond_held
+def test_bounded_projection_is_respond_where_every_particle_moves():
+    from stages.sim.cloth_contact_response import respond
     rng = np.random.default_rng(7)
     n, m = 40, 60
     x = rng.normal(scale=0.004, size=(n, 3))
@@ -93,15 +93,15 @@ def test_held_contacts_project_as_respond_where_every_particle_moves():
     inv_mass = np.ones(n)      # all movable: no move exceeds its contact's depth, so the bound never binds
     a, b = x.copy(), x.copy()
     respond(a, inv_mass, _contact_buffer(n, idx, w, d), m, 0.003)
-    respond_held(b, inv_mass, _contact_buffer(n, idx, w, d), m, 0.003)
+    respond(b, inv_mass, _contact_buffer(n, idx, w, d), m, 0.003, True)
     assert np.any(a != x)
     np.testing.assert_array_equal(a, b)
 
 
 def test_a_held_contact_moves_no_particle_farther_than_its_depth():
     # a point against a triangle two of whose corners are pinned: the third, weight 0.01, is the only
-    # one to move; respond moves it 100 depths, respond_held one
-    from stages.sim.cloth_contact_response import respond, respond_held
+    # one to move; respond moves it 100 depths, bounded (as the held contacts are projected) one
+    from stages.sim.cloth_contact_response import respond
     x = np.array([[0.0, 0.001, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     inv_mass = np.array([0.0, 0.0, 0.0, 1.0])
     idx = np.array([[0, 1, 2, 3]])
@@ -111,7 +111,7 @@ def test_a_held_contact_moves_no_particle_farther_than_its_depth():
     depth = target - 0.001
     a, b = x.copy(), x.copy()
     respond(a, inv_mass, _contact_buffer(4, idx, w, d), 1, target)
-    respond_held(b, inv_mass, _contact_buffer(4, idx, w, d), 1, target)
+    respond(b, inv_mass, _contact_buffer(4, idx, w, d), 1, target, True)
     assert np.linalg.norm(a[3] - x[3]) > 50 * depth
     assert np.linalg.norm(b[3] - x[3]) == pytest.approx(depth)
     np.testing.assert_array_equal(b[:3], x[:3])

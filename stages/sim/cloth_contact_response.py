@@ -19,9 +19,17 @@ SETTLED = 0.25       # a round that finds no crossing and no pair closer than (1
 
 
 @njit(cache=True, _nrt=False)
-def respond(x, inv_mass, work, n, target):
+def respond(x, inv_mass, work, n, target, bounded=False):
     """Project contacts 0..n-1 in buffer order (Gauss-Seidel): C = dir . sum_k w_k x_k - target;
-    if C < 0 each particle moves by -C w_k inv_mass_k / sum_j w_j^2 inv_mass_j along dir."""
+    if C < 0 each particle moves by -C w_k inv_mass_k / sum_j w_j^2 inv_mass_j along dir.
+
+    bounded: no particle moves farther than -C, the contact's depth (the held contacts projected
+    between calls, stages.sim.step.cloth_phase). Where a contact's only movable particle has a small
+    weight (a triangle corner beside pinned ones) the projection moves it by depth / weight; a call's
+    rounds re-detect such a pair and its fail-safe bounds it, but a held contact keeps the last call's
+    direction and weights and is projected every sub-step: against a collider pushing the particle
+    back (CesiumMan's hand folding the skirt at the hip) it moved a corner 100 depths a sub-step until
+    the run diverged. Where every particle of a contact moves, none moves that far: no change."""
     moved, corrected, c_kind, c_feat, c_idx, c_w, c_dir = work
     for k in range(n):
         dx = c_dir[k, 0]
@@ -42,42 +50,8 @@ def respond(x, inv_mass, work, n, target):
             sc = lam * c_w[k, j] * inv_mass[i]
             if sc == 0.0:
                 continue
-            x[i, 0] += sc * dx
-            x[i, 1] += sc * dy
-            x[i, 2] += sc * dz
-            moved[i] = 1
-            corrected[i] = 1
-
-
-@njit(cache=True, _nrt=False)
-def respond_held(x, inv_mass, work, n, target):
-    """`respond` for the held contacts projected between calls (stages.sim.step.cloth_phase), with no
-    particle moved farther than the contact's depth: where a contact's only movable particle has a small
-    weight (a triangle corner beside pinned ones), the projection moves it by depth / weight. The calls'
-    rounds re-detect such a pair and its fail-safe bounds it; a held contact, stale and projected
-    every sub-step against a collider that pushes the particle back (CesiumMan's hand folding the
-    skirt against the hip), moved it farther each time until the run diverged."""
-    moved, corrected, c_kind, c_feat, c_idx, c_w, c_dir = work
-    for k in range(n):
-        dx = c_dir[k, 0]
-        dy = c_dir[k, 1]
-        dz = c_dir[k, 2]
-        cval = -target
-        den = 0.0
-        for j in range(4):
-            i = c_idx[k, j]
-            w = c_w[k, j]
-            cval += w * (dx * x[i, 0] + dy * x[i, 1] + dz * x[i, 2])
-            den += w * w * inv_mass[i]
-        if cval >= 0.0 or den == 0.0:
-            continue
-        lam = -cval / den
-        for j in range(4):
-            i = c_idx[k, j]
-            sc = lam * c_w[k, j] * inv_mass[i]
-            if sc == 0.0:
-                continue
-            sc = min(max(sc, cval), -cval)    # |move| <= depth
+            if bounded:
+                sc = min(max(sc, cval), -cval)
             x[i, 0] += sc * dx
             x[i, 1] += sc * dy
             x[i, 2] += sc * dz

@@ -45,8 +45,7 @@ from numba import njit
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.jit import opt_level, with_parallel_calls
 from stages.sim.body_collide import PINCHED, collide
-from stages.sim.cloth_contact_kernels import PUSH_OVER, SWEEPS, collide_cloth, contact_velocity
-from stages.sim.cloth_contact_response import respond_held
+from stages.sim.cloth_contact_kernels import PUSH_OVER, SWEEPS, collide_cloth, contact_velocity, respond
 from stages.maps.kernels import METHOD_NEAREST_PLANE
 from stages.sim.collider_grid import build_grid, collider_frames, swept_spheres
 from stages.sim.forces import aero_forces
@@ -146,13 +145,13 @@ def cloth_phase(x, xp, k, cc):
     turned into Verlet velocity (contact_velocity: only the approach along it is dropped), and every
     step first projects the contacts the last call found (kept: a layer resting on another is held
     in the steps between calls instead of falling through the gap and being caught by the next),
-    no particle farther than its contact's depth (respond_held: a stale held contact whose only
-    movable particle had a small weight diverged against a collider pushing it back)."""
+    no particle farther than its contact's depth (respond's `bounded`: a stale held contact whose
+    only movable particle had a small weight diverged against a collider pushing it back)."""
     x_start, x_before, cinv, topo, tree, work, cprm, counters, every, keep = cc
     if every > 1 and keep[7][0] > 0:
         target = PUSH_OVER * cprm[0]
         for _ in range(SWEEPS):
-            respond_held(x, cinv, keep[:7], keep[7][0], target)
+            respond(x, cinv, keep[:7], keep[7][0], target, True)
     if (k + 1) % every != 0:
         return
     if every == 1:
