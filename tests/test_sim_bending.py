@@ -19,7 +19,10 @@ from stages.sim.simulate import simulate
 from stages.sim.types import PRESETS, SimParams
 
 
-def sewn_tube(radius: float, length: float = 0.2, edge: float = 0.025, n_down: int = 9):
+N_RINGS = 9
+
+
+def sewn_tube(radius: float, length: float = 0.2, edge: float = 0.025, n_down: int = N_RINGS):
     """A tube whose rest shape is its flat pattern: a rectangle 2 pi radius wide, rolled and closed."""
     n_around = int(round(2 * np.pi * radius / edge))
     x, tri = tube_skirt(radius, radius, length, n_around, n_down, center=(0.0, 1.0, 0.0))
@@ -41,13 +44,13 @@ def settle(garment, params: SimParams, frames: int = 30):
 
 
 def ring_shape(garment, pos):
-    """Mean |strain| of the edges round the tube (the rings' edges), and how far each of its 9 rings
-    is tilted out of the horizontal (standard deviation of its heights, m)."""
+    """Mean |strain| of the edges round the tube (the rings' edges), and how far each of its N_RINGS
+    rings is tilted out of the horizontal (standard deviation of its heights, m)."""
     s = garment.springs[garment.kinds == STRETCH]
     rest = garment.rest_lengths[garment.kinds == STRETCH]
     ring = np.abs(pos[s[:, 1], 1] - pos[s[:, 0], 1]) < 0.2 * rest     # the edges round, not down
     e = np.abs(np.linalg.norm(pos[s[:, 1]] - pos[s[:, 0]], axis=1) / rest - 1.0)
-    heights = pos[:, 1].reshape(-1, 9)                                 # (angle, ring)
+    heights = pos[:, 1].reshape(-1, N_RINGS)                           # (angle, ring)
     return float(e[ring].mean()), heights.std(axis=0)
 
 
@@ -64,7 +67,7 @@ def test_the_default_lets_a_sewn_sleeve_keep_its_girth(tube):
 
 
 def test_bend_springs_as_stiff_as_the_edges_shear_it(tube):
-    # the paper preset's bend stiffness at the default steps: the flare this default avoids
+    # the paper preset's bend stiffness at the default steps: the shear this default avoids
     pos = settle(tube, SimParams(gravity=(0.0, 0.0, 0.0), tethers=False, body_audit=False, bend_stiffness=1.0))
     strain, tilt = ring_shape(tube, pos)     # measured: 1.34 %, 2.2 cm (its ends 6 cm off the axis)
     assert strain > 0.005
