@@ -17,14 +17,8 @@ pytestmark = pytest.mark.matrix
 # (character, kind) -> what fails today (python -m pipeline matrix, 30 frames, 2026-11-24, skinned
 # balls as the flexible colliders)
 KNOWN: dict = {
-    # since bend_stiffness 0.2 (2026-11-24 night): the skirt is 80 % of waist-to-floor long, measured from
-    # the waist, but sits at skirt_top, 16 cm lower on CesiumMan: its hem lies on the floor from frame 0
-    # (-1.8 cm), and the softer cloth hangs 0.8 cm below it at frame 11 (just above it at bend 1).
-    # Measured from skirt_top the pattern is 0.6228 m long and a side seam pair at the left hip, placed
-    # 2.1 mm apart, opens to 5.2 mm while sewing (0.60 / 0.6224 / 0.63 / 0.66 m close, 10-12 cm above the
-    # floor): not fixed yet.
-    ("CesiumMan", "long_skirt"): "hem 0.8 cm below the floor at frame 11 (length measured from the waist, "
-                                 "worn 16 cm lower)",
+    # empty since 2026-11-24 late: CesiumMan x long_skirt (hem on the floor, measured from the waist but
+    # worn 16 cm lower; measured from there, a side seam pair at a one-edge hip curve stayed open) passes
 }
 
 _prepared: dict = {}

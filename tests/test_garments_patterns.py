@@ -114,6 +114,25 @@ def test_library_sizes_follow_measurements(kind):
         assert np.count_nonzero(flat.seam_index == k) >= 2
 
 
+def test_skirt_worn_below_the_waist_is_measured_from_there_with_a_hip_curve_of_two_edges():
+    # CesiumMan: the skirt is worn at skirt_top (its shoulder spheres come down beside the waist),
+    # 16 cm lower and 2 cm above the hips; the long skirt measured from the waist lay on the floor,
+    # and the 2 cm hip curve was one kinked edge whose side seam pair stayed open while sewing
+    low = dict(MEAS, skirt_top=MEAS["hips_y"] + 0.02)
+    for edge in (0.025, 0.04):
+        p = library_pattern("long_skirt", low, edge_length=edge)
+        f = p.panel("front")
+        top_v = f.edges[f.edge_index("waist")].points[-1][1]
+        assert top_v == pytest.approx(0.8 * (low["skirt_top"] - low["floor_y"]))      # the pattern's length
+        curve = f.edges[f.edge_index("side_l_hi")].points
+        assert curve[-1][1] - f.edges[f.edge_index("side_l_lo")].points[-1][1] == pytest.approx(2 * edge)
+    # worn at the waist (skirt_top there), the hip curve runs from the waist down to the hips as before
+    f = library_pattern("long_skirt", dict(MEAS, skirt_top=MEAS["waist_y"])).panel("front")
+    assert f.edges[f.edge_index("waist")].points[-1][1] == pytest.approx(0.8 * MEAS["waist_y"])
+    lo = f.edges[f.edge_index("side_l_lo")].points[-1][1]
+    assert f.edges[f.edge_index("waist")].points[-1][1] - lo == pytest.approx(MEAS["waist_y"] - MEAS["hips_y"])
+
+
 def test_import_repairs_with_warning_and_refuses_bad_files(tmp_path):
     q = tmp_path / "quad.obj"
     q.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 0\nf 1 2 3 4\nf 1 2 5\n")

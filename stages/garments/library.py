@@ -173,6 +173,11 @@ def tshirt(meas: dict, *, ease: float = 0.08, length_below_waist: float | None =
                    fit_edges=(SeamSide("front", "neck"), SeamSide("back", "neck")), fit_band=0.9)
 
 
+def skirt_top(meas: dict) -> float:
+    """Height a skirt is worn at: the waist, or skirt_top where the arms' colliders come down beside it."""
+    return min(meas["waist_y"], meas.get("skirt_top", meas["waist_y"]))
+
+
 def skirt(meas: dict, *, length: float, flare: float, ease: float = 0.2, hip_ease: float | None = None,
           edge_length: float = 0.025, name: str = "skirt") -> Pattern:
     """Two panels (front, back) from the waist: hip-wide below the hips, flared to the hem.
@@ -182,8 +187,11 @@ def skirt(meas: dict, *, length: float, flare: float, ease: float = 0.2, hip_eas
     without them hips + hip_ease (default 0.32, enough for the built-in character's joint spheres).
     """
     _need(meas, "height", "waist", "hips", "waist_y", "hips_y")
-    top_y = min(meas["waist_y"], meas.get("skirt_top", meas["waist_y"]))
-    dh = min(max(top_y - meas["hips_y"], 0.02), 0.8 * length)
+    top_y = skirt_top(meas)
+    # the curve from the top to the hip width spans at least two edges: where the top sits at the
+    # hips (CesiumMan: 2 cm above them) it was one kinked edge, and a side seam pair at it stayed
+    # 5.2 mm open (long skirt, 0.6228 m; 2.5 cm edges): from 2 edges on, 0.6 mm
+    dh = min(max(top_y - meas["hips_y"], 2.0 * edge_length), 0.8 * length)
     ht = max(meas["waist"] + ease, meas.get("clear_top", 0.0)) / 4
     body = max(meas["hips"], meas["waist"])
     if "clear_skirt" in meas:
@@ -343,7 +351,8 @@ def library_pattern(kind: str, measurements: dict, **overrides) -> Pattern:
     if kind in ("short_skirt", "long_skirt"):
         _need(measurements, "height", "waist_y")
         short = kind == "short_skirt"
-        kw = dict(length=0.25 * measurements["height"] if short else 0.8 * (measurements["waist_y"] - measurements.get("floor_y", 0.0)),
+        # a long skirt reaches 80 % of the way from where it is worn to the floor
+        kw = dict(length=0.25 * measurements["height"] if short else 0.8 * (skirt_top(measurements) - measurements.get("floor_y", 0.0)),
                   flare=1.35 if short else 1.9, name="skirt" if short else "long_skirt")
         kw.update(overrides)
         return skirt(measurements, **kw)
