@@ -173,8 +173,8 @@ def tshirt(meas: dict, *, ease: float = 0.08, length_below_waist: float | None =
                    fit_edges=(SeamSide("front", "neck"), SeamSide("back", "neck")), fit_band=0.9)
 
 
-def skirt_top(meas: dict) -> float:
-    """Height a skirt is worn at: the waist, or skirt_top where the arms' colliders come down beside it."""
+def waistband_y(meas: dict) -> float:
+    """Height skirts and pants are worn at: the waist, or skirt_top where the arms' colliders come down beside it."""
     return min(meas["waist_y"], meas.get("skirt_top", meas["waist_y"]))
 
 
@@ -187,7 +187,7 @@ def skirt(meas: dict, *, length: float, flare: float, ease: float = 0.2, hip_eas
     without them hips + hip_ease (default 0.32, enough for the built-in character's joint spheres).
     """
     _need(meas, "height", "waist", "hips", "waist_y", "hips_y")
-    top_y = skirt_top(meas)
+    top_y = waistband_y(meas)
     # the curve from the top to the hip width spans at least two edges: where the top sits at the
     # hips (CesiumMan: 2 cm above them) it was one kinked edge, and a side seam pair at it stayed
     # 5.2 mm open (long skirt, 0.6228 m; 2.5 cm edges): from 2 edges on, 0.6 mm
@@ -230,7 +230,7 @@ def _pants(meas: dict, *, leg_length: float, hem_radius: float, ease: float, hip
     """
     _need(meas, "height", "waist", "hips", "waist_y", "hips_y")
     h = meas["height"]
-    top_y = min(meas["waist_y"], meas.get("skirt_top", meas["waist_y"]))
+    top_y = waistband_y(meas)
     crotch = min(meas.get("crotch_y", meas["hips_y"] - 0.05 * h) - crotch_drop, top_y - 0.08)
     H = top_y - crotch
     below = min(max(meas["hips_y"] - crotch, 0.02), H - 0.03)
@@ -352,7 +352,7 @@ def library_pattern(kind: str, measurements: dict, **overrides) -> Pattern:
         _need(measurements, "height", "waist_y")
         short = kind == "short_skirt"
         # a long skirt reaches 80 % of the way from where it is worn to the floor
-        kw = dict(length=0.25 * measurements["height"] if short else 0.8 * (skirt_top(measurements) - measurements.get("floor_y", 0.0)),
+        kw = dict(length=0.25 * measurements["height"] if short else 0.8 * (waistband_y(measurements) - measurements.get("floor_y", 0.0)),
                   flare=1.35 if short else 1.9, name="skirt" if short else "long_skirt")
         kw.update(overrides)
         return skirt(measurements, **kw)
