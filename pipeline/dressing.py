@@ -89,6 +89,12 @@ def check_pins(scene: Scene, meshes: dict) -> None:
                                  f"is out of range: the garment has {n} particles, expected 0 to {n - 1}")
 
 
+def ignored_joints(g: dict, character) -> tuple[int, ...]:
+    """The joint indices of a garment's `ignore_colliders` (names checked by check_references)."""
+    names = list(character.joint_names)
+    return tuple(names.index(n) for n in g.get("ignore_colliders") or ())
+
+
 def _garment_where(scene: Scene, index: int, character) -> str:
     g = scene["garments"][index]
     return f"{scene.path or '<scene>'}: garments[{index}] ({g['name']!r}, kind {g['kind']}) on {character.name!r}"
@@ -150,7 +156,8 @@ def build_pattern_garment(scene: Scene, index: int, character, motion, colliders
     try:
         garment, log, build = make_garment(pattern, character, motion, colliders, maps, sew_params=sew,
                                            progress=progress, under=under,
-                                           under_gap=HUG_GAP + scene["simulation"]["cloth_thickness"])
+                                           under_gap=HUG_GAP + scene["simulation"]["cloth_thickness"],
+                                           ignore_joints=ignored_joints(g, character))
     except (ContractError, InputError) as err:
         raise SceneError(f"{where}: cannot place and sew the pattern: {err}") from None
     if not log.converged:
@@ -280,7 +287,8 @@ def _build_scene_garment(scene: Scene, i: int, character, motion, colliders, map
         if pin["boundary"] == "top":
             # one bone for the whole loop: a waistband pinned to pelvis and thighs is torn between them
             atts.append(attach_top_loop(pin["collider"] if pin["collider"] is not None else COMMON_BONE))
-    return build_garment(g["name"], x, tri, density=g["density"], attachments=atts, bind=bind), None
+    return build_garment(g["name"], x, tri, density=g["density"], attachments=atts, bind=bind,
+                         ignore_joints=ignored_joints(g, character)), None
 
 
 def build_scene_obstacles(scene: Scene, duration: float, meshes: dict | None = None):

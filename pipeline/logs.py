@@ -367,6 +367,8 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=Non
                                               if audited else "not audited (simulation.body_audit: false)",
         "steps/s (simulation only)": f"{steps_s:.0f}",
     }
+    if result.notes:
+        out["notes"] = "; ".join(result.notes)
     cc = result.cloth_contact
     if cc:
         layers = ", ".join(f"{t.name} {l}" for t, l in zip(result.garments, cc.get("layers", ())))

@@ -72,7 +72,7 @@ class Prepared:
 
 def run_pair(prepared: Prepared, scene) -> dict:
     """Dress, sew and simulate the scene's one garment on a prepared character; the pair's figures."""
-    from pipeline.run import sim_params
+    from pipeline.run import ignored_colliders, sim_params
     from pipeline.dressing import build_scene_garments, garment_fits
     from stages.garments.fit import BODY_SHARE_MAX, FIT_GAP_MAX
     from stages.sim import simulate
@@ -86,7 +86,8 @@ def run_pair(prepared: Prepared, scene) -> dict:
         warnings.simplefilter("always")
         try:
             garments, builds = build_scene_garments(scene, p.character, p.motion, p.colliders, p.maps)
-            result = simulate(p.character, p.motion, p.colliders, p.maps, garments, sim_params(scene))
+            result = simulate(p.character, p.motion, p.colliders, p.maps, garments, sim_params(scene),
+                              ignore_colliders=ignored_colliders(scene, p.character))
         except (SceneError, InputError, ContractError, SimulationDiverged) as err:   # what `run` exits 2 on
             # the scene and garment are the row: keep what went wrong
             return {"status": "error: " + re.sub(r"^.*? on '[^']*': ", "", str(err)), "message": str(err),

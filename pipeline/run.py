@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.dressing import (build_scene_garments, build_scene_obstacles, check_pattern, check_pins, dressing_layers,
-                               garment_fit_report, garment_fits, load_scene_meshes)
+                               garment_fit_report, garment_fits, ignored_joints, load_scene_meshes)
 from pipeline.scene import Scene
 from pipeline.schema import SceneError
 
@@ -112,6 +112,13 @@ def garment_layers(scene: Scene) -> list[int]:
     return [g["layer"] if g.get("layer") is not None else i for i, g in enumerate(scene["garments"])]
 
 
+def ignored_colliders(scene: Scene, character) -> list[tuple[int, ...]] | None:
+    """simulate's ignore_colliders: each garment's `ignore_colliders` as joint indices, or None when
+    no garment ignores any."""
+    lists = [ignored_joints(g, character) for g in scene["garments"]]
+    return lists if any(lists) else None
+
+
 def body_params(settings: dict):
     from stages.rig.procedural import BodyParams
     b = settings["character"]["body"]
@@ -178,6 +185,7 @@ def check_references(scene: Scene, character) -> None:
         refs = [("at_joint", g.get("at_joint"))]
         if g.get("pin") is not None:
             refs.append(("pin.collider", g["pin"]["collider"]))
+        refs += [(f"ignore_colliders[{k}]", name) for k, name in enumerate(g.get("ignore_colliders") or ())]
         for key, name in refs:
             if name is not None and name not in names:
                 import difflib
@@ -462,7 +470,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             with _Timer(summary, "simulation") as r:
                 try:
                     result = simulate(character, motion, colliders, maps, garments, params, obstacles=obstacles,
-                                      layers=garment_layers(scene), partial=state.setdefault("sim", {}),
+                                      layers=garment_layers(scene), ignore_colliders=ignored_colliders(scene, character),
+                                      partial=state.setdefault("sim", {}),
                                       progress=lambda done, total: bar.update(done), threads=sp["threads"])
                 finally:
                     bar.close()

@@ -42,6 +42,9 @@ _GARMENT_COMMON = {
     "pin": PIN,
     "layer": Field("int", None, "cloth collision layer, 0 = innermost; default: the garment's place in the "
                    "list (earlier = inner); garments of a higher layer are kept outside lower ones", lo=0, hi=1000),
+    "ignore_colliders": Field("list", [], "joint names whose colliders never push this garment: limbs the animation "
+                              "swings through it (a hand brushing the hips); the cloth then passes through them "
+                              "(counted by the body audit)", item=Field("str")),
 }
 
 GARMENT = Field("union", REQUIRED, "a garment", variants={
@@ -81,6 +84,7 @@ GARMENT.variants["pattern"] = {
     "name": _GARMENT_COMMON["name"],
     "density": _GARMENT_COMMON["density"],
     "layer": _GARMENT_COMMON["layer"],
+    "ignore_colliders": _GARMENT_COMMON["ignore_colliders"],
     "kind": Field("str", REQUIRED, "a built-in sewing pattern, sized from the character's measurements",
                   choices=_PATTERN_KINDS),
     "edge_length": Field("float", 0.025, "target mean edge length of the flat panels, m", lo=0.005, hi=0.2),

@@ -56,6 +56,16 @@ def test_unknown_joint_reference_suggests_a_name(tmp_path):
     assert r.returncode == 2 and "garments[0].at_joint" in r.stderr and "did you mean 'pelvis'" in r.stderr
 
 
+def test_unknown_ignored_collider_joint_is_named(tmp_path):
+    f = tmp_path / "s.yaml"
+    f.write_text("garments:\n  - {type: tube, name: skirt, ignore_colliders: [hand_l, hand_rr]}\n")
+    r = cli("validate", str(f), cwd=tmp_path)
+    assert r.returncode == 2 and "garments[0].ignore_colliders[1]" in r.stderr and "did you mean 'hand_r'" in r.stderr
+    f.write_text("garments:\n  - {type: tube, name: skirt, ignore_colliders: hand_l}\n")
+    r = cli("validate", str(f), cwd=tmp_path)
+    assert r.returncode == 2 and "garments[0].ignore_colliders" in r.stderr and "Traceback" not in r.stderr
+
+
 def test_validate_default_scene():
     r = cli("validate", "scenes/default.yaml")
     assert r.returncode == 0, r.stderr

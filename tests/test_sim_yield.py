@@ -81,3 +81,22 @@ def test_swept_attachments_yield_and_leave_no_particle_inside():
     assert off[:, np.isin(a, y)].max() > 0.02                        # yielding ones are pushed ...
     far = np.linalg.norm(g.attach_local[y][None] - centres[:, None], axis=2).min(axis=1) > RADIUS + 0.05
     assert off[np.ix_(far, np.isin(a, y))].max() < 1e-6              # ... and back on the bone after
+
+
+def test_a_garment_ignoring_the_sweeping_joint_keeps_its_attachments_rigid_and_lets_it_through():
+    """The arm's joint in ignore_joints: nothing yields (no warning), and simulate with the same
+    joint ignored lets the sphere pass through the rigid waistband without pushing anything."""
+    ch, mo, cs, x, tri = _arm_scene()
+    bind = bind_pose(ch, mo, cs)
+    hit, names = swept_attachments(bind, x[np.isclose(x[:, 1], 1.0)], np.zeros(int(np.isclose(x[:, 1], 1.0).sum()),
+                                                                                np.int32), DELTA, ignore={1})
+    assert not hit.any() and names == []
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        g = build_garment("skirt", x, tri, attachments=[attach_top_loop("root")], bind=bind, ignore_joints=(1,))
+    assert g.yielding.size == 0 and np.all(g.inverse_mass[g.attached] == 0)
+    r = simulate(ch, mo, cs, None, [g], SimParams(body_audit=False), ignore_colliders=[(1,)])
+    assert (r.penetrations_colliders == 0).all() and (r.corrected == 0).all()
+    centres = mo.joint_world[:, 1, :3, 3]
+    p = r.garments[0].positions.astype(np.float64)
+    assert (np.linalg.norm(p - centres[:, None], axis=2) < RADIUS - 1e-5).sum() > 0   # it went through

@@ -424,7 +424,7 @@ class GarmentBuild:
 
 
 def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_params=None, attach: bool = True,
-                 progress=None, under=(), under_gap: float = 0.0):
+                 progress=None, under=(), under_gap: float = 0.0, ignore_joints=()):
     """Pattern -> Garment on the character in the bind pose (frame 0 of `motion`).
 
     Returns (Garment, SewingLog, GarmentBuild). The Garment's positions are the sewn shape (merged
@@ -433,6 +433,7 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
     under: Garments worn under this one (lower cloth layers, in the same frame): the fit edges
     (a waistband) are hugged onto them, `under_gap` (m) off their surface, instead of onto the
     colliders where they are in the way, so a pinned band leaves room for what is tucked in under it.
+    ignore_joints: joints whose colliders the simulation will not let push this garment (build_garment).
     """
     from stages.garments.sewing import SewParams, merged_mesh, seam_gaps, sew
     from stages.garments.triangulate import run_vertices, triangulate_pattern
@@ -556,7 +557,7 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
             idx, joint = chosen(a)
             atts.append(attach_indices(np.unique(remap[idx]), joint))
     g = build_garment(pattern.name, pos, mtri, density=pattern.density, triangle_rest=tri_rest, attachments=atts,
-                      bind=bind)
+                      bind=bind, ignore_joints=ignore_joints)
     fit = np.unique(remap[np.concatenate(runs)]).astype(np.int64) if runs else np.zeros(0, np.int64)
     gaps = seam_gaps(sewn, flat.seam_pairs)
     by_seam = {}

@@ -223,12 +223,13 @@ def bind_pose(character, motion, colliders=None) -> BindPose:
                     np.ascontiguousarray(character.parents, dtype=np.int32), frames)
 
 
-def swept_attachments(bind: BindPose, local: np.ndarray, joints: np.ndarray, depth: float):
+def swept_attachments(bind: BindPose, local: np.ndarray, joints: np.ndarray, depth: float, ignore=()):
     """Attached particles that a collider of another bone holds deeper than `depth` (m) at some
     frame of bind.poses: ((M,) bool, names of those colliders).
 
     local: (M, 3) bone-local positions, joints: (M,) the bones they follow. A particle's own bone's
-    colliders move rigidly with it and are not tested.
+    colliders move rigidly with it and are not tested, nor those of the joints in `ignore` (the
+    garment ignores them: simulate's ignore_colliders).
     """
     hit = np.zeros(len(joints), bool)
     names = []
@@ -239,7 +240,7 @@ def swept_attachments(bind: BindPose, local: np.ndarray, joints: np.ndarray, dep
     inv = np.linalg.inv(bind.frames_of_colliders())
     for bone, name, collider, frame in _colliders(bind.colliders):
         other = np.flatnonzero(joints != bone)
-        if other.size == 0:
+        if other.size == 0 or bone in ignore:
             continue
         w = inv[:, frame]
         p = np.einsum("fij,fmj->fmi", w[:, :3, :3], x[:, other]) + w[:, None, :3, 3]
@@ -419,7 +420,7 @@ def _repair(name: str, x: np.ndarray, rest: np.ndarray, tri: np.ndarray):
 
 def build_garment(name: str, positions, triangles, *, rest_positions=None, density: float = 0.2,
                   attachments=(), bind: BindPose | None = None, triangle_rest=None, extra_springs=None,
-                  extra_rest_lengths=None, yield_swept: bool = True) -> Garment:
+                  extra_rest_lengths=None, yield_swept: bool = True, ignore_joints=()) -> Garment:
     """A Garment from a triangle mesh.
 
     positions: (N, 3) initial positions, metres, relative frame at frame 0.
@@ -437,7 +438,8 @@ def build_garment(name: str, positions, triangles, *, rest_positions=None, densi
         pulling panel edges together while sewing), with extra_rest_lengths (K,) metres > 0.
     yield_swept: the attached particles that a collider of another bone holds deeper than its
         inflation delta at some frame of bind.poses keep their mass and yield to the collision
-        response (see Garment.attach_joint), with a warning (`swept_attachments`).
+        response (see Garment.attach_joint), with a warning (`swept_attachments`); the colliders of
+        the joints in `ignore_joints` (which the simulation will not let push this garment) do not count.
     """
     where = f"garment {name!r}"
     x = np.asarray(positions, dtype=np.float64)
@@ -528,7 +530,8 @@ def build_garment(name: str, positions, triangles, *, rest_positions=None, densi
         rigid = attach_joint >= 0
         if yield_swept and bind.colliders is not None:
             att = np.flatnonzero(rigid)
-            swept, names = swept_attachments(bind, attach_local[att], attach_joint[att], bind.colliders.delta)
+            swept, names = swept_attachments(bind, attach_local[att], attach_joint[att], bind.colliders.delta,
+                                             ignore=set(int(j) for j in ignore_joints))
             if swept.any():
                 warnings.warn(f"garment {name!r}: {int(swept.sum())} of {att.size} attached particles yield to "
                               f"collisions: the colliders {', '.join(names)} pass through them during "

@@ -87,13 +87,14 @@ def _penetrates(c, col_kind, col_index, sph_radius, method, tq, cw,
 
 
 @njit(cache=True, _nrt=False)
-def _inside_any(col_kind, col_index, sph_radius, method, tq, cw, skip,
+def _inside_any(col_kind, col_index, sph_radius, method, tq, cw, contact, i,
                 half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
                 cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
                 px, py, pz):
-    """True if the world point is inside any collider except `skip` (with a real push)."""
+    """True if the world point is inside any collider particle i does not ignore (contact[i, c] !=
+    IGNORED), with a real push."""
     for c in range(cw.shape[0]):
-        if c != skip and _penetrates(c, col_kind, col_index, sph_radius, method, tq, cw,
+        if contact[i, c] != IGNORED and _penetrates(c, col_kind, col_index, sph_radius, method, tq, cw,
                                      half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes,
                                      cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
                                      px, py, pz):
@@ -352,6 +353,7 @@ def escape_union(c, last, col_kind, col_index, sph_radius, method, tq, cw,
 
 
 PINCHED = 4         # collide's mark in inside[i]: left in the middle of two bones' colliders pressing on it
+IGNORED = -2147483648   # contact[i, c]: collider c never pushes particle i (its garment ignores c's joint)
 OPEN = 2            # collide's screening mark in inside[i]: the particle may be inside a collider
 SCREEN_MAX = 4      # collide screens every particle against every collider up to this many colliders
 
@@ -378,6 +380,8 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
     over the step loses up to `friction` times the push's normal depth.
     corrected[i] |= 1 if the particle was pushed; inside[i] = 1 if it is still inside a collider at
     the end (PINCHED if pinched); speed2[i] = |x - xp|^2 / h^2 at the end (divergence check).
+    Colliders a particle's garment ignores (contact[i, c] == IGNORED, set by simulate: a limb the
+    animation swings through the garment) are skipped, as if absent.
     Temporal coherence (METHOD_PAPER): contact (N, C) int32 holds per particle and hull the face of
     its last verdict (the exit face of a push, or a separating face), -1 unknown; the next query of
     that hull first tries that face (_cached_face: the same answer when it gives one), which is right
@@ -421,7 +425,7 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
                 dx = px - s0
                 dy = py - s1
                 dz = pz - s2
-                may = (dx * dx + dy * dy + dz * dz < r2) & (inv_mass[i] > 0.0)
+                may = (dx * dx + dy * dy + dz * dz < r2) & (inv_mass[i] > 0.0) & (contact[i, c] != IGNORED)
                 q0 = a0 * px + a1 * py + a2 * pz + a3       # apply12
                 q1 = a4 * px + a5 * py + a6 * pz + a7
                 q2 = a8 * px + a9 * py + a10 * pz + a11
@@ -430,7 +434,7 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
                 else:
                     may &= (abs(q0) <= b0) & (abs(q1) <= b1) & (abs(q2) <= b2)
                     f = contact[i, c]
-                    fs = max(f, -2 - f, 0)   # the remembered face (>= 0: a verdict's, <= -2: separating) or 0
+                    fs = max(f, -2 - f, 0) if f != IGNORED else 0   # the remembered face (>= 0: a verdict's, <= -2: separating) or 0
                     ahead = planes[fs, 0] * q0 + planes[fs, 1] * q1 + planes[fs, 2] * q2 > planes[fs, 3]
                     may &= (not faces) | (f == -1) | (not ahead)
                 if c == 0:      # the first collider's pass also sets the speed (and clears the mark)
@@ -497,7 +501,7 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
                 dx = px - cw[c, 0]
                 dy = py - cw[c, 1]
                 dz = pz - cw[c, 2]
-                if dx * dx + dy * dy + dz * dz < cw[c, 4]:
+                if dx * dx + dy * dy + dz * dz < cw[c, 4] and contact[i, c] != IGNORED:
                     q0, q1, q2 = apply12(tq, c, px, py, pz)
                     idx = col_index[c]
                     hit = False
@@ -589,14 +593,15 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
 
 
 @njit(cache=True, _nrt=False)
-def count_inside(x, inv_mass, m, method, col_kind, col_index, sph_radius, tq, cw, inside):
-    """inside[i] = 1 if free particle i is inside any collider (no response)."""
+def count_inside(x, inv_mass, m, method, col_kind, col_index, sph_radius, tq, cw, contact, inside):
+    """inside[i] = 1 if free particle i is inside any collider it does not ignore (contact (N, C), see
+    collide; no response)."""
     (half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base, cell_start, cell_tris,
      loc_base, loc_x, loc_start, loc_y, loc_face) = query_arrays(m)
     for i in range(x.shape[0]):
         inside[i] = 0
         if inv_mass[i] > 0.0:
             inside[i] = _inside_any(
-                col_kind, col_index, sph_radius, method, tq, cw, -1,
+                col_kind, col_index, sph_radius, method, tq, cw, contact, i,
                 half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base,
                 cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, x[i, 0], x[i, 1], x[i, 2])

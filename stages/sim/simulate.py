@@ -174,6 +174,21 @@ class _System:
         """The collision kernel's per particle and collider face cache, all unknown (-1)."""
         self.contact = np.full((self.x.shape[0], n_colliders), -1, np.int32)
 
+    def ignore_colliders(self, joints, owner: np.ndarray, n_joints: int):
+        """Garment g's particles are never pushed by the colliders of the joints joints[g] (owner (C,):
+        each collider's joint): their contact entries become body_collide.IGNORED."""
+        if len(joints) != len(self.names):
+            raise ContractError(f"simulate: ignore_colliders has {len(joints)} entries, expected one per garment "
+                                f"({len(self.names)})")
+        for g, js in enumerate(joints):
+            js = np.asarray(list(js), np.int64)
+            if js.size and (js.min() < 0 or js.max() >= n_joints):
+                raise ContractError(f"simulate: ignore_colliders[{g}] ({self.names[g]!r}): joint indices must be in "
+                                    f"0..{n_joints - 1}, got {js.tolist()}")
+            cols = np.flatnonzero(np.isin(owner, js))
+            if cols.size:
+                self.contact[self.offsets[g]:self.offsets[g + 1], cols] = body_collide.IGNORED
+
     def flags(self) -> tuple:
         return (self.corrected, self.inside, self.speed2, self.contact)
 
@@ -235,6 +250,8 @@ class _Colliders:
             self.m = empty_map_arrays()
         self.face_edges, self.src_range = exit_face_data(maps.maps if hulls else (), self.m)
         joint, kind, index, bc, br = [], [], [], [], []
+        # the joint each collider belongs to (a ball's: its region's joint; `joint` is its pose index)
+        self.owner = np.array([hull.bone for hull in hulls] + [s.joint for s in spheres], np.int32)
         for h, hull in enumerate(hulls):
             v = hull.simplified.vertices
             c = v.mean(axis=0)
@@ -286,7 +303,9 @@ def particles_inside_colliders(points, colliders, maps, pose, method: int = METH
                       col.sph_center, col.tq, col.tq0, col.fq, col.cw)
     p = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
     out = np.zeros(p.shape[0], np.uint8)
-    body_collide.count_inside(p, np.ones(p.shape[0]), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.cw, out)
+    none_ignored = np.full((p.shape[0], col.joint.size), -1, np.int32)
+    body_collide.count_inside(p, np.ones(p.shape[0]), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.cw,
+                              none_ignored, out)
     return out.astype(bool)
 
 
@@ -342,26 +361,33 @@ def winding_number(vertices, triangles, points, *, exact: bool = False, beta: fl
 
 # -- the stage ----------------------------------------------------------------------------------------
 def simulate(character, motion, colliders, maps, garments, params: SimParams, *, obstacles=None,
-             progress=None, threads: int | None = 1, layers=None, partial: dict | None = None) -> SimResult:
+             progress=None, threads: int | None = 1, layers=None, partial: dict | None = None,
+             ignore_colliders=None) -> SimResult:
     """See `_simulate`. threads: numba threads for the parallel kernels during the call (None = the
     current numba setting). Results do not depend on it (every parallel loop writes disjoint
     particles). Default 1: on the shared 2-core machine a second thread pays only when a core is
     idle (see stages/sim/bench.py). layers: (G,) cloth collision layer per garment, 0 = innermost
     (default: the garments' order); used when params.cloth_collision. partial: optional dict the
     simulation keeps 'result' in (a function of no argument: the SimResult of the frames done so
-    far), for a caller that stops the run from outside (a sweep's timeout) and keeps what was done."""
+    far), for a caller that stops the run from outside (a sweep's timeout) and keeps what was done.
+    ignore_colliders: optional, per garment a collection of joint indices whose colliders (hulls,
+    spheres, balls) never push that garment (a limb the animation swings through it: the cloth then
+    passes through the limb, which the body audit counts)."""
     if threads is None:
-        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, layers, partial)
+        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, layers, partial,
+                         ignore_colliders)
     import numba
     old = numba.get_num_threads()
     numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
     try:
-        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, layers, partial)
+        return _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, layers, partial,
+                         ignore_colliders)
     finally:
         numba.set_num_threads(old)
 
 
-def _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, layers, partial) -> SimResult:
+def _simulate(character, motion, colliders, maps, garments, params, obstacles, progress, layers, partial,
+              ignore_colliders=None) -> SimResult:
     """Simulate `garments` on `character` playing `motion` (see the module docstring).
 
     character: stages.rig.types.Character; motion: Motion sampled every params.dt seconds;
@@ -398,6 +424,10 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     col = _Colliders(colliders, maps)
     sysm.set_colliders(col.joint.size)
     notes = list(col.notes)
+    if ignore_colliders is not None:
+        sysm.ignore_colliders(ignore_colliders, col.owner, character.n_joints)
+        notes += [f"{g.name}: not pushed by the colliders of {', '.join(character.joint_names[j] for j in js)}"
+                  for g, js in zip(garments, ignore_colliders) if len(js)]
     method = {"ray": METHOD_PAPER, "brute_ray": METHOD_BRUTE, "nearest_plane": METHOD_NEAREST_PLANE}[params.hull_response]
     s = float(params.inertia_scale)
     h = params.step
@@ -480,7 +510,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     collider_grid.collider_frames(fwd0, inv_0, inv_0, col.m, col.joint, col.kind, col.index, col.bcenter, col.bradius,
                       col.sph_center, col.tq, col.tq0, col.fq, col.cw)
     body_collide.count_inside(sysm.x, sysm.inv_mass, col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.cw,
-                   sysm.inside)
+                              sysm.contact, sysm.inside)
     sysm.corrected[:] = 0
     sysm.speed2[:] = 0.0
     step.record_frame(sysm.x, flags, np.inf, sysm.goff, rel[0], pen_col[0], counts[0])
