@@ -120,3 +120,19 @@ def test_a_garment_ignoring_a_joint_falls_through_its_sphere_the_other_rests_on_
         simulate(ch, motion, cs, None, garments, params, ignore_colliders=[[2], []])
     with pytest.raises(ContractError, match="one per garment"):
         simulate(ch, motion, cs, None, garments, params, ignore_colliders=[[1]])
+
+
+def test_the_run_reports_what_each_garment_ignores(tmp_path):
+    """A scene's garments[].ignore_colliders reaches the simulation: the recording's sim/report
+    names the joints per garment (read back with the SDK's reader)."""
+    from pipeline.run import run_scene
+    from pipeline.scene import parse_scene_text
+    from tests.rrd_read import rows
+    text = ("frames: {count: 3}\n"
+            "garments:\n"
+            "  - {type: tube, name: skirt, at_joint: pelvis, pin: {boundary: top}, ignore_colliders: [hand_l, hand_r]}\n"
+            "  - {type: tube, name: cape, at_joint: chest, pin: {boundary: top}}\n")
+    scene = parse_scene_text(text, source=str(tmp_path / "s.yaml"))
+    run_scene(scene, output=tmp_path / "out.rrd", progress=False)
+    report = str(rows(tmp_path / "out.rrd", "sim/report", "TextDocument:text")[0][1])
+    assert "skirt: not pushed by the colliders of hand_l, hand_r" in report and "cape: not pushed" not in report
