@@ -381,7 +381,8 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
     corrected[i] |= 1 if the particle was pushed; inside[i] = 1 if it is still inside a collider at
     the end (PINCHED if pinched); speed2[i] = |x - xp|^2 / h^2 at the end (divergence check).
     Colliders a particle's garment ignores (contact[i, c] == IGNORED, set by simulate: a limb the
-    animation swings through the garment) are skipped, as if absent.
+    animation swings through the garment) are skipped, as if absent (kept in the face cache's array:
+    the entry a visit reads anyway, no second (N, C) array).
     Temporal coherence (METHOD_PAPER): contact (N, C) int32 holds per particle and hull the face of
     its last verdict (the exit face of a push, or a separating face), -1 unknown; the next query of
     that hull first tries that face (_cached_face: the same answer when it gives one), which is right

@@ -159,7 +159,7 @@ class _System:
         self.corrected = np.zeros(n, np.uint8)
         self.inside = np.zeros(n, np.uint8)
         self.speed2 = np.zeros(n)
-        self.contact = np.zeros((n, 0), np.int32)   # per particle and collider: last face (see set_colliders)
+        self.contact = np.zeros((n, 0), np.int32)   # per particle and collider: last face, or IGNORED (see set_colliders)
         self.goff = np.ascontiguousarray(self.offsets, dtype=np.int64)
         self.ti, self.ta, self.tl = tethers(garments, self.offsets, w) if params.tethers else (
             np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0))
@@ -171,7 +171,8 @@ class _System:
                 self.vt_table, self.x4, self.vertex_force, self.vt_eye)
 
     def set_colliders(self, n_colliders: int):
-        """The collision kernel's per particle and collider face cache, all unknown (-1)."""
+        """The collision kernel's per particle and collider face cache, all unknown (-1); entries
+        of colliders a garment ignores become body_collide.IGNORED (`ignore_colliders`)."""
         self.contact = np.full((self.x.shape[0], n_colliders), -1, np.int32)
 
     def ignore_colliders(self, joints, owner: np.ndarray, n_joints: int):
