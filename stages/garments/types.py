@@ -535,7 +535,8 @@ def build_garment(name: str, positions, triangles, *, rest_positions=None, densi
             if swept.any():
                 warnings.warn(f"garment {name!r}: {int(swept.sum())} of {att.size} attached particles yield to "
                               f"collisions: the colliders {', '.join(names)} pass through them during "
-                              f"the motion", stacklevel=2)
+                              f"the motion (a limb swinging through the garment: its joint in the garment's "
+                              f"ignore_colliders lets it pass through the cloth instead)", stacklevel=2)
                 rigid[att[swept]] = False
         inv_mass[rigid] = 0.0
     return Garment(name, np.ascontiguousarray(x), np.ascontiguousarray(rest), np.ascontiguousarray(tri),
