@@ -295,10 +295,11 @@ def log_maps(rec: rr.RecordingStream, character: Character, motion: Motion, maps
 STRAIN_RAMP_MAX = 0.10      # per-vertex strain colouring: this strain and above is the top of the ramp
 
 
-def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=None) -> dict:
+def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=None, strain_notes=()) -> dict:
     """Cloth meshes (each garment its fabric colour), penetration counts, step time and the
     parameters; with `audit` (a stages.sim.audit.ClothAudit) the strain and crossing series and, when
-    it has per-vertex strain, the meshes coloured by it. Returns the summary figures."""
+    it has per-vertex strain, the meshes coloured by it; strain_notes: lines on what holds the
+    strained edges (pipeline.run.strain_source_notes), into the report. Returns the summary figures."""
     for i, (track, g) in enumerate(zip(result.garments, garments)):
         vs = audit.garments[i].vertex_strain if audit is not None else None
         frame_colors = None
@@ -369,6 +370,8 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=Non
     }
     if result.notes:
         out["notes"] = "; ".join(result.notes)
+    if strain_notes:
+        out["what holds the most strained edges"] = "; ".join(strain_notes)
     cc = result.cloth_contact
     if cc:
         layers = ", ".join(f"{t.name} {l}" for t, l in zip(result.garments, cc.get("layers", ())))

@@ -119,6 +119,29 @@ def ignored_colliders(scene: Scene, character) -> list[tuple[int, ...]] | None:
     return lists if any(lists) else None
 
 
+def strain_source_notes(audit, garments, result, colliders, character, motion) -> tuple[str, ...]:
+    """For each garment whose p99 strain goes over the limit: the joints whose colliders its most
+    strained edges touch at its worst frame (stages.sim.strain_sources), one line each."""
+    from stages.garments.types import STRETCH
+    from stages.sim.audit import STRAIN_P99_LIMIT
+    from stages.sim.strain_sources import TOP_SHARE, TOUCH, strain_sources
+    out = []
+    for g, track, ga in zip(garments, result.garments, audit.garments):
+        if ga.strain_p99.max(initial=0.0) <= STRAIN_P99_LIMIT:
+            continue
+        f = int(np.argmax(ga.strain_p99))
+        sel = g.kinds == STRETCH
+        x = track.positions[f].astype(np.float64) - motion.root_translation[f]     # the colliders' frame
+        strain = np.abs(np.linalg.norm(x[g.springs[sel, 1]] - x[g.springs[sel, 0]], axis=1) / g.rest_lengths[sel] - 1.0)
+        poses = colliders.frame_poses(character.inverse_bind, motion.joint_world[f]) if colliders is not None else None
+        shares = strain_sources(x, g.springs[sel], strain, colliders, poses)
+        if shares:
+            named = ", ".join(f"{character.joint_names[j]} {100 * s:.0f} %" for j, s in list(shares.items())[:4])
+            out.append(f"garment {g.name!r}: at frame {f} its {100 * TOP_SHARE:.0f} % most strained edges touch "
+                       f"(within {1000 * TOUCH:.0f} mm) the colliders of {named}")
+    return tuple(out)
+
+
 def body_params(settings: dict):
     from stages.rig.procedural import BodyParams
     b = settings["character"]["body"]
@@ -477,7 +500,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                     bar.close()
                 state["result"] = result
                 r.sizes.update(steps=result.steps)
-            audit = None
+            audit, held = None, ()
             if sp["cloth_audit"]:
                 if warm.running():   # its kernels compile in the second process while the run simulates
                     where.stage("cloth audit")
@@ -493,9 +516,10 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                     audit = audit_cloth(result, garments, vertex_strain=sp["strain_colors"])
                     r.sizes.update(exact_pairs=audit.exact_pairs)
                 state["audit"] = audit
-                for w in audit.warnings:
+                held = strain_source_notes(audit, garments, result, colliders, character, motion)
+                for w in audit.warnings + held:
                     warnings.warn(w, stacklevel=1)
-            summary.penetrations = logs.log_sim(rec, motion, garments, result, audit)
+            summary.penetrations = logs.log_sim(rec, motion, garments, result, audit, held)
             summary.speeds = {k: summary.penetrations.pop(k) for k in list(summary.penetrations) if k.startswith("steps/s")}
             step_ms = result.step_ms
             state["fits"] = garment_fits(character, motion, skinned, garments, builds, result,
