@@ -123,7 +123,7 @@ def strain_source_notes(audit, garments, result, colliders, character, motion) -
     """For each garment whose p99 strain goes over the limit: the joints whose colliders its most
     strained edges touch at its worst frame (stages.sim.strain_sources), one line each."""
     from stages.garments.types import STRETCH
-    from stages.sim.audit import STRAIN_P99_LIMIT
+    from stages.sim.audit import STRAIN_P99_LIMIT, edge_strains
     from stages.sim.strain_sources import TOP_SHARE, TOUCH, strain_sources
     out = []
     for g, track, ga in zip(garments, result.garments, audit.garments):
@@ -132,7 +132,7 @@ def strain_source_notes(audit, garments, result, colliders, character, motion) -
         f = int(np.argmax(ga.strain_p99))
         sel = g.kinds == STRETCH
         x = track.positions[f].astype(np.float64) - motion.root_translation[f]     # the colliders' frame
-        strain = np.abs(np.linalg.norm(x[g.springs[sel, 1]] - x[g.springs[sel, 0]], axis=1) / g.rest_lengths[sel] - 1.0)
+        strain = edge_strains(x[None], g.springs[sel], g.rest_lengths[sel])[0]
         poses = colliders.frame_poses(character.inverse_bind, motion.joint_world[f]) if colliders is not None else None
         shares = strain_sources(x, g.springs[sel], strain, colliders, poses)
         if shares:
