@@ -196,12 +196,15 @@ def coverage_table(coverage) -> str:
     t = coverage.totals()
     rows = [f"worst of {t['frames']} sampled frames: coverage {t['coverage_min'] * 100:.2f} %, excess p50 "
             f"{t['excess_p50'] * 100:.1f} / p95 {t['excess_p95'] * 100:.1f} / max {t['excess_max'] * 100:.1f} cm, "
-            f"shell {t['shell_share'] * 100:.0f} % of the body volume ({t['interior_samples_min']}+ body samples per "
+            f"shell {t['shell_share'] * 100:.0f} % of the body volume, skin out of every collider "
+            f"{t['skin_exposed'] * 100:.2f} % of its points ({t['interior_samples_min']}+ body samples per "
             f"frame, grid cell {coverage.cell * 1000:.1f} mm, {coverage.surface_samples} collider-surface samples)", "",
-            "| frame | coverage (%) | excess p50 / p95 / max (cm) | shell (% of body) |", "| ---: | ---: | --- | ---: |"]
+            "| frame | coverage (%) | excess p50 / p95 / max (cm) | shell (% of body) | skin exposed (%) |",
+            "| ---: | ---: | --- | ---: | ---: |"]
     for k, f in enumerate(coverage.frames):
         rows.append(f"| {int(f)} | {coverage.coverage[k] * 100:.2f} | {coverage.excess_p50[k] * 100:.1f} / "
-                    f"{coverage.excess_p95[k] * 100:.1f} / {coverage.excess_max[k] * 100:.1f} | {coverage.shell_share[k] * 100:.0f} |")
+                    f"{coverage.excess_p95[k] * 100:.1f} / {coverage.excess_max[k] * 100:.1f} | {coverage.shell_share[k] * 100:.0f} | "
+                    f"{coverage.skin_exposed[k] * 100:.2f} |")
     rows += ["", "| collider | kind | coverage near it (%) | excess p50 / p95 / max (cm) | shell (% of body) |",
              "| --- | --- | ---: | --- | ---: |"]
     for c in coverage.colliders:
@@ -221,7 +224,8 @@ def log_coverage(rec: rr.RecordingStream, motion: Motion, coverage, fit_table: s
             ("coverage", "coverage (%)", coverage.coverage * 100, (60, 160, 90)),
             ("excess_p95", "excess p95 (cm)", coverage.excess_p95 * 100, (230, 140, 40)),
             ("excess_max", "excess max (cm)", coverage.excess_max * 100, (220, 70, 50)),
-            ("shell", "shell (% of body volume)", coverage.shell_share * 100, (90, 110, 200))):
+            ("shell", "shell (% of body volume)", coverage.shell_share * 100, (90, 110, 200)),
+            ("skin_exposed", "skin out of every collider (% of its points)", coverage.skin_exposed * 100, (200, 60, 160))):
         rec.log(f"colliders/fit/{key}", rr.SeriesLines(names=name, colors=[color]), static=True)
         rec.send_columns(f"colliders/fit/{key}", indexes=index, columns=rr.Scalars.columns(scalars=values))
     return table

@@ -427,7 +427,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 t = coverage.totals()
                 r.sizes.update(frames=t["frames"], coverage=f"{t['coverage_min'] * 100:.2f} %",
                                excess_p95=f"{t['excess_p95'] * 100:.1f} cm", excess_max=f"{t['excess_max'] * 100:.1f} cm",
-                               shell=f"{t['shell_share'] * 100:.0f} %")
+                               shell=f"{t['shell_share'] * 100:.0f} %", skin_exposed=f"{t['skin_exposed'] * 100:.2f} %")
                 summary.tables["collider coverage"] = logs.log_coverage(rec, motion, coverage,
                                                                         summary.tables["collider fit"])
                 for w in coverage.warnings():

@@ -112,6 +112,11 @@ def test_reported_figures_equal_a_brute_force_recount(tube, mode):
         any_col = _reference_inside(s["grid"], cs, motion.joint_world[f], c).any(axis=1)
         assert rep.coverage[k] == pytest.approx((in_body & any_col).sum() / in_body.sum(), abs=1e-12)
         assert rep.shell_share[k] == pytest.approx((~in_body & any_col).sum() / in_body.sum(), abs=1e-12)
+        # skin exposed: vertices, triangle centroids and edge midpoints out of every collider
+        edges = {tuple(sorted(e)) for t in c.triangles.tolist() for e in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0]))}
+        skin_pts = np.concatenate([v, v[c.triangles].mean(axis=1), np.array([(v[a] + v[b]) / 2 for a, b in sorted(edges)])])
+        out = ~_reference_inside(skin_pts, cs, motion.joint_world[f], c).any(axis=1)
+        assert rep.skin_exposed[k] == pytest.approx(out.mean(), abs=1e-12)
         # excess: surface samples not inside another collider, outside the body, distance to the skin
         ins = _reference_inside(s["surface"], cs, motion.joint_world[f], c)
         ins[np.arange(ins.shape[0]), s["owner"]] = False

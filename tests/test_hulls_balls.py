@@ -56,15 +56,50 @@ def test_balls_hold_every_flexible_vertex_they_claim_at_every_check_pose():
     assert balls.radius.size > 0
     flex = np.setdiff1d(np.flatnonzero(~split.rigid), balls.unheld)
     assert flex.size > 0
-    centers = balls.centers(c.inverse_bind, poses)                 # (F, B, 3)
-    reach = balls.radius - (1 - cover) * delta
+    inner = balls.radius.size - balls.on_skin                      # the balls inside the body
+    centers = balls.centers(c.inverse_bind, poses)[:, :inner]      # (F, B, 3)
+    reach = balls.radius[:inner] - (1 - cover) * delta
     for f in ball_check_poses(poses.shape[0]):
         d = np.linalg.norm(x[f, flex][:, None] - centers[f][None], axis=2)
         assert (d <= reach[None] + 1e-12).any(axis=1).all(), f
         assert (winding_number(x[f], c.triangles, centers[f]) >= 0.5).all(), f
         depth = np.zeros(centers.shape[1])        # brute force over every triangle
         distance_to_mesh_brute(centers[f], x[f], c.triangles.astype(np.int64), depth)
-        assert (balls.radius <= depth + max(slack) + delta + 1e-9).all(), f   # stands out at most slack + delta
+        assert (balls.radius[:inner] <= depth + max(slack) + delta + 1e-9).all(), f   # stands out at most slack + delta
+
+
+def test_skin_balls_hold_the_skin_no_ball_inside_the_body_holds():
+    """With no slack (balls inside the body may not stand out of the skin) some skin of the walk's
+    flexible triangles (vertices, centroids, edge midpoints) is out of every ball inside the body at
+    a check pose; the skin balls put all of it inside some ball. Each skin ball sits on the bind-pose
+    skin and, at every check pose, within radius - delta of the skinned skin (it stands out of the
+    skin by at most its radius, as a hull stands out by delta). Brute force over every triangle."""
+    from stages.coverage.measure import SkinDistance
+    from stages.coverage.kernels import distance_to_mesh_brute
+    from stages.hulls.balls import _skin_features
+    c, poses, x = _walk()
+    delta = 0.01
+    split = split_by_motion(c, bone_deviation(c, poses, x), 0.005)
+    balls = fit_balls(c, split, poses, x, SkinDistance(c), delta=delta, slack=(0.0,))
+    assert balls.on_skin > 0
+    inner = balls.radius.size - balls.on_skin
+    centers = balls.centers(c.inverse_bind, poses)
+    tri, edges = _skin_features(c.triangles, ~split.rigid)
+    flex = np.flatnonzero(~split.rigid)
+    tris = c.triangles.astype(np.int64)
+    out_inner, out_all = 0, 0
+    for f in ball_check_poses(poses.shape[0]):
+        skin = np.concatenate([x[f, flex], x[f][tri].mean(axis=1), x[f][edges].mean(axis=1)])
+        d = np.linalg.norm(skin[:, None] - centers[f][None], axis=2) - balls.radius[None]
+        out_inner += int((d[:, :inner].min(axis=1) > 0).sum())
+        out_all += int((d.min(axis=1) > 0).sum())
+        off = np.zeros(balls.on_skin)
+        distance_to_mesh_brute(np.ascontiguousarray(centers[f, inner:]), x[f], tris, off)
+        assert (off <= balls.radius[inner:] - delta + 1e-9).all(), f
+    assert out_inner > 0 and out_all == 0, (out_inner, out_all)
+    on_bind = np.zeros(balls.on_skin)
+    distance_to_mesh_brute(np.ascontiguousarray(balls.bind_center[inner:]), c.vertices, tris, on_bind)
+    assert on_bind.max() < 1e-9 and (balls.radius[inner:] >= delta).all()
 
 
 def _greedy_reference(held: np.ndarray, need: np.ndarray) -> list[int]:

@@ -160,11 +160,15 @@ def test_coverage_report_is_logged_per_sampled_frame(default_run):
     report = str(rows(out, "colliders/report", "TextDocument:text")[0][1])
     assert "Coverage and excess" in report and "Hull fit" in report
     assert "_ball" in report                                 # the skinned balls are listed by name
-    for key in ("coverage", "excess_p95", "excess_max", "shell"):
+    for key in ("coverage", "excess_p95", "excess_max", "shell", "skin_exposed"):
         got = rows(out, f"colliders/fit/{key}", "Scalars:scalars")
         assert [f for f, _ in got] == [0, FRAMES - 1], key    # every 10th frame and the last
     cov = np.array([v[0] for _, v in rows(out, "colliders/fit/coverage", "Scalars:scalars")])
     assert ((cov > 99.0) & (cov <= 100.0)).all()
+    exposed = np.array([v[0] for _, v in rows(out, "colliders/fit/skin_exposed", "Scalars:scalars")])
+    # % of the skin's points out of every collider: the built-in body's hull seams at bent knees and elbows
+    assert ((exposed >= 0.0) & (exposed < 2.0)).all()
+    assert summary.stages[2].sizes["skin_exposed"] == f"{exposed.max():.2f} %"
     assert "collider coverage" in summary.tables and "coverage" in summary.stages[2].sizes
 
 

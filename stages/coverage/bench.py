@@ -51,19 +51,20 @@ def measure(character, clip, start: float, mode: str, frames: int = 60, delta: f
             "faces": int(sum(h.simplified.faces.shape[0] for h in cs.hulls)),
             "coverage_min_pct": round(t["coverage_min"] * 100, 2), "excess_p95_cm": round(t["excess_p95"] * 100, 2),
             "excess_max_cm": round(t["excess_max"] * 100, 2), "shell_pct": round(t["shell_share"] * 100, 1),
+            "skin_exposed_pct": round(t["skin_exposed"] * 100, 3),
             "fit_s": round(t1 - t0, 2), "measure_s": round(time.perf_counter() - t1, 2)}
 
 
 def table(results: dict) -> str:
-    rows = ["| character | colliders | count (hulls + spheres) | coverage min (%) | excess p95 / max (cm) | shell (% of body) |",
-            "| --- | --- | --- | ---: | --- | ---: |"]
+    rows = ["| character | colliders | count (hulls + spheres) | coverage min (%) | excess p95 / max (cm) | shell (% of body) "
+            "| skin exposed, max (%) |", "| --- | --- | --- | ---: | --- | ---: | ---: |"]
     for name, per in results.items():
         for mode, r in per.items():
             if "skipped" in r:
-                rows.append(f"| {name} | {mode} | skipped: {r['skipped']} | | | |")
+                rows.append(f"| {name} | {mode} | skipped: {r['skipped']} | | | | |")
                 continue
             rows.append(f"| {name} | {mode} | {r['colliders']} ({r['hulls']} + {r['spheres']}) | {r['coverage_min_pct']:.2f} | "
-                        f"{r['excess_p95_cm']:.1f} / {r['excess_max_cm']:.1f} | {r['shell_pct']:.0f} |")
+                        f"{r['excess_p95_cm']:.1f} / {r['excess_max_cm']:.1f} | {r['shell_pct']:.0f} | {r['skin_exposed_pct']:.3f} |")
     return "\n".join(rows)
 
 

@@ -8,6 +8,9 @@ At each sampled frame the skinned body and every collider (posed by its joint) a
   surface point inside another collider is hidden from the cloth and skipped) that lie outside the
   body; their distance to the skin, p50 / p95 / max. This is how far the colliders hold cloth off.
 - shell: the grid cells inside some collider and outside the body, as a share of the body volume.
+- skin exposed: the share of the skin's points (vertices, triangle centroids, edge midpoints) out of
+  every collider: where cloth resting on the colliders can show the skin through it. Coverage counts
+  volume and missed CesiumMan's armpits and chest, up to 11.6 mm out (stages/hulls/balls.py).
 Per collider: the excess of its own (union-surface) samples, its shell share, and the coverage of
 the body points whose nearest skin vertex belongs to its region (which collider a hole is near).
 
@@ -32,6 +35,8 @@ COVERAGE_WARN = 0.99       # warn below this coverage at any sampled frame
 MAX_REFINE = 4             # grid refinements to reach interior_samples (each ~x(n / needed)^(1/3))
 MIN_INSIDE = 50            # fewer grid points inside the body than this: it has no volume to measure
 EXCESS_P95_WARN = 0.03     # m: warn above this p95 excess
+SKIN_EXPOSED_WARN = 0.01   # warn above this share of skin points out of every collider at a sampled frame (the
+                            # built-in body's hull seams at bent knees and elbows reach 0.6 %, where no garment rests)
 MAX_SURFACE_SAMPLES = 200_000   # collider-surface samples per frame at most (spacing grows beyond: a 10 m glTF
                                 # with 1,233 balls had 7 million at 1 cm, and its coverage took 475 s)
 
@@ -63,7 +68,8 @@ class CoverageReport:
     frames: (S,) int64, the motion frames measured. interior_samples: (S,) int64, grid points
     inside the body. coverage: (S,) float64 in [0, 1]. excess_p50 / excess_p95 / excess_max: (S,)
     float64, m. shell_share: (S,) float64, shell volume / body volume. body_volume: (S,) float64,
-    m^3 (grid estimate). cell: grid cell edge, m. surface_samples: union-surface points per frame.
+    m^3 (grid estimate). skin_exposed: (S,) float64 in [0, 1], the share of skin points out of every
+    collider. cell: grid cell edge, m. surface_samples: union-surface points per frame.
     colliders: one ColliderFigures per collider (hulls first, then spheres, ColliderSet order).
     """
 
@@ -75,6 +81,7 @@ class CoverageReport:
     excess_max: np.ndarray
     shell_share: np.ndarray
     body_volume: np.ndarray
+    skin_exposed: np.ndarray
     cell: float
     surface_samples: int
     colliders: tuple
@@ -84,7 +91,7 @@ class CoverageReport:
         o = "CoverageReport"
         s = check_array(o, "frames", self.frames, (None,), np.int64).size
         check_array(o, "interior_samples", self.interior_samples, (s,), np.int64)
-        for name in ("coverage", "excess_p50", "excess_p95", "excess_max", "shell_share", "body_volume"):
+        for name in ("coverage", "excess_p50", "excess_p95", "excess_max", "shell_share", "body_volume", "skin_exposed"):
             check_array(o, name, getattr(self, name), (s,), np.float64)
         if s and (self.coverage.min() < 0 or self.coverage.max() > 1):
             raise ContractError(f"{o}.coverage: expected shares in [0, 1]")
@@ -94,6 +101,7 @@ class CoverageReport:
         return {"frames": int(self.frames.size), "coverage_min": float(self.coverage.min()),
                 "excess_p50": float(self.excess_p50.max()), "excess_p95": float(self.excess_p95.max()),
                 "excess_max": float(self.excess_max.max()), "shell_share": float(self.shell_share.max()),
+                "skin_exposed": float(self.skin_exposed.max()),
                 "interior_samples_min": int(self.interior_samples.min()), "colliders": len(self.colliders)}
 
     def warnings(self) -> list[str]:
@@ -105,6 +113,10 @@ class CoverageReport:
             out.append(f"collider coverage {self.coverage.min() * 100:.2f} % at frame "
                        f"{int(self.frames[np.argmin(self.coverage)])} (below {COVERAGE_WARN * 100:.0f} %): "
                        f"body left uncovered near {names}")
+        if self.skin_exposed.max() > SKIN_EXPOSED_WARN:
+            out.append(f"skin out of every collider: {self.skin_exposed.max() * 100:.2f} % of its points at frame "
+                       f"{int(self.frames[np.argmax(self.skin_exposed)])} (above {SKIN_EXPOSED_WARN * 100:.2f} %): "
+                       "cloth resting on the colliders can show the skin there")
         if self.excess_p95.max() > EXCESS_P95_WARN:
             hi = sorted((c for c in self.colliders if c.excess_p95 > EXCESS_P95_WARN), key=lambda c: -c.excess_p95)
             names = ", ".join(f"{c.name} {c.excess_p95 * 100:.1f} cm" for c in hi[:6]) or "none singled out"
@@ -285,7 +297,8 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
     bind_volume = abs(_mesh_volume(character.vertices, character.triangles))
     cell = (max(bind_volume, 1e-6) / (1.3 * interior_samples)) ** (1 / 3)
 
-    rows = {k: [] for k in ("n_in", "coverage", "p50", "p95", "max", "shell", "volume")}
+    rows = {k: [] for k in ("n_in", "coverage", "p50", "p95", "max", "shell", "volume", "exposed")}
+    edges = np.unique(np.sort(character.triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
     per_in = np.zeros(nc)        # body points nearest each collider's region
     per_cov = np.zeros(nc)       # ... of them inside some collider
     per_shell = np.zeros(nc)     # shell cells inside each collider, summed over frames (in body volumes)
@@ -319,6 +332,8 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
         rows["shell"].append(float((~in_body & any_col).sum() / n_in))
         rows["volume"].append(body_vol)
         per_shell += (ins[~in_body].sum(axis=0) / n_in) if nc else 0
+        skin_pts = np.concatenate([v, v[character.triangles].mean(axis=1), v[edges].mean(axis=1)])
+        rows["exposed"].append(float((~inside_matrix(skin_pts, arrays, pose).any(axis=1)).mean()) if nc else 1.0)
         if nc:
             near = cKDTree(v).query(grid[in_body])[1]
             owner = vertex_collider[near]
@@ -360,6 +375,7 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
     return CoverageReport(frames=frames, interior_samples=np.array(rows["n_in"], np.int64),
                           coverage=f64("coverage"), excess_p50=f64("p50"), excess_p95=f64("p95"),
                           excess_max=f64("max"), shell_share=f64("shell"), body_volume=f64("volume"),
+                          skin_exposed=f64("exposed"),
                           cell=float(cell), surface_samples=int(owner_surface.size), colliders=tuple(figures),
                           samples=tuple(kept))
 

@@ -186,13 +186,14 @@ def _with_balls(character: Character, split: RegionSplit, poses: np.ndarray, hul
     if body is None:
         from stages.coverage.measure import SkinDistance
         body = SkinDistance(character)
-    balls = fit_balls(character, split, poses, skin_poses(character, poses), body, delta=delta)
+    balls = fit_balls(character, split, poses, skin_poses(character, poses), body, delta=delta, hulls=hulls)
     j = character.n_joints
     names = character.joint_names
     spheres = tuple(SphereCollider(joint=int(balls.joint[k]), name=f"{names[balls.joint[k]]}_ball{k}", center=np.zeros(3),
                                    radius=float(balls.radius[k]), region_points=np.zeros((0, 3)), frame=j + k)
                     for k in range(balls.radius.size))
-    notes = (f"{balls.unheld.size} flexible vertices held by no ball at every pose checked",) if balls.unheld.size else ()
+    notes = (f"{balls.unheld.size} flexible vertices held by no ball inside the body at every pose checked: "
+             "balls on the skin there hold it",) if balls.unheld.size else ()
     return ColliderSet(hulls=tuple(hulls), spheres=spheres, delta=float(delta), min_triangles=int(min_triangles),
                        flexible="balls", notes=notes, balls=balls)
 
