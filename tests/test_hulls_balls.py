@@ -84,7 +84,8 @@ def test_skin_balls_hold_the_skin_no_ball_inside_the_body_holds():
     assert balls.on_skin > 0
     inner = balls.radius.size - balls.on_skin
     centers = balls.centers(c.inverse_bind, poses)
-    tri, edges = _skin_features(c.triangles, ~split.rigid)
+    tri_index, edges = _skin_features(c.triangles, ~split.rigid)
+    tri = c.triangles[tri_index]
     flex = np.flatnonzero(~split.rigid)
     tris = c.triangles.astype(np.int64)
     out_inner, out_all = 0, 0

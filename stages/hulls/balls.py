@@ -175,7 +175,8 @@ def fit_balls(character: Character, split: RegionSplit, poses: np.ndarray, skinn
         return BallSet(empty.bind_center, empty.joints, empty.weights, empty.radius, empty.joint, flex.astype(np.int64))
     # targets: the flexible vertices, the skin between them, then the candidates (the interior), at
     # every check pose
-    tri, edges = _skin_features(character.triangles, ~split.rigid)
+    tri_index, edges = _skin_features(character.triangles, ~split.rigid)
+    tri = character.triangles[tri_index]
     targets = np.concatenate([skinned[check][:, flex], skinned[check][:, tri].mean(axis=2),
                               skinned[check][:, edges].mean(axis=2), centers], axis=1)   # (S, T, 3)
     tiers = np.sort(np.atleast_1d(np.asarray(slack, np.float64))) * scale
@@ -206,7 +207,7 @@ def fit_balls(character: Character, split: RegionSplit, poses: np.ndarray, skinn
     loose_t = loose[(loose >= flex.size) & (loose < flex.size + tri.shape[0])] - flex.size
     loose_e = edges[loose[loose >= flex.size + tri.shape[0]] - flex.size - tri.shape[0]]
     around = np.isin(character.triangles, loose_v).any(axis=1)
-    around[_triangles_of(character.triangles, tri[loose_t])] = True
+    around[tri_index[loose_t]] = True
     for a, b in loose_e:
         around |= (character.triangles == a).any(axis=1) & (character.triangles == b).any(axis=1)
     sk = _skin_balls(character, split, character.triangles[around], poses[check], skinned[check], delta, margin,
@@ -244,14 +245,6 @@ def _depth_in(points: np.ndarray, poses: np.ndarray, ball_centers: np.ndarray, b
             now[near] = np.maximum(now[near], -(q[near] @ pl[:, :3].T - pl[:, 3]).max(axis=1))
         depth = np.minimum(depth, now)
     return depth
-
-
-def _triangles_of(triangles: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """(T,) bool: which of `triangles` are among `rows` (R, 3) (same corner order)."""
-    if rows.size == 0:
-        return np.zeros(triangles.shape[0], bool)
-    key = lambda t: (t[:, 0].astype(np.int64) * (1 << 21) + t[:, 1]) * (1 << 21) + t[:, 2]
-    return np.isin(key(triangles), key(rows))
 
 
 def _skin_balls(character: Character, split: RegionSplit, triangles: np.ndarray, poses: np.ndarray,
@@ -311,13 +304,14 @@ def _skin_balls(character: Character, split: RegionSplit, triangles: np.ndarray,
 
 
 def _skin_features(triangles: np.ndarray, flexible: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(triangles with a flexible corner (M, 3), their edges (E, 2), each once, sorted): the skin
-    between the flexible vertices is sampled at their centroids and edge midpoints. Balls that hold
-    only the vertices leave the skin between them out where they are small."""
-    tri = triangles[flexible[triangles].any(axis=1)]
+    """(indices of the triangles with a flexible corner (M,), their edges (E, 2), each once, sorted):
+    the skin between the flexible vertices is sampled at their centroids and edge midpoints. Balls that
+    hold only the vertices leave the skin between them out where they are small."""
+    index = np.flatnonzero(flexible[triangles].any(axis=1))
+    tri = triangles[index]
     edges = np.unique(np.sort(tri[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0) if tri.size else \
         np.zeros((0, 2), triangles.dtype)
-    return tri, edges
+    return index, edges
 
 
 def _greedy_cover(held: csr_matrix, need: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
