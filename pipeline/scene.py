@@ -312,6 +312,11 @@ def parse_scene_text(text: str, *, source: str = "<scene>", base_dir: Path | Non
     if data is None:   # nothing but blanks and comments: running the defaults would be a surprise
         raise SceneError(f"{source}: the scene file is empty (expected a mapping such as 'character:', "
                          f"'garments:'; write '{{}}' to run every default)")
+    if isinstance(data, dict) and "base" in data and ("grid" in data or "cases" in data):
+        # a sweep file run as a scene: 'unknown key base' would send the user looking for a typo
+        at = f"{source}:{marks['@base'][0]}:{marks['@base'][1]}" if "@base" in marks else source
+        raise SceneError(f"{at}: base: this is a sweep file (base, grid / cases), not a scene: run it with "
+                         f"`python -m pipeline sweep {source}`")
     return scene_from_data(data, text=text, source=source, base_dir=base_dir, default_name=default_name, marks=marks)
 
 

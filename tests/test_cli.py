@@ -66,6 +66,17 @@ def test_unknown_ignored_collider_joint_is_named(tmp_path):
     assert r.returncode == 2 and "garments[0].ignore_colliders" in r.stderr and "Traceback" not in r.stderr
 
 
+def test_a_sweep_file_run_as_a_scene_says_how_to_run_it(tmp_path):
+    """`run` on a sweep file: one line naming the file, its 'base' key and the sweep command, not
+    'unknown key base; did you mean seed', and no recording."""
+    out = tmp_path / "x.rrd"
+    r = cli("run", "scenes/sweep_example.yaml", "-o", str(out))
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert "sweep_example.yaml:7:1: base: this is a sweep file" in lines[0] and "pipeline sweep" in lines[0]
+    assert not out.exists()
+
+
 def test_validate_default_scene():
     r = cli("validate", "scenes/default.yaml")
     assert r.returncode == 0, r.stderr
