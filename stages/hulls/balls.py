@@ -208,8 +208,10 @@ def fit_balls(character: Character, split: RegionSplit, poses: np.ndarray, skinn
     loose_e = edges[loose[loose >= flex.size + tri.shape[0]] - flex.size - tri.shape[0]]
     around = np.isin(character.triangles, loose_v).any(axis=1)
     around[tri_index[loose_t]] = True
-    for a, b in loose_e:
-        around |= (character.triangles == a).any(axis=1) & (character.triangles == b).any(axis=1)
+    t = character.triangles.astype(np.int64)
+    n_v = character.vertices.shape[0]
+    pair = np.sort(np.stack([t, np.roll(t, -1, axis=1)], axis=2), axis=2)           # (T, 3, 2) its edges
+    around |= np.isin(pair[..., 0] * n_v + pair[..., 1], loose_e[:, 0].astype(np.int64) * n_v + loose_e[:, 1]).any(axis=1)
     sk = _skin_balls(character, split, character.triangles[around], poses[check], skinned[check], delta, margin,
                      SKIN_STEP * scale, PAIR_CELL * scale, centers[:, chosen], radius, hulls)
     return BallSet(np.ascontiguousarray(np.concatenate([grid[chosen], sk[0]])),
