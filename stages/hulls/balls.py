@@ -309,11 +309,9 @@ def _skin_features(triangles: np.ndarray, flexible: np.ndarray) -> tuple[np.ndar
     """(indices of the triangles with a flexible corner (M,), their edges (E, 2), each once, sorted):
     the skin between the flexible vertices is sampled at their centroids and edge midpoints. Balls that
     hold only the vertices leave the skin between them out where they are small."""
+    from stages.sim.audit import mesh_edges
     index = np.flatnonzero(flexible[triangles].any(axis=1))
-    tri = triangles[index]
-    edges = np.unique(np.sort(tri[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0) if tri.size else \
-        np.zeros((0, 2), triangles.dtype)
-    return index, edges
+    return index, mesh_edges(triangles[index]).astype(triangles.dtype)
 
 
 def _greedy_cover(held: csr_matrix, need: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
