@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from stages.coverage import kernels as K
-from stages.coverage.measure import SkinDistance, collider_arrays, inside_matrix, measure_coverage
+from stages.coverage.measure import CollidersAtPose, SkinDistance, collider_arrays, inside_matrix, measure_coverage
 from stages.hulls.fit import fit_character
 from stages.rig.skinning import skin
 from stages.sim.winding import winding_numbers_brute
@@ -91,6 +91,55 @@ def test_inside_colliders_equals_plain_numpy(tube, mode):
         p = rng.uniform([-0.4, -0.1, -0.2], [0.4, 0.8, 0.2], size=(4000, 3))
         got = inside_matrix(p, arrays, cs.frame_poses(c.inverse_bind, motion.joint_world[f])).astype(bool)
         assert (got == _reference_inside(p, cs, motion.joint_world[f], c)).all()
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_gridded_inside_tests_equal_every_pair_tested(tube, mode):
+    # the cells list only the colliders whose bounding ball meets them: any / excluded / per-collider
+    # counts must be those of the full matrix, for points inside, outside, on the balls' rims and far
+    # off the grid
+    c, motion = tube
+    _, cs = fit_character(c, motion.joint_world, split=mode[0], flexible=mode[1])
+    arrays = collider_arrays(cs)
+    rng = np.random.default_rng(7)
+    for f in range(motion.n_frames):
+        pose = cs.frame_poses(c.inverse_bind, motion.joint_world[f])
+        posed = CollidersAtPose(arrays, pose)
+        rim = posed.wcenter[rng.integers(0, arrays.joint.size, 2000)]
+        d = rng.normal(size=rim.shape)
+        rim += d / np.linalg.norm(d, axis=1, keepdims=True) * arrays.bradius[rng.integers(0, arrays.joint.size, 2000), None]
+        p = np.concatenate([rng.uniform([-0.4, -0.1, -0.2], [0.4, 0.8, 0.2], size=(4000, 3)), rim,
+                            rng.uniform(-5.0, 5.0, size=(200, 3))])
+        full = inside_matrix(p, arrays, pose).astype(bool)
+        assert full.any() and not full.all()
+        assert (posed.inside_any(p) == full.any(axis=1)).all()
+        assert (posed.inside_counts(p) == full.sum(axis=0)).all()
+        ex = rng.integers(-1, arrays.joint.size, p.shape[0])
+        masked = full.copy()
+        masked[np.arange(p.shape[0])[ex >= 0], ex[ex >= 0]] = False
+        assert (posed.inside_any(p, exclude=ex) == masked.any(axis=1)).all()
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), spread=st.floats(0.01, 3.0))
+def test_gridded_inside_tests_equal_every_pair_on_random_balls(seed, spread):
+    # spheres of very different sizes (one cell per median ball, so the big ones span many cells)
+    from stages.hulls.types import ColliderSet, SphereCollider
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 40))
+    radii = np.exp(rng.uniform(np.log(0.005), np.log(0.5), n))
+    from scipy.spatial.transform import Rotation
+    spheres = tuple(SphereCollider(k, f"s{k}", rng.uniform(-spread, spread, 3), float(radii[k]), np.zeros((0, 3)))
+                    for k in range(n))
+    arrays = collider_arrays(ColliderSet(hulls=(), spheres=spheres, delta=0.0, min_triangles=4))
+    pose = np.tile(np.eye(4), (n, 1, 1))    # one joint per sphere, each turned and moved its own way
+    pose[:, :3, :3] = Rotation.random(n, random_state=seed).as_matrix()
+    pose[:, :3, 3] = rng.uniform(-0.3, 0.3, (n, 3))
+    posed = CollidersAtPose(arrays, pose)
+    p = rng.uniform(-spread - 0.6, spread + 0.6, size=(3000, 3))
+    full = inside_matrix(p, arrays, pose).astype(bool)
+    assert (posed.inside_any(p) == full.any(axis=1)).all()
+    assert (posed.inside_counts(p) == full.sum(axis=0)).all()
 
 
 @pytest.mark.parametrize("mode", MODES)
