@@ -113,6 +113,11 @@ def test_simulate_layers_argument_sorts_sheets_that_start_the_wrong_way():
     assert a.crossings_between[1:].max() == 0
     assert all(g.crossings_self[1:].max() == 0 for g in a.garments)
     assert r.cloth_contact["layers"] == [1, 0] and r.cloth_contact["contacts"] > 0
+    # the recorded frames' own share of the phase's cycles: the settling frames (garments sorted by
+    # their layers before frame 1, a call every sub-step) are in the totals but not in "frames"
+    fr, cc = r.cloth_contact["frames"], r.cloth_contact
+    assert 0 < fr["cycles_detect"] < cc["cycles_detect"]
+    assert 0 <= fr["cycles_build"] <= cc["cycles_build"] and fr["candidate_builds"] <= cc["candidate_builds"]
     assert r.timings["cloth"] > 0.0
     top_a = r.garments[0].positions[-1][:, 1].max()
     top_b = r.garments[1].positions[-1][:, 1].max()

@@ -24,7 +24,7 @@ import numpy as np
 from stages.garments.simple import rectangle_cloth, tube_skirt
 from stages.garments.types import attach_top_loop, bind_pose, build_garment
 from stages.sim.audit import audit_cloth
-from stages.sim.simulate import particles_inside_colliders, simulate
+from stages.sim.simulate import cycles_per_second, particles_inside_colliders, simulate
 from stages.sim.types import SimParams
 
 
@@ -35,6 +35,16 @@ def _figures(result, garments, wall: float) -> dict:
     stepping_s = max(float(result.step_ms[1:].sum()) * result.params.substeps / 1e3, 1e-12)
     steps_s = result.steps / stepping_s
     audit = audit_cloth(result, garments)
+    cloth = {}
+    frames_cc = result.cloth_contact.get("frames") if result.cloth_contact else None
+    if frames_cc:    # the recorded frames' calls (settling excluded), per simulated frame
+        n_frames = max(result.steps / result.params.substeps, 1.0)
+        ms = 1e3 / cycles_per_second() / n_frames
+        cloth = {"lists_ms": round(frames_cc["cycles_build"] * ms, 2), "detect_ms": round(frames_cc["cycles_detect"] * ms, 2),
+                 "respond_ms": round(frames_cc["cycles_respond"] * ms, 2),
+                 "failsafe_ms": round(frames_cc["cycles_failsafe"] * ms, 2),
+                 "builds": round(frames_cc["candidate_builds"] / n_frames, 2),
+                 "updates": round(frames_cc["candidate_updates"] / n_frames, 2)}
     strain = {g.name: {"mean_last": round(float(g.strain_mean[-1]), 4), "p99_last": round(float(g.strain_p99[-1]), 4),
                        "max_last": round(float(g.strain_max[-1]), 4),
                        "p99_worst": round(float(g.strain_p99[1:].max(initial=0.0)), 4)} for g in audit.garments}
@@ -55,6 +65,7 @@ def _figures(result, garments, wall: float) -> dict:
         "cloth_contact_every": result.params.contact_steps(),
         "cloth_contact_per_step": {k: round(v / max(result.steps, 1), 1) for k, v in result.cloth_contact.items()
                                    if isinstance(v, int)},
+        "cloth_phase_per_frame": cloth,
         "strain": strain,
         "crossings_self_max": {g.name: int(g.crossings_self[1:].max(initial=0)) for g in audit.garments},
         "crossings_between_max": int(audit.crossings_between[1:].max(initial=0)),
@@ -182,17 +193,21 @@ def shipped_walk(frames: int = 60, threads: int = 1, repeats: int = 1, preset: s
 
 def table(results: dict) -> str:
     """The comparison as a markdown table."""
-    rows = ["| scene | preset | sub-steps x rounds | cloth collision (share of the step, sub-steps per call) | frames/s | sub-steps/s "
+    rows = ["| scene | preset | sub-steps x rounds | cloth collision (share of the step, sub-steps per call) "
+            "| cloth phase a frame (ms: lists / detection / response + fail-safe; list builds + updates) | frames/s | sub-steps/s "
             "| strain mean / p99 (last frame, %) | p99 worst (%) | crossing edges (self / between, max after frame 0) "
             "| inside body (max) |",
-            "| --- | --- | --- | --- | ---: | ---: | --- | --- | --- | ---: |"]
+            "| --- | --- | --- | --- | --- | ---: | ---: | --- | --- | --- | ---: |"]
     for key, r in results.items():
         if not isinstance(r, dict) or "strain" not in r:
             continue
         st = r["strain"].values()
         cc = (f"on ({100 * r['phase_share'].get('cloth', 0):.0f} %, {r.get('cloth_contact_every', 1)})"
               if r.get("cloth_collision") else "off")
-        rows.append(f"| {key.rsplit('_', 1)[0]} | {r['preset']} | {r['substeps']} x {r['iterations']} | {cc} | {r['frames_per_s']:.0f} "
+        ph = r.get("cloth_phase_per_frame") or {}
+        phase = (f"{ph['lists_ms']:.1f} / {ph['detect_ms']:.1f} / {ph['respond_ms'] + ph['failsafe_ms']:.1f}; "
+                 f"{ph['builds']:.2f} + {ph['updates']:.2f}") if ph else "-"
+        rows.append(f"| {key.rsplit('_', 1)[0]} | {r['preset']} | {r['substeps']} x {r['iterations']} | {cc} | {phase} | {r['frames_per_s']:.0f} "
                     f"| {r['steps_per_s']:.0f} | " + ", ".join(f"{100 * s['mean_last']:.2f} / {100 * s['p99_last']:.1f}" for s in st)
                     + " | " + ", ".join(f"{100 * s['p99_worst']:.1f}" for s in st) + " | "
                     + ", ".join(str(v) for v in r["crossings_self_max"].values()) + f" / {r['crossings_between_max']} | "

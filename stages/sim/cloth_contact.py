@@ -525,6 +525,7 @@ class ClothPhase:
                                       rotation=DEFAULT_ROTATION)
         topo, tree, work, prm = self.cc.kernel_args()
         self.counters = np.zeros(CK.N_COUNTERS, np.int64)
+        self.settled = np.zeros(CK.N_COUNTERS, np.int64)   # the counters after the settling frames
         n = x.shape[0]
         self.x_start = np.zeros((n, 3))
         self.x_before = np.zeros((n, 3))
@@ -590,10 +591,14 @@ class ClothPhase:
                         np.zeros((f, n, 3), np.float32), np.zeros((f, g), np.int32), np.zeros((f, step.N_COUNTS)),
                         np.zeros(f, np.int64), flags, np.zeros(step.N_TIMERS, np.int64), self.first)
         cloth[1][:] = cloth[0]
+        self.settled[:] = self.counters
 
     def summary(self) -> dict:
-        """Counters summed over the run (see stages.sim.cloth_contact_kernels N_*)."""
+        """Counters summed over the run, settling frames included (see stages.sim.cloth_contact_kernels
+        N_*); `frames`: the CPU cycles of the recorded frames' calls alone (builds: full list builds and
+        in-place updates; detect; respond; failsafe), and their builds."""
         c = self.counters
+        f = c - self.settled
         return {"contacts": int(c[CK.N_CONTACTS]), "corrected": int(c[CK.N_CORRECTED]),
                 "unresolved": int(c[CK.N_UNRESOLVED]), "reverted": int(c[CK.N_REVERTED]),
                 "left": int(c[CK.N_LEFT]), "rounds": int(c[CK.N_ROUNDS]), "node_pairs": int(c[CK.N_NODE_PAIRS]),
@@ -603,5 +608,8 @@ class ClothPhase:
                 "cycles_respond": int(c[CK.N_CYC_RESPOND]), "cycles_failsafe": int(c[CK.N_CYC_FAILSAFE]),
                 "candidate_updates": int(c[CK.N_LOCAL]),
                 "invalid_move": int(c[CK.N_INVALID_MOVE]), "invalid_turn": int(c[CK.N_INVALID_TURN]),
+                "frames": {"cycles_build": int(f[CK.N_CYC_BUILD]), "cycles_detect": int(f[CK.N_CYC_DETECT]),
+                           "cycles_respond": int(f[CK.N_CYC_RESPOND]), "cycles_failsafe": int(f[CK.N_CYC_FAILSAFE]),
+                           "candidate_builds": int(f[CK.N_BUILDS]), "candidate_updates": int(f[CK.N_LOCAL])},
                 "layers": [int(v) for v in self.cc.garment_layer],
                 "outward": [int(v) for v in self.cc.garment_outward]}
