@@ -118,6 +118,8 @@ def test_gridded_inside_tests_equal_every_pair_tested(tube, mode):
         masked = full.copy()
         masked[np.arange(p.shape[0])[ex >= 0], ex[ex >= 0]] = False
         assert (posed.inside_any(p, exclude=ex) == masked.any(axis=1)).all()
+        # a point that is not finite falls in no cell (no index computed from it): outside, no crash
+        assert not posed.inside_any(np.array([[np.nan, 0.0, 0.0], [0.0, np.inf, 0.0]])).any()
 
 
 @settings(max_examples=25, deadline=None)

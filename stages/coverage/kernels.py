@@ -205,13 +205,14 @@ def collider_cells(wcenter, bradius, lo, cell, dims):
 
 @njit(cache=True, forceinline=True)
 def _cell_of(px, py, pz, lo, cell, dims):
-    """The grid cell index of a point, -1 outside the grid (then outside every collider's ball)."""
-    i = math.floor((px - lo[0]) / cell)
-    j = math.floor((py - lo[1]) / cell)
-    k = math.floor((pz - lo[2]) / cell)
-    if i < 0 or j < 0 or k < 0 or i >= dims[0] or j >= dims[1] or k >= dims[2]:
+    """The grid cell index of a point, -1 outside the grid (then outside every collider's ball) or
+    not finite (compared before any integer conversion)."""
+    fi = (px - lo[0]) / cell
+    fj = (py - lo[1]) / cell
+    fk = (pz - lo[2]) / cell
+    if not (fi >= 0.0 and fj >= 0.0 and fk >= 0.0 and fi < dims[0] and fj < dims[1] and fk < dims[2]):
         return -1
-    return (int(i) * dims[1] + int(j)) * dims[2] + int(k)
+    return (int(fi) * dims[1] + int(fj)) * dims[2] + int(fk)
 
 
 @serial_and_parallel(cache=True)
