@@ -371,8 +371,8 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
         box = _world_boxes(arrays, colliders, pose) if nc else np.array([v.min(0), v.max(0)])
         box = np.array([np.minimum(box[0], v.min(0)), np.maximum(box[1], v.max(0))])
         h = cell
-        balls = (np.einsum("cij,cj->ci", pose[arrays.joint][:, :3, :3], arrays.bcenter) + pose[arrays.joint][:, :3, 3],
-                 arrays.bradius)
+        posed = CollidersAtPose(arrays, pose)
+        balls = (posed.wcenter, arrays.bradius)
         for _ in range(MAX_REFINE):
             grid, in_body = _body_grid(body, box, h, balls, rng)
             if in_body.sum() >= interior_samples:
@@ -382,7 +382,6 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
                                  f"({int(in_body.sum())} of {grid.shape[0]} grid points inside; an open or "
                                  "inside-out mesh?): coverage and excess cannot be measured")
             h *= 0.85 * (in_body.sum() / interior_samples) ** (1 / 3)
-        posed = CollidersAtPose(arrays, pose)
         any_col = posed.inside_any(grid)
         n_in = int(in_body.sum())
         vol_cell = h ** 3

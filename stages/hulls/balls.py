@@ -256,7 +256,6 @@ def _skin_balls(character: Character, split: RegionSplit, triangles: np.ndarray,
     (balls centred at ball_centers (S, B, 3) with radii (B,), hulls) at some pose of poses (S, J, 4, 4)
     / skinned (S, V, 3): (bind centres (B', 3), joints (B', K), weights (B', K), radii (B',), joint (B',)).
 
-
     Each triangle is sampled every `step` (barycentric grid, corners included). A sample's centre is
     its bind position skinned with its corners' influences blended by its barycentric weights (the K
     heaviest); it drifts `dev` (the largest over the poses) from the skin point it samples (the same
