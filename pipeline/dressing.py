@@ -217,10 +217,19 @@ def build_scene_garments(scene: Scene, character, motion, colliders, maps, meshe
     return out, {g["name"]: builds[g["name"]] for g in scene["garments"] if g["name"] in builds}
 
 
+def cloth_collision_on(scene: Scene) -> bool:
+    """simulation.cloth_collision, or its preset's value when the scene leaves it null."""
+    from stages.sim.types import PRESETS, SimParams
+    given = scene["simulation"]["cloth_collision"]
+    if given is not None:
+        return bool(given)
+    return bool(PRESETS[scene["simulation"]["preset"]].get("cloth_collision", SimParams.cloth_collision))
+
+
 def dressing_layers(scene: Scene) -> list[int]:
     """Each garment's cloth layer when the scene's cloth collision is on (its `layer`, else its place
     in the list), else all 0: the garments are then dressed independently."""
-    if not scene["simulation"]["cloth_collision"]:
+    if not cloth_collision_on(scene):
         return [0] * len(scene["garments"])
     return [g["layer"] if g.get("layer") is not None else i for i, g in enumerate(scene["garments"])]
 

@@ -167,8 +167,11 @@ SCENE_SPEC = {
     "frames": Field("section", {}, "which part of the clip to run", fields={
         "start": Field("float", 0.0, "clip time of the first frame, s", lo=0.0),
         "count": Field("int", 60, "number of frames", lo=1, hi=100000),
-        "blend_in": Field("float", 0.0, "seconds of extra frames first, moving from the rest pose into the clip; "
-                          "garments are then dressed on the rest pose", lo=0.0, hi=60.0),
+        "blend_in": Field("float", None, "seconds of extra frames first, carrying the character from its rest "
+                          "pose (where garments are dressed) into the running clip; default (null): sized from how "
+                          "far the clip's first pose is from the rest pose (0 when it is the rest pose or the scene "
+                          "has no garments); 0: garments dressed on the clip's first pose", lo=0.0, hi=60.0,
+                          nullable=True),
     }),
     "colliders": Field("section", {}, "collider fitting (paper A §2)", fields={
         "delta": Field("float", 0.01, "inflation thickness, m", lo=0.0, hi=0.5),
@@ -218,8 +221,8 @@ SCENE_SPEC = {
         "bend_stiffness": Field("float", None, "share of a bend correction applied per round at 300 rounds/s (preset: "
                                 "0.2; paper 1: as stiff as the stretch springs, it stretches cloth the body curves)",
                                 lo=0.0, hi=1.0),
-        "cloth_collision": Field("bool", None, "on | off (preset; off in both presets: it costs 10-30x the rest of "
-                                 "the step) garment-garment and self collision (cloth x cloth, last phase of every "
+        "cloth_collision": Field("bool", None, "on | off (preset: on in default, off in paper) "
+                                 "garment-garment and self collision (cloth x cloth, last phase of every "
                                  "step); garments keep their `layer` order"),
         "pinch": Field("str", None, "midpoint | escape (preset; paper: escape): cloth pressed between the colliders of two "
                        "joints (an arm lowered onto the torso) stays in the middle of their overlap, or leaves their union",
@@ -227,7 +230,7 @@ SCENE_SPEC = {
         "cloth_thickness": Field("float", 0.003, "distance kept between cloth layers, m", lo=0.0, lo_open=True, hi=0.1),
         "cloth_contact_every": Field("int", None, "sub-steps per cloth collision call (the largest divisor of substeps "
                                      "up to it); the sub-steps between calls hold the pairs the last call found within "
-                                     "two thicknesses. 1: a call every sub-step", lo=1, hi=1000),
+                                     "two thicknesses (preset: 5). 1: a call every sub-step", lo=1, hi=1000),
         "body_audit": Field("bool", True, "count particles inside the true skinned mesh per frame"),
         "cloth_audit": Field("bool", True, "per frame edge strain and cloth edges crossing cloth triangles (sim/<garment>/strain, sim/intersections/...)"),
         "strain_colors": Field("bool", False, "colour the cloth meshes by per-vertex edge strain (blue 0 -> red 10 %)"),

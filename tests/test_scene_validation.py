@@ -23,13 +23,21 @@ def test_defaults_fill_every_section():
     assert set(s.settings) == set(SCENE_SPEC)
 
 
+def paper_off_collision() -> bool:
+    from pipeline.run import sim_params
+    return sim_params(parse_scene_text("simulation: {preset: paper}", source="s.yaml")).cloth_collision
+
+
 def test_simulation_preset_and_overrides():
     """simulation.preset picks the SimParams preset; keys the scene sets win over it."""
     from pipeline.run import sim_params
     from stages.sim.types import SimParams
     default = sim_params(parse_scene_text("{}", source="s.yaml"))
-    assert default == SimParams()
+    # the default preset: the dataclass defaults with cloth collision on, a call every 5 sub-steps
+    assert default == SimParams(cloth_collision=True, cloth_contact_every=5)
     assert (default.substeps, default.iterations, default.tethers) == (20, 2, True)
+    assert not paper_off_collision() and sim_params(parse_scene_text(
+        "simulation: {cloth_collision: off}", source="s.yaml")).cloth_collision is False
     paper = sim_params(parse_scene_text("simulation: {preset: paper}", source="s.yaml"))
     assert (paper.substeps, paper.iterations, paper.tethers) == (1, 3, False)
     assert paper == SimParams.preset("paper")

@@ -62,24 +62,31 @@ def _motion_from_globals(name: str, times: np.ndarray, globals_: np.ndarray, cha
 def sample_motion(character: Character, clip_key, times, *, blend_frames: int = 0) -> Motion:
     """The clip `clip_key` (name or index) sampled at playback `times` (F,) seconds from the clip start.
 
-    blend_frames: prepend that many frames that move from the rest pose (`rest_local`) into the
-    clip's pose at times[0] (smoothstep in time; translations and scales lerped, rotations slerped),
-    at the spacing of `times`. Garments dressed on the rest pose (a clean T- or A-pose) can then
-    follow the clip. The returned Motion.times count from its first frame.
+    blend_frames: prepend that many frames, at the spacing of `times`, that carry the character from
+    its rest pose (`rest_local`) into the running clip (`stages.rig.blend`: the clip's weight and its
+    speed both rise along smootherstep, so the blend ends at times[0] at the clip's own speed;
+    translations and scales lerped, rotations slerped). Garments dressed on the rest pose can then
+    follow any clip from any start. The returned Motion.times count from its first frame.
     """
+    from stages.rig.blend import blend_schedule
     clip = character.clip(clip_key)
     times = np.atleast_1d(np.asarray(times, np.float64))
     local = sample_clip(character, clip, times)
     if blend_frames > 0:
         if times.size < 2:
             raise ValueError("sample_motion: blend_frames needs at least 2 clip times (for the spacing)")
-        u = np.arange(blend_frames, dtype=np.float64) / blend_frames
-        u = u * u * (3.0 - 2.0 * u)                                     # smoothstep
-        local = np.concatenate([blend_local(character.rest_local, local[0], u), local])
         dt = times[1] - times[0]
+        weights, clip_times = blend_schedule(blend_frames, dt, times[0])
+        target = sample_clip(character, clip, clip_times)   # before 0: wrapped, or the first pose held
+        local = np.concatenate([blend_local_each(character.rest_local, target, weights), local])
         times = times[0] + dt * np.arange(-blend_frames, times.size, dtype=np.float64)
     # Motion.times count from the first frame (the contract); the clip was sampled at `times`.
     return _motion_from_globals(clip.name, times - times[0], forward_kinematics(character.parents, local), character)
+
+
+def blend_local_each(a: np.ndarray, b: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """(U, J, 4, 4) local transforms between a (J, 4, 4) and b[k] (U, J, 4, 4) at weights u (U,)."""
+    return np.stack([blend_local(a, b[k], u[k:k + 1])[0] for k in range(len(u))]) if len(u) else b[:0]
 
 
 def blend_local(a: np.ndarray, b: np.ndarray, u: np.ndarray) -> np.ndarray:
