@@ -97,6 +97,8 @@ def cmd_bench(args) -> int:
 def cmd_matrix(args) -> int:
     import json
 
+    if args.corpus:
+        return cmd_corpus(args)
     from pipeline.matrix import run_matrix, table
     results = run_matrix(frames=args.frames, characters_=args.character or None, kinds=args.garment or None,
                          echo=(lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr, flush=True)))
@@ -105,6 +107,21 @@ def cmd_matrix(args) -> int:
         Path(args.json).write_text(json.dumps(results, indent=1))
     return 0 if all(r["status"] == "ok" or r["status"].startswith("skipped") for per in results.values()
                     for r in per.values()) else 1
+
+
+def cmd_corpus(args) -> int:
+    """matrix --corpus: every character and clip in the assets folder, scenes as a user writes them."""
+    import json
+
+    from pipeline.corpus import default_folder, run_corpus, table
+    echo = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr, flush=True))
+    rows = run_corpus(Path(args.output) if args.output else default_folder(), frames=args.frames,
+                      characters=args.character or None, kinds=args.garment or None, full=args.full,
+                      jobs=args.jobs, echo=echo)
+    print(table(rows))
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1, default=str))
+    return 0 if all(not r["verdict"] for r in rows) else 1
 
 
 def cmd_export(args) -> int:
@@ -191,6 +208,13 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--garment", action="append", help="only this garment kind (repeatable)")
     m.add_argument("--json", help="also write the figures to this JSON file")
     m.add_argument("-q", "--quiet", action="store_true", help="only the table")
+    m.add_argument("--corpus", action="store_true",
+                   help="every character and clip in the assets folder (GARMENT_ASSETS), each in minimal scenes that "
+                        "start inside the clip with no tuning keys, run as a sweep; pass/fail against the targets")
+    m.add_argument("--full", action="store_true", help="--corpus: every clip with every garment kind (default: "
+                                                        "every clip once and every kind once, round-robin)")
+    m.add_argument("-o", "--output", help="--corpus: folder for the sweep, its recordings and table (default sweeps/corpus)")
+    m.add_argument("--jobs", type=int, help="--corpus: worker processes (default: every core)")
     m.set_defaults(func=cmd_matrix)
     ex = sub.add_parser("export", parents=[common], help="write a recording's (or a scene run's) garments and body "
                                                          "as npz, pc2 (+ obj rest mesh), obj, glb or usd files")

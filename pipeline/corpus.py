@@ -1,0 +1,204 @@
+"""`python -m pipeline matrix --corpus`: every character and clip in the assets folder, dressed the
+way a user writes a scene (the character, its clip, a start inside the clip, the garments; no tuning
+keys), run as a sweep (pipeline.sweep: the process pool, a recording per pair) and judged against
+the targets a user checks.
+
+Characters: the built-in one and every .glb / .gltf / .bvh file at the top of the assets folder
+(GARMENT_ASSETS, default ../shared/assets), found by listing it, so a file dropped there is in the
+next check. A pair is a clip and a garment kind: every clip is worn at least once and every kind
+the character can wear at least once (clips and kinds dealt round-robin; `full`: every clip with
+every kind), plus one layered outfit (a T-shirt over shorts) per character that can wear both. A
+kind the character cannot wear is a row with the one line `run` would print. Each scene starts at
+START_SHARE of its clip.
+
+A pair passes when the run exits 0 and, after frame 0: at most IN_BODY_MAX of the particles inside
+the body at every frame, no cloth edge through cloth, and strain p99 at the last frame at most
+STRAIN_P99_MAX.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+START_SHARE = 0.4        # scenes start 40 % into their clip: neither its first frame nor the rest pose
+IN_BODY_MAX = 0.005      # share of a garment's particles inside the body, worst frame after frame 0
+STRAIN_P99_MAX = 10.0    # %, last frame, worst garment
+CHARACTER_FILES = (".glb", ".gltf", ".bvh")
+OUTFIT = ("tshirt", "shorts")   # worn together: the T-shirt over the shorts
+
+
+@dataclass
+class CorpusCharacter:
+    """One character of the corpus: its label, the scene's `character` mapping, its clips
+    ((name, duration s), or none), the kinds it can wear and why it cannot wear the others."""
+    label: str
+    spec: dict
+    clips: list = field(default_factory=list)
+    wears: list = field(default_factory=list)
+    refused: dict = field(default_factory=dict)     # kind -> one line
+
+
+def assets_dir() -> Path:
+    from pipeline.assets import assets_dir as shared
+    return Path(shared())
+
+
+def character_specs(assets: Path) -> list[tuple[str, dict]]:
+    """(label, scene `character` mapping) of the built-in character and every character file."""
+    out = [("builtin", {"source": "procedural", "clip": "walk"})]
+    if assets.is_dir():
+        for p in sorted(assets.iterdir()):
+            if p.is_file() and p.suffix.lower() in CHARACTER_FILES:
+                src = "bvh" if p.suffix.lower() == ".bvh" else "gltf"
+                out.append((p.stem, {"source": src, "path": str(p.resolve())}))
+    return out
+
+
+def survey(label: str, spec: dict, kinds) -> CorpusCharacter:
+    """Load the character as a scene would and find its clips and the kinds it can wear."""
+    from pipeline.run import load_character
+    from pipeline.scene import parse_scene_text
+    from stages.errors import InputError
+    from stages.garments.library import ANCHORS
+    from stages.rig.humanoid import humanoid_joints
+    out = CorpusCharacter(label, dict(spec))
+    scene = parse_scene_text(yaml.safe_dump({"character": {**spec, "clip": "rest"}}), source=f"corpus:{label}")
+    character = load_character(scene)
+    out.clips = [(c.name, float(c.duration)) for c in character.clips]
+    joints = humanoid_joints(character)
+    for kind in kinds:
+        try:
+            joints.require(ANCHORS.get(kind, ()), f"garment {kind!r}")
+            out.wears.append(kind)
+        except InputError as err:
+            out.refused[kind] = f"{kind!r} cannot be dressed on {character.name!r}: {' '.join(err.problem.split())}"
+    return out
+
+
+def _slug(text: str) -> str:
+    import re
+    return re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-")[:40] or "x"
+
+
+def cases_of(c: CorpusCharacter, *, full: bool = False) -> list[dict]:
+    """The sweep cases of one character: (clip, kind) pairs and the layered outfit."""
+    clips = c.clips or [("rest", 0.0)]
+    if not c.wears:
+        return []
+    if full:
+        pairs = [(clip, kind) for clip in clips for kind in c.wears]
+    else:
+        n = max(len(clips), len(c.wears))
+        pairs = [(clips[i % len(clips)], c.wears[i % len(c.wears)]) for i in range(n)]
+    out = []
+    for (clip, duration), kind in pairs:
+        out.append(_case(c, clip, duration, [{"type": "pattern", "name": kind, "kind": kind}], kind))
+    if all(k in c.wears for k in OUTFIT):
+        clip, duration = clips[0]
+        # listed inner first: the shorts are layer 0, the T-shirt over them layer 1 (the list's order)
+        out.append(_case(c, clip, duration, [{"type": "pattern", "name": k, "kind": k} for k in OUTFIT[::-1]],
+                         "outfit"))
+    return out
+
+
+def _case(c: CorpusCharacter, clip: str, duration: float, garments: list, what: str) -> dict:
+    start = round(START_SHARE * duration, 3)
+    return {"label": _slug(f"{c.label}-{clip}-{what}"), "character": {**c.spec, "clip": clip},
+            "frames.start": start, "garments": garments}
+
+
+def write_sweep(folder: Path, cases: list[dict], frames: int, timeout: float) -> Path:
+    """The corpus as a sweep file in `folder` (what `python -m pipeline sweep` would run)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "corpus.yaml"
+    doc = {"name": "corpus", "output": str(folder.resolve()), "timeout": timeout,
+           "base": {"frames": {"count": frames}}, "cases": cases}
+    path.write_text("# written by `python -m pipeline matrix --corpus`: minimal scenes, no tuning keys\n"
+                    + yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+    return path
+
+
+def verdict(row: dict) -> list[str]:
+    """Why a corpus row fails its targets (empty: it passes)."""
+    if row.get("status") != "ok":
+        return [f"{row.get('failure') or row.get('status')}: {' '.join(str(row.get('message') or '').split())}"]
+    out = []
+    particles = row.get("particles") or 0
+    if row.get("in_body_max") is not None and particles and row["in_body_max"] > IN_BODY_MAX * particles:
+        out.append(f"{row['in_body_max']} of {particles} particles in the body ({100 * row['in_body_max'] / particles:.2f} %)")
+    cross = (row.get("crossings_self_max") or 0) + (row.get("crossings_between_max") or 0)
+    if cross:
+        out.append(f"{cross} cloth edges through cloth")
+    if row.get("strain_p99_pct") is not None and row["strain_p99_pct"] > STRAIN_P99_MAX:
+        out.append(f"strain p99 {row['strain_p99_pct']:.1f} % at the last frame")
+    return out
+
+
+def run_corpus(folder: Path, *, frames: int = 30, characters: list[str] | None = None,
+               kinds: list[str] | None = None, full: bool = False, jobs: int | None = None,
+               timeout: float = 900.0, echo=print) -> list[dict]:
+    """Survey the characters, run their pairs as a sweep in `folder`; rows (the sweep's, plus
+    `character`, `pair`, `verdict`), the refused pairs included."""
+    from pipeline.matrix import KINDS
+    from pipeline.sweep import run_sweep
+    kinds = list(kinds or KINDS)
+    specs = character_specs(assets_dir())
+    if characters:
+        unknown = [n for n in characters if n not in {label for label, _ in specs}]
+        if unknown:
+            from pipeline.schema import SceneError
+            raise SceneError(f"matrix --corpus --character: {', '.join(map(repr, unknown))} not found; "
+                             f"characters: {', '.join(label for label, _ in specs)}")
+        specs = [(label, s) for label, s in specs if label in characters]
+    cases, refused = [], []
+    for label, spec in specs:
+        try:
+            c = survey(label, spec, kinds)
+        except Exception as err:   # a file the loader refuses: one row, the line a run prints
+            refused.append({"character": label, "pair": "(loading)", "status": "refused",
+                            "verdict": [" ".join(str(err).split())]})
+            continue
+        echo(f"{label}: {len(c.clips)} clip(s), wears {', '.join(c.wears) or 'nothing'}")
+        cases += [dict(k, _character=label) for k in cases_of(c, full=full)]
+        refused += [{"character": label, "pair": kind, "status": "refused", "verdict": [why]}
+                    for kind, why in c.refused.items()]
+    by_label = {k["label"]: k.pop("_character") for k in cases}
+    rows = []
+    if cases:
+        path = write_sweep(folder, cases, frames, timeout)
+        _, got = run_sweep(path, jobs=jobs, progress=True, echo=echo)
+        for r in got:
+            r = dict(r)
+            r["character"] = by_label.get(r.get("case"), "?")
+            r["pair"] = r.get("case", "")
+            r["verdict"] = verdict(r)
+            rows.append(r)
+    return rows + refused
+
+
+def table(rows: list[dict]) -> str:
+    """The corpus as a user reads it: one line per pair, pass or the reasons it fails."""
+    head = ["character", "pair", "result", "in body (max %)", "crossings", "strain p99 last (%)", "seam gap (mm)",
+            "fit gap (cm)"]
+    out = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
+
+    def num(v, fmt):
+        return "" if v is None else format(v, fmt)
+    for r in rows:
+        p = r.get("particles") or 0
+        body = 100 * r["in_body_max"] / p if r.get("in_body_max") is not None and p else None
+        cross = None if r.get("crossings_self_max") is None else r["crossings_self_max"] + (r.get("crossings_between_max") or 0)
+        result = "pass" if not r["verdict"] else "FAIL: " + "; ".join(r["verdict"])
+        out.append("| " + " | ".join([r["character"], r["pair"], result.replace("|", "/"), num(body, ".2f"),
+                                      num(cross, "d"), num(r.get("strain_p99_pct"), ".1f"),
+                                      num(r.get("seam_gap_mm"), ".1f"), num(r.get("fit_gap_cm"), ".1f")]) + " |")
+    passed = sum(not r["verdict"] for r in rows)
+    out += ["", f"{passed} of {len(rows)} pairs pass"]
+    return "\n".join(out)
+
+
+def default_folder() -> Path:
+    return Path(os.environ.get("GARMENT_CORPUS_DIR", "sweeps/corpus"))

@@ -1,0 +1,76 @@
+"""`python -m pipeline matrix --corpus` (pipeline.corpus): the pairs it writes, how it judges a row,
+and a small run end to end."""
+from __future__ import annotations
+
+import yaml
+
+from pipeline.corpus import (IN_BODY_MAX, START_SHARE, CorpusCharacter, cases_of, character_specs, run_corpus, table,
+                             verdict, write_sweep)
+
+
+def _character(n_clips: int, wears: list[str]) -> CorpusCharacter:
+    return CorpusCharacter("c", {"source": "gltf", "path": "/x/c.glb"}, [(f"clip{i}", 1.0 + i) for i in range(n_clips)],
+                           list(wears))
+
+
+def test_every_clip_and_every_kind_is_worn_once_and_scenes_start_inside_the_clip():
+    for n_clips, wears in ((1, ["tshirt", "shorts", "cape"]), (5, ["tshirt", "shorts"]), (3, ["cape"])):
+        c = _character(n_clips, wears)
+        cases = cases_of(c)
+        single = [k for k in cases if len(k["garments"]) == 1]
+        assert {k["character"]["clip"] for k in single} == {name for name, _ in c.clips}
+        assert {k["garments"][0]["kind"] for k in single} == set(wears)
+        assert len(single) == max(n_clips, len(wears))
+        for k in cases:
+            duration = dict(c.clips)[k["character"]["clip"]]
+            assert k["frames.start"] == round(START_SHARE * duration, 3) and 0 < k["frames.start"] < duration
+            assert set(k) == {"label", "character", "frames.start", "garments"}     # no tuning keys
+        outfit = [k for k in cases if len(k["garments"]) == 2]
+        assert len(outfit) == (1 if {"tshirt", "shorts"} <= set(wears) else 0)
+        if outfit:   # listed inner first: the shorts under the T-shirt
+            assert [g["kind"] for g in outfit[0]["garments"]] == ["shorts", "tshirt"]
+    full = cases_of(_character(3, ["tshirt", "cape"]), full=True)
+    assert len([k for k in full if len(k["garments"]) == 1]) == 6
+    assert cases_of(_character(2, [])) == []
+
+
+def test_the_sweep_file_is_a_valid_sweep(tmp_path):
+    from pipeline.sweep_file import load_sweep
+    c = CorpusCharacter("builtin", {"source": "procedural"}, [("walk", 1.2)], ["short_skirt"])
+    path = write_sweep(tmp_path, cases_of(c), frames=5, timeout=100.0)
+    sw = load_sweep(path)
+    assert len(sw.jobs) == 1 and sw.out == tmp_path.resolve()
+    data = yaml.safe_load(path.read_text())
+    assert data["base"] == {"frames": {"count": 5}}
+
+
+def test_verdict_names_each_target_missed():
+    ok = {"status": "ok", "particles": 1000, "in_body_max": 0, "crossings_self_max": 0, "crossings_between_max": 0,
+          "strain_p99_pct": 4.0}
+    assert verdict(ok) == []
+    assert verdict({**ok, "in_body_max": int(IN_BODY_MAX * 1000)}) == []
+    assert "particles in the body" in verdict({**ok, "in_body_max": 6})[0]
+    assert "3 cloth edges" in verdict({**ok, "crossings_self_max": 1, "crossings_between_max": 2})[0]
+    assert "strain p99 10.5 %" in verdict({**ok, "strain_p99_pct": 10.5})[0]
+    failed = verdict({"status": "failed", "failure": "sewing", "message": "sewing did not close seam a / b"})
+    assert failed == ["sewing: sewing did not close seam a / b"]
+
+
+def test_every_character_file_of_the_assets_is_listed(assets_dir):
+    assets = assets_dir
+    labels = [label for label, _ in character_specs(assets)]
+    assert labels[0] == "builtin" and "CesiumMan" in labels and "cmu_131_01_walk" in labels
+    files = {p.stem for p in assets.iterdir() if p.suffix.lower() in (".glb", ".gltf", ".bvh")}
+    assert set(labels[1:]) == files
+
+
+def test_a_small_corpus_runs_end_to_end(tmp_path):
+    """The built-in character's clips in a short skirt, 2 frames each: a row per clip with its verdict."""
+    rows = run_corpus(tmp_path, frames=2, characters=["builtin"], kinds=["short_skirt"], jobs=1,
+                      echo=lambda *a: None)
+    assert len(rows) >= 2 and all(r["character"] == "builtin" for r in rows)
+    assert all(r["status"] == "ok" for r in rows)
+    assert any(r["frames"] > 2 for r in rows)   # a blend-in from the rest pose before the clip's frames
+    text = table(rows)
+    assert text.count("| builtin |") == len(rows) and f"of {len(rows)} pairs pass" in text
+    assert (tmp_path / "table.csv").is_file()
