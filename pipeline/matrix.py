@@ -30,19 +30,19 @@ def _assets() -> Path:
 
 
 def characters() -> dict:
-    """name -> scene YAML of the character part (character + frames), without garments."""
+    """name -> scene YAML of the character part (character + frames), without garments: written as a
+    user writes them (no blend_in: the pipeline dresses on the rest pose and blends into the clip)."""
     a = _assets()
-    walk = "frames: {count: %d, blend_in: 0.5}\n"
+    walk = "frames: {count: %d}\n"
     return {
         "built-in": "character: {source: procedural, clip: walk}\n" + walk,
         "built-in tall slim": ("character: {source: procedural, clip: walk, body: {height: 1.95, chest: 0.85, "
                                "waist: 0.8, hips: 0.85, arms: 0.85, legs: 0.85}}\n" + walk),
         "built-in short heavy": ("character: {source: procedural, clip: walk, body: {height: 1.55, chest: 1.3, "
                                  "waist: 1.4, hips: 1.3, arms: 1.15, legs: 1.1}}\n" + walk),
-        "CesiumMan": (f"character: {{source: gltf, path: '{a / 'CesiumMan.glb'}', clip: 0}}\n"
-                      "frames: {count: %d, blend_in: 0.5}\n"),
+        "CesiumMan": f"character: {{source: gltf, path: '{a / 'CesiumMan.glb'}', clip: 0}}\n" + walk,
         "CMU 131_01 (BVH)": (f"character: {{source: bvh, path: '{a / 'cmu_131_01_walk.bvh'}', clip: 0}}\n"
-                             "frames: {start: 4.0, count: %d, blend_in: 0.5}\n"),
+                             "frames: {start: 4.0, count: %d}\n"),
     }
 
 
