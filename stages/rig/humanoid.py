@@ -1,26 +1,42 @@
-"""Which joints of a rig are the humanoid's limbs, neck and head: the usual namings first (the
-built-in rig, Unreal-style, Mixamo with or without its `mixamorig:` prefix, CMU/BVH, VRM), the
-skeleton's shape otherwise (CesiumMan's `leg_joint_L_1`, any rig a user brings).
+"""Which joints of a rig are the humanoid's limbs, neck and head: by the joints' names read as tokens
+(stages.rig.joint_names: any usual naming, Mixamo, Unreal, VRM, Rigify, Blender, MotionBuilder /
+CMU, 3ds Max Biped, game engines, DAZ, Kenney), each name match checked against the skeleton's
+shape, else by the shape alone (CesiumMan's `leg_joint_L_1`, any rig a user brings).
+
+The wearer's left is +X in the rest pose (the character faces +Z, Y up), as every loader gives it.
+Shape rules: a leg ends on the floor, below where it starts, its branch off the body on one side;
+an arm is a branch off the spine on one side reaching far sideways and not down to the floor.
 
 Garments anchor on these: sleeves on the upper arms, legs of trousers on the thighs, a collar
-below the neck. A garment whose anchors cannot be found gets one error listing what was looked for
-and the joints the rig has (`HumanoidJoints.require`).
+below the neck. A limb of fewer than 3 joints (Kenney's single `arm-left`) is recorded
+(`HumanoidJoints.short`, with rest positions of its shoulder / elbow / wrist points taken from its
+skin, `HumanoidJoints.points`) but is not a chain: the garments place sleeves and trouser legs on
+the joints' own frames (upper, lower, end). A garment whose anchors cannot be found gets one error
+saying why, what was looked for and the joints the rig has (`HumanoidJoints.require`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
 from stages.errors import InputError
+from stages.rig.joint_names import label, limb_ranks
 
-# (upper, lower, end) of the left limb; the right one is the mirrored name
+# (upper, lower, end) of the left limb in a few usual namings, for messages and for an exact
+# match (pipeline.inspect); the right one is the mirrored name. Detection reads any naming as tokens.
 ARM_CHAINS = (("upperarm_l", "forearm_l", "hand_l"), ("LeftArm", "LeftForeArm", "LeftHand"),
               ("LeftShoulder", "LeftElbow", "LeftWrist"), ("leftUpperArm", "leftLowerArm", "leftHand"),
               ("L_UpperArm", "L_LowerArm", "L_Hand"))
 LEG_CHAINS = (("thigh_l", "shin_l", "foot_l"), ("thigh_l", "calf_l", "foot_l"), ("LeftUpLeg", "LeftLeg", "LeftFoot"),
               ("LeftHip", "LeftKnee", "LeftAnkle"), ("leftUpperLeg", "leftLowerLeg", "leftFoot"),
               ("L_UpperLeg", "L_LowerLeg", "L_Foot"))
+LIMB_PARTS = {"arm": ("clavicle", "shoulder", "upperarm", "lowerarm", "hand"),
+              "leg": ("hip", "thigh", "leg", "shin", "foot")}
+# what a sleeve / trouser leg is placed on
+NEEDS = {"arm": "a sleeve needs shoulder, elbow and wrist joints", "leg": "a trouser leg needs hip, knee and ankle joints"}
+PARTS = ("arm_l", "arm_r", "leg_l", "leg_r")
 
 
 def _bare(name: str) -> str:
@@ -46,12 +62,29 @@ def subtree(parents: np.ndarray, j: int) -> set:
 
 def main_path(parents: np.ndarray, j: int) -> list:
     """j, then repeatedly the child with the largest subtree (first on ties)."""
+    size = _subtree_sizes(parents)
     path = [j]
     while True:
         kids = np.flatnonzero(parents == path[-1])
         if kids.size == 0:
             return path
-        path.append(int(max(kids, key=lambda k: (len(subtree(parents, int(k))), -k))))
+        path.append(int(max(kids, key=lambda k: (size[k], -k))))
+
+
+def _subtree_sizes(parents: np.ndarray) -> np.ndarray:
+    size = np.ones(len(parents), int)
+    for k in range(len(parents) - 1, 0, -1):
+        size[parents[k]] += size[k]
+    return size
+
+
+def _ancestors(parents: np.ndarray, j: int) -> list:
+    """j, its parent, ... up to the top joint."""
+    out = []
+    while j >= 0:
+        out.append(int(j))
+        j = int(parents[j])
+    return out
 
 
 def _rest_positions(character) -> np.ndarray:
@@ -59,72 +92,259 @@ def _rest_positions(character) -> np.ndarray:
     return forward_kinematics(character.parents, character.rest_local)[:, :3, 3]
 
 
-def limb_chain(character, kind: str, side: str):
-    """Joint indices (upper, lower, end) of the arm or leg on `side` ('l' = the wearer's left, +X),
-    found by name (ARM_CHAINS / LEG_CHAINS, namespace prefixes ignored), else by the skeleton's
-    shape (structural_chain); None when neither finds one."""
-    bare = [_bare(n) for n in character.joint_names]
-    for chain in (ARM_CHAINS if kind == "arm" else LEG_CHAINS):
-        c = chain if side == "l" else tuple(mirror_name(n) for n in chain)
-        if all(n in bare for n in c):
-            return [bare.index(n) for n in c]
-    return structural_chain(character, kind, side)
+class Body(NamedTuple):
+    """The rest pose as detection reads it. w: (J, 3) joint positions; lo / hi: (J, 3) the lowest
+    and highest coordinates of each joint and its dominant skin (every mesh of the character);
+    sub_lo / sub_hi: the same over each joint's subtree; y0 / height: the floor and the height of
+    joints and skin together; x0: the root's x (the body's mid-plane)."""
+
+    parents: np.ndarray
+    root: int
+    w: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    sub_lo: np.ndarray
+    sub_hi: np.ndarray
+    depth: np.ndarray
+    dominant: np.ndarray
+    y0: float
+    height: float
+    x0: float
 
 
-def structural_chain(character, kind: str, side: str):
-    """A limb chain from the rest pose: legs are the root's children below it, arms the branches off
-    the rest of the skeleton that reach furthest sideways (|x - root x| >= 15 % of the skeleton's
-    height). A leg chain starts at its first joint with a bone longer than 15 % of the leg (skips
-    zero-length hip joints); an arm chain at the joint of its path's longest bone (the upper arm,
-    not a clavicle). Three joints needed."""
+def rest_body(character) -> Body:
     parents = np.asarray(character.parents)
     w = _rest_positions(character)
-    root = character.root_joint
+    v = np.asarray(character.vertices, np.float64)
+    dom = character.skin_joints[np.arange(len(v)), np.argmax(character.skin_weights, axis=1)] if len(v) \
+        else np.zeros(0, int)
+    lo, hi = w.copy(), w.copy()
+    np.minimum.at(lo, dom, v)
+    np.maximum.at(hi, dom, v)
+    sub_lo, sub_hi = lo.copy(), hi.copy()
+    for k in range(len(parents) - 1, 0, -1):    # children after parents: fold each subtree upwards
+        p = parents[k]
+        sub_lo[p] = np.minimum(sub_lo[p], sub_lo[k])
+        sub_hi[p] = np.maximum(sub_hi[p], sub_hi[k])
+    depth = np.zeros(len(parents), int)
+    for k in range(1, len(parents)):
+        depth[k] = depth[parents[k]] + 1
+    y0, y1 = float(lo[:, 1].min()), float(hi[:, 1].max())
+    root = int(character.root_joint)
+    return Body(parents, root, w, lo, hi, sub_lo, sub_hi, depth, dom, y0, (y1 - y0) or 1.0, float(w[root, 0]))
+
+
+def _crosses(b: Body, j: int, sign: float) -> bool:
+    """Whether j's subtree (joints and skin) reaches clearly onto the other side of the mid-plane:
+    then j is on the body's axis (spine, pelvis), not in a limb of side `sign`."""
+    other = b.sub_lo[j, 0] if sign > 0 else b.sub_hi[j, 0]
+    return sign * (other - b.x0) < -0.05 * b.height
+
+
+def limb_points(b: Body, joints, skin_vertices: np.ndarray | None = None):
+    """(3, 3) rest positions of a limb's upper, lower and end points: its joints for a chain of
+    three; for a shorter limb, the end is where its skin reaches farthest along the limb (from the
+    first joint towards the skin's centre) and the lower point halfway (or its second joint). None
+    for a one-joint limb without skin."""
+    joints = list(joints)
+    if len(joints) >= 3:
+        return b.w[joints[:3]].copy()
+    u = b.w[joints[0]]
+    pts = b.w[joints[1:]]
+    if skin_vertices is not None and len(skin_vertices):
+        pts = np.concatenate([pts, skin_vertices])
+    if len(pts) == 0:
+        return None
+    d = pts.mean(axis=0) - u
+    if np.linalg.norm(d) < 1e-9:
+        return None
+    d /= np.linalg.norm(d)
+    e = u + d * float(((pts - u) @ d).max())
+    mid = b.w[joints[1]] if len(joints) == 2 else (u + e) / 2
+    return np.stack([u, mid, e])
+
+
+def _shape_check(b: Body, kind: str, side: str, pts) -> str:
+    """'' when the points (upper, lower, end) are shaped like the limb, else why not."""
+    if pts is None:
+        return "it has no skin to measure"
     sign = 1.0 if side == "l" else -1.0
-    down = _leg_roots(character, w)
-    if kind == "leg":
-        # a leg's side: where its subtree's lowest joint (the foot) is
-        def foot_x(c):
-            sub = sorted(subtree(parents, c))
-            return sign * (w[sub[int(np.argmin(w[sub, 1]))], 0] - w[root, 0])
-        starts = [c for c in down if foot_x(c) > 1e-3]
-        best = max(starts, key=foot_x, default=None)
-    else:
-        legs = set().union(*[subtree(parents, c) for c in down]) if down else set()
-        nkids = np.bincount(parents[parents >= 0], minlength=len(parents))
-        height = float(np.ptp(w[:, 1])) or 1.0
-        best, reach = None, 0.15 * height
-        for j in range(len(parents)):
-            if j == root or j in legs or parents[j] < 0 or nkids[parents[j]] < 2:
-                continue
-            r = max(sign * (w[k, 0] - w[root, 0]) for k in subtree(parents, j))
-            if r >= reach:
-                best, reach = j, r
+    u, e = pts[0], pts[2]
+    if sign * ((u[0] + e[0]) / 2 - b.x0) <= 0.01 * b.height:
+        return f"it is not on the wearer's {'left (+X)' if side == 'l' else 'right (-X)'}"
+    if kind == "arm" and pts[:, 1].min() <= b.y0 + 0.25 * b.height:
+        return "it hangs down to the floor (a leg, not an arm)"
+    if kind == "leg" and (e[1] >= b.y0 + 0.2 * b.height or e[1] >= u[1] - 0.15 * b.height):
+        return "it does not go down to the floor"
+    return ""
+
+
+def _skin(character, b: Body, joints) -> np.ndarray:
+    return np.asarray(character.vertices)[np.isin(b.dominant, list(joints))]
+
+
+def name_chain(b: Body, labels: list, kind: str, side: str):
+    """The limb's joints by name (labels: `joint_names.label` of every joint): (upper, lower, end),
+    or a shorter list for a limb named as one but of fewer than 3 joints (Kenney's `arm-left`),
+    or None. The end is the topmost hand / foot joint; upper, lower and end the topmost joints of
+    their rank (joint_names.limb_ranks) on the path to it; an upper joint at its parent's place
+    (CMU's `LHipJoint` on the hips) is passed over for the next one."""
+    parents = b.parents
+    named = [j for j, (s, p) in enumerate(labels) if s == side and p in LIMB_PARTS[kind]]
+    if not named:
+        return None
+    end_part = "hand" if kind == "arm" else "foot"
+    ends = sorted((j for j in named if labels[j][1] == end_part), key=lambda j: (b.depth[j], j))
+    tips = ends or [max(named, key=lambda j: (b.depth[j], -j))]
+    for tip in tips:
+        path = _ancestors(parents, tip)[::-1]
+        ranks = limb_ranks([labels[j][1] if labels[j][0] == side else "" for j in path], kind)
+        ups = [i for i, r in enumerate(ranks) if r == 1]
+        if not ups:
+            continue
+        moved = [i for i in ups if parents[path[i]] < 0
+                 or np.linalg.norm(b.w[path[i]] - b.w[parents[path[i]]]) > 0.01 * b.height]
+        iu = (moved or ups)[0]
+        il = next((i for i in range(iu + 1, len(path)) if ranks[i] == 2), None)
+        ie = next((i for i in range(iu + 1, len(path)) if ranks[i] == 3), None)
+        if il is not None and ie is not None and il < ie:
+            return [path[iu], path[il], path[ie]]
+        limb = main_path(parents, path[iu])
+        if len(limb) < 3:
+            return limb
+    return None
+
+
+def _branch_start(b: Body, j: int, sign: float) -> int:
+    """The topmost ancestor of j (j included) below the root whose subtree stays on j's side: where
+    the limb leaves the body."""
+    anc = _ancestors(b.parents, j)
+    top = set(_ancestors(b.parents, b.root))
+    start = j
+    for a in anc[1:]:
+        if a in top or _crosses(b, a, sign):
+            break
+        start = a
+    return start
+
+
+def shape_leg(b: Body, side: str):
+    """A leg from the rest pose alone: from a foot (a joint on that side whose skin or itself
+    reaches the floor) up to where its branch leaves the body (the shallowest such branch: a
+    quadruped's hind legs, not its front legs), then down its main path. A leg chain starts at its
+    first bone longer than 15 % of the leg (skips zero-length hip joints). Fewer than 3 joints: the
+    short limb."""
+    sign = 1.0 if side == "l" else -1.0
+    top = set(_ancestors(b.parents, b.root))
+    feet = [j for j in range(len(b.parents)) if j not in top and b.lo[j, 1] < b.y0 + 0.1 * b.height
+            and sign * (b.w[j, 0] - b.x0) > 0.01 * b.height and not _crosses(b, j, sign)]
+    best = None
+    for f in feet:
+        start = _branch_start(b, f, sign)
+        key = (b.depth[start], b.lo[f, 1], -sign * b.w[f, 0], f)
+        if best is None or key < best[0]:
+            best = (key, start, f)
+    if best is None:
+        return None
+    _, start, f = best
+    down = _ancestors(b.parents, f)[::-1]
+    path = down[down.index(start):] + main_path(b.parents, f)[1:]
+    bone = np.linalg.norm(b.w[path[1:]] - b.w[path[:-1]], axis=1)
+    long = np.flatnonzero(bone > 0.15 * bone.sum()) if bone.size else np.zeros(0, int)
+    k = int(long[0]) if long.size else 0
+    return path[k:k + 3]
+
+
+def shape_arm(b: Body, side: str, legs: set):
+    """An arm from the rest pose alone: the branch off the body's axis (its parent's subtree spans
+    both sides, its own stays on this side; not in a leg) reaching farthest sideways, at least 15 %
+    of the height; the chain starts at the longest bone of its main path that leaves room for two
+    more joints (the upper arm, not a clavicle)."""
+    sign = 1.0 if side == "l" else -1.0
+    parents = b.parents
+    top = set(_ancestors(parents, b.root))
+    reach = (b.sub_hi[:, 0] if sign > 0 else -b.sub_lo[:, 0]) - sign * b.x0
+    best, most = None, 0.15 * b.height
+    for j in range(len(parents)):
+        p = parents[j]
+        if j in top or j in legs or p < 0 or _crosses(b, j, sign) or not (_crosses(b, p, sign) or p in top):
+            continue
+        if reach[j] > most:
+            best, most = j, reach[j]
     if best is None:
         return None
     path = main_path(parents, best)
-    bone = np.linalg.norm(w[path[1:]] - w[path[:-1]], axis=1)
-    if kind == "leg":
-        long = np.flatnonzero(bone > 0.15 * bone.sum()) if bone.size else np.zeros(0, int)
-        k = int(long[0]) if long.size else 0
-        return path[k:k + 3] if len(path) >= k + 3 else None
     if len(path) < 3:
-        return None
+        return path
+    bone = np.linalg.norm(b.w[path[1:]] - b.w[path[:-1]], axis=1)
     k = int(np.argmax(bone[:len(path) - 2]))
     return path[k:k + 3]
 
 
-def _leg_roots(character, w: np.ndarray) -> list:
-    """Children of the root whose subtree reaches well below it (the legs)."""
-    parents = np.asarray(character.parents)
-    root = character.root_joint
-    height = float(np.ptp(w[:, 1])) or 1.0
-    out = []
-    for c in np.flatnonzero(parents == root):
-        sub = list(subtree(parents, int(c)))
-        if w[sub, 1].min() < w[root, 1] - 0.2 * height:
-            out.append(int(c))
+def find_limbs(character, b: Body | None = None) -> dict:
+    """part ('arm_l', ...) -> (joints or None, how: 'name' | 'shape' | 'missing', points (3, 3) or
+    None, why: '' or why the part is missing / not a chain). Legs first: the arms are looked for off
+    the legs."""
+    b = b or rest_body(character)
+    labels = [label(n) for n in character.joint_names]
+    out, legs = {}, set()
+    for kind in ("leg", "arm"):
+        for side in ("l", "r"):
+            tried = []
+            for how in ("name", "shape"):
+                if how == "name":
+                    joints = name_chain(b, labels, kind, side)
+                else:
+                    joints = shape_leg(b, side) if kind == "leg" else shape_arm(b, side, legs)
+                if not joints:
+                    continue
+                pts = limb_points(b, joints, _skin(character, b, joints) if len(joints) < 3 else None)
+                bad = _shape_check(b, kind, side, pts)
+                if not bad:
+                    break
+                what = " > ".join(character.joint_names[j] for j in joints)
+                tried.append(f"{'joints named as the' if how == 'name' else 'the branch'} {what}: {bad}")
+                joints = None
+            if joints:
+                why = "" if len(joints) >= 3 else _short_why(character, kind, joints)
+                out[f"{kind}_{side}"] = (list(joints), how, pts, why)
+                if kind == "leg":
+                    legs |= subtree(b.parents, _branch_start(b, joints[0], 1.0 if side == "l" else -1.0))
+            else:
+                why = "; ".join(tried) or "no joint named as one, no branch shaped like one"
+                out[f"{kind}_{side}"] = (None, "missing", None, why)
     return out
+
+
+def _short_why(character, kind: str, joints) -> str:
+    names = character.joint_names
+    what = (f"{kind} {names[joints[0]]!r} is a single joint" if len(joints) == 1
+            else f"{kind} {' > '.join(names[j] for j in joints)!r} has only {len(joints)} joints")
+    return f"{what}: {NEEDS[kind]}"
+
+
+def limb_chain(character, kind: str, side: str):
+    """Joint indices [upper, lower, end] of the arm or leg on `side` ('l' = the wearer's left, +X),
+    found by name (any naming, checked against the shape) or by the skeleton's shape; None when
+    neither finds one or the limb has fewer than 3 joints (see `humanoid_joints` for why)."""
+    joints = find_limbs(character)[f"{kind}_{side}"][0]
+    return joints if joints is not None and len(joints) == 3 else None
+
+
+def structural_chain(character, kind: str, side: str):
+    """A limb chain [upper, lower, end] from the rest pose alone (names ignored), checked like a
+    name match; None when none is found or it has fewer than 3 joints."""
+    b = rest_body(character)
+    legs = set()
+    if kind == "arm":
+        for s in ("l", "r"):
+            ch = shape_leg(b, s)
+            if ch and not _shape_check(b, "leg", s, limb_points(b, ch, _skin(character, b, ch))):
+                legs |= subtree(b.parents, _branch_start(b, ch[0], 1.0 if s == "l" else -1.0))
+    ch = shape_leg(b, side) if kind == "leg" else shape_arm(b, side, legs)
+    if not ch or len(ch) < 3 or _shape_check(b, kind, side, limb_points(b, ch)):
+        return None
+    return ch
 
 
 @dataclass(frozen=True)
@@ -132,9 +352,14 @@ class HumanoidJoints:
     """Joint indices of a humanoid's parts (-1 / None: not found).
 
     root: the root joint. arm_l, arm_r, leg_l, leg_r: (upper, lower, end) joint indices or None.
-    chest: the spine joint the arms branch from. neck: the spine joint right above it (its subtree
-    is the neck and head). head: the neck's main child (or the neck itself on a one-joint neck).
-    names: the rig's joint names (for messages).
+    chest: the spine joint the arms branch from (the neck's parent where no arms are found). neck:
+    the spine joint right above it (its subtree is the neck and head), or the topmost joint named
+    as a neck where no arms are found. head: the neck's main child (or the neck itself on a
+    one-joint neck). names: the rig's joint names (for messages).
+    found: part -> 'name' | 'shape' | 'missing' (limbs and the neck). short: limb part -> its
+    joints, for a limb of fewer than 3 joints (its chain is None). points: limb part -> (3, 3)
+    rest positions (upper, lower, end; a short limb's from its skin). why: part -> one line saying
+    why it is missing or not a chain.
     """
 
     root: int
@@ -146,6 +371,10 @@ class HumanoidJoints:
     neck: int
     head: int
     names: tuple
+    found: dict = field(default_factory=dict)
+    short: dict = field(default_factory=dict)
+    points: dict = field(default_factory=dict)
+    why: dict = field(default_factory=dict)
 
     def limb(self, kind: str, side: str):
         return getattr(self, f"{kind}_{side}")
@@ -160,32 +389,40 @@ class HumanoidJoints:
         for kind in kinds:
             if kind in ("arm", "leg"):
                 chains = ARM_CHAINS if kind == "arm" else LEG_CHAINS
-                looked.append(f"{kind}s named like " + ", ".join("/".join(c) for c in chains)
-                              + " (right side mirrored) or found by the skeleton's shape")
+                looked.append(f"{kind}s named in any usual way (" + ", ".join("/".join(c) for c in chains[1:3])
+                              + ", ...; sides L/R/Left/Right) and shaped like one, or found by the shape")
             else:
-                looked.append("the neck: the spine joint above where the arms branch off")
-        raise InputError(what, f"cannot find the humanoid's {', '.join(missing)}; looked for {'; '.join(looked)}; "
-                               f"the rig's joints: {', '.join(self.names)}")
+                looked.append("the neck above where the arms branch off, or a joint named neck")
+        # one reason per distinct text: "arm_l, arm_r: ..." (the line stays short enough to print whole)
+        whys: dict = {}
+        for p in missing:
+            if self.why.get(p):
+                whys.setdefault(self.why[p], []).append(p)
+        why = "; ".join(f"{', '.join(ps)}: {w}" for w, ps in whys.items())
+        raise InputError(what, f"cannot find the humanoid's {', '.join(missing)}" + (f" ({why})" if why else "")
+                               + f"; the rig's joints: {', '.join(self.names)}; looked for {'; '.join(looked)}")
 
 
 def humanoid_joints(character) -> HumanoidJoints:
     """The character's limbs, chest, neck and head (see the module docstring)."""
-    parents = np.asarray(character.parents)
-    root = character.root_joint
-    arms = {s: limb_chain(character, "arm", s) for s in ("l", "r")}
-    legs = {s: limb_chain(character, "leg", s) for s in ("l", "r")}
-    w = _rest_positions(character)
-    leg_set = set().union(set(), *[subtree(parents, c) for c in _leg_roots(character, w)])
-    for ch in legs.values():
-        if ch is not None:
-            leg_set |= subtree(parents, ch[0])
+    b = rest_body(character)
+    parents, root, w = b.parents, b.root, b.w
+    limbs = find_limbs(character, b)
+    leg_set, limb_set = set(), set()
+    for part, (joints, *_rest) in limbs.items():
+        if joints:
+            sub = subtree(parents, _branch_start(b, joints[0], 1.0 if part.endswith("_l") else -1.0))
+            limb_set |= sub
+            if part.startswith("leg"):
+                leg_set |= sub
     # the spine: the root's main path upwards, not into a leg
+    size = _subtree_sizes(parents)
     up = [int(c) for c in np.flatnonzero(parents == root) if int(c) not in leg_set]
     spine = [root]
     if up:
-        spine += main_path(parents, max(up, key=lambda c: (len(subtree(parents, c)), -c)))
+        spine += main_path(parents, max(up, key=lambda c: (size[c], -c)))
     chest, neck, head = -1, -1, -1
-    arm_roots = [ch[0] for ch in arms.values() if ch is not None]
+    arm_roots = [limbs[p][0][0] for p in ("arm_l", "arm_r") if limbs[p][0]]
     if arm_roots:
         # the last spine joint that is an ancestor of every arm
         anc = [set(_ancestors(parents, a)) for a in arm_roots]
@@ -197,16 +434,25 @@ def humanoid_joints(character) -> HumanoidJoints:
             kids = [int(c) for c in np.flatnonzero(parents == chest) if int(c) not in arm_side]
             if kids:
                 neck = max(kids, key=lambda c: max(w[k, 1] for k in subtree(parents, c)))
-                path = main_path(parents, neck)
-                head = path[1] if len(path) > 1 else neck
-    return HumanoidJoints(root, *(tuple(arms[s]) if arms[s] else None for s in ("l", "r")),
-                          *(tuple(legs[s]) if legs[s] else None for s in ("l", "r")), chest, neck, head,
-                          tuple(character.joint_names))
-
-
-def _ancestors(parents: np.ndarray, j: int) -> list:
-    out = []
-    while j >= 0:
-        out.append(int(j))
-        j = int(parents[j])
-    return out
+    neck_how = "shape" if neck >= 0 else "missing"
+    if neck < 0:
+        # no arms to find it by (a quadruped's front legs are not arms): the topmost joint named as a
+        # neck, outside the limbs, going up
+        named = [j for j, n in enumerate(character.joint_names) if label(n)[1] == "neck" and j not in limb_set
+                 and j != root and b.sub_hi[j, 1] >= w[j, 1]]
+        if named:
+            neck, neck_how = min(named, key=lambda j: (b.depth[j], j)), "name"
+            chest = chest if chest >= 0 else int(parents[neck])
+    if neck >= 0:
+        path = main_path(parents, neck)
+        head = path[1] if len(path) > 1 else neck
+    chains = {p: (tuple(j) if j is not None and len(j) == 3 else None) for p, (j, *_r) in limbs.items()}
+    found = {p: v[1] for p, v in limbs.items()} | {"neck": neck_how}
+    short = {p: tuple(v[0]) for p, v in limbs.items() if v[0] is not None and len(v[0]) < 3}
+    points = {p: v[2] for p, v in limbs.items() if v[2] is not None}
+    why = {p: v[3] for p, v in limbs.items() if v[3]}
+    if neck < 0:
+        why["neck"] = ("no arms branch off the spine and no joint is named neck" if not arm_roots
+                       else "no joint above where the arms branch off")
+    return HumanoidJoints(root, chains["arm_l"], chains["arm_r"], chains["leg_l"], chains["leg_r"], chest, neck, head,
+                          tuple(character.joint_names), found, short, points, why)
