@@ -82,10 +82,11 @@ def bone_mapping(character) -> dict:
 
 
 def _units(character, kind: str, path: str) -> dict:
-    if kind == "gltf":
+    if kind == "gltf":  # the loader's notes say what it took and why (stages.rig.gltf_nodes.choose_units)
         up = next((n for n in character.notes if n.startswith("up axis")), "up axis: file +Y")
-        return {"lengths": "metres (glTF convention), scale 1", "up_axis": up.split(":", 1)[1].strip(),
-                "notes": [n for n in character.notes if not n.startswith("up axis")]}
+        units = next((n for n in character.notes if n.startswith("units:")), "units: metres (glTF convention), scale 1")
+        return {"lengths": units.split(":", 1)[1].strip(), "up_axis": up.split(":", 1)[1].strip(),
+                "notes": [n for n in character.notes if not n.startswith(("up axis", "units:"))]}
     if kind == "bvh":
         from stages.rig.bvh import parse_bvh
         data = parse_bvh(path)

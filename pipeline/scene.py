@@ -134,6 +134,8 @@ OBSTACLE = Field("union", REQUIRED, "an obstacle", variants={
 
 
 def _check_character(c):
+    if c["scale"] is None and c["source"] != "gltf":
+        c["scale"] = 1.0  # auto units are the glTF loader's; a BVH or the built-in body is taken in metres
     if c["source"] in ("gltf", "bvh") and not c["path"]:
         return f"source {c['source']!r} needs a 'path'"
     if c["source"] == "procedural" and c["path"]:
@@ -150,9 +152,12 @@ SCENE_SPEC = {
         "source": Field("str", "procedural", "procedural | gltf | bvh", choices=("procedural", "gltf", "bvh")),
         "path": Field("path", None, ".glb/.gltf or .bvh file, relative to the scene file"),
         "clip": Field("any", 0, "clip name or index ('rest' = no motion)"),
-        "scale": Field("float", 1.0, "length scale applied to the asset", lo=0.0, lo_open=True),
-        "up_axis": Field("str", "auto", "up axis of a glTF asset: auto (where two limbs hang down), y or z",
-                         choices=("auto", "y", "z")),
+        "scale": Field("float", None, "length scale applied to the asset (metres per file unit); default "
+                       "(null): glTF auto (metres, or cm / mm when metres make a biped or animal implausibly "
+                       "tall, else an error naming the scale to set), BVH 1; a number is taken as it is",
+                       lo=0.0, lo_open=True, nullable=True),
+        "up_axis": Field("str", "auto", "up axis of a glTF asset: auto (where two limbs of the skinned rest "
+                         "pose hang down to the floor), y or z", choices=("auto", "y", "z")),
         "bind_pose": Field("str", None, "bvh: pose the skin is built and bound in (default neutral)",
                            choices=("neutral", "frame0", "rest")),
         "body": Field("section", {}, "built-in character / generated BVH skin sizes", fields={

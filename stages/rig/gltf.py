@@ -10,9 +10,18 @@ node (also the non-joint nodes above the skeleton, with any rotation, translatio
   lowest common ancestor (and up to the highest animated ancestor of it, if any), so non-joint
   nodes between joints become unweighted joints and the FK stays exact. Joints are re-ordered
   depth-first (parents[j] < j). If the joints share no ancestor, a synthetic root `__root__` is added.
+- Bind space: joint k takes its bind-space points to the rest pose's world by C_k = rest_world_k @
+  inverse_bind_k (I when the bind mesh is the rest pose). When the joints holding at least half
+  the skin weight share one C (an exporter that turned the mesh Z-up -> Y-up, or scaled it, in
+  the inverse binds but not in the nodes), the bind mesh becomes C @ mesh and the inverse binds
+  inverse_bind_k @ C^-1: skinning is unchanged in every pose, and the bind mesh stands as the
+  skeleton does (`gltf_nodes.bind_to_rest`). Otherwise the file's bind pose is kept as stored.
 - The model frame is U applied to the glTF world: U = floor shift @ up rotation @ scale. The up
-  rotation takes the file's up (`up_axis`; 'auto': `gltf_nodes.detect_up`, from the bind-pose
-  skeleton) to +Y; the floor shift (vertical only) puts the lowest bind-mesh vertex on y = 0.
+  rotation takes the file's up (`up_axis`; 'auto': `gltf_nodes.detect_up`, from the skinned rest
+  pose, skeleton and mesh together) to +Y; the scale is `scale`, or with None the units found
+  from the rest pose's height and kind (`gltf_nodes.choose_units`: metres; cm / mm when metres
+  make a biped or animal implausibly tall; refused when nothing makes it plausible); the floor
+  shift (vertical only) puts the lowest bind-mesh vertex on y = 0.
 - The static transform P of the nodes above the root is folded in (`gltf_nodes.fold_frames`):
   U @ P = A @ K, A rigid, K the stretch (polar decomposition). Joint translations are mapped by
   K (root) or Lb_p^-1 K Lb_p (Lb_p: parent's bind-pose linear part below P), the root's local
@@ -28,7 +37,8 @@ node (also the non-joint nodes above the skeleton, with any rotation, translatio
   about the axis of a (a, b, a) scale). Otherwise a vertex is off by at most (largest - smallest
   principal stretch of K) x (its distance from its joints' origins + the bone lengths from the
   root to them, both measured below P), for joints without scale of their own.
-- `Character.notes` says which up axis was taken (and why, for 'auto') and the floor shift.
+- `Character.notes` says which up axis was taken (and why, for 'auto'), the units (and why), a bind
+  space that is not the rest pose, and the floor shift.
 
 Animation baking (the `Clip` contract has one interpolation mode per clip):
 - all channels STEP -> a 'step' clip at the union of key times (exact);
@@ -43,14 +53,16 @@ Clip times keep the file's times (usually starting at 0); `loop` sets every clip
 """
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from stages.errors import InputError
 from stages.rig.gltf_io import Reader, load_document, read_skinned_primitive
-from stages.rig.gltf_nodes import (UP_ROTATIONS, decompose, detect_up, fold_frames, node_matrix, node_trs,
-                                   parents_of_nodes, select_skeleton)
+from stages.rig.gltf_nodes import (UP_ROTATIONS, bind_to_rest, choose_units, decompose, detect_up, fold_frames,
+                                   node_matrix, node_trs, parents_of_nodes, select_skeleton)
 from stages.rig.transforms import slerp, trs_to_matrix
 from stages.rig.types import Character, Clip
 
@@ -229,25 +241,43 @@ def _read_meshes(doc, rd, skinned, index_of, bind_change):
     return np.concatenate(verts), np.concatenate(tris).astype(np.int32), np.concatenate(prim_ids), sj, sw
 
 
-def load_gltf(path, *, scale: float = 1.0, up_axis: str = "auto", loop: bool = True,
+def _skin_rest(skin_m: np.ndarray, verts: np.ndarray, sj: np.ndarray, sw: np.ndarray) -> np.ndarray:
+    """Linear-blend skinning of verts (V, 3) by per-joint matrices skin_m (J, 4, 4): (V, 3).
+    One influence slot at a time, so memory stays (V, 4, 4) whatever K."""
+    out = np.zeros_like(verts)
+    for k in range(sj.shape[1]):
+        m = skin_m[sj[:, k]]
+        out += sw[:, k, None] * (np.einsum("vij,vj->vi", m[:, :3, :3], verts) + m[:, :3, 3])
+    return out
+
+
+def load_gltf(path, *, scale: float | None = None, up_axis: str = "auto", loop: bool = True,
               cubic_rate: float = 60.0, cubic_tol: float = 1e-4) -> Character:
     """Load a skinned glTF 2.0 (.glb, or .gltf with external .bin / data URIs) as a Character.
 
     The character stands as a glTF viewer shows it (every node transform composed, module doc),
     turned Y up and lifted so that its lowest bind-mesh vertex is on y = 0 (no horizontal shift).
-    scale: multiplies every length (vertices, joint translations, inverse binds).
+    A bind space the nodes do not explain (a turn or scale kept in the inverse binds only) is
+    taken into the rest pose's frame first (`gltf_nodes.bind_to_rest`), so the bind mesh stands
+    as the skinned rest pose does.
+    scale: metres per file unit, multiplying every length (vertices, joint translations, inverse
+    binds); None (auto, `gltf_nodes.choose_units`): metres (the glTF convention) unless the posed
+    character is implausibly large for a biped or animal and centimetres or millimetres fix it
+    (then that scale, a note and a warning), or implausible anyway (InputError naming
+    character.scale and a value for it).
     up_axis: which file axis is up: 'auto' (`gltf_nodes.detect_up`: the direction along which two
-    limbs hang from a common joint to the lowest leaf joints; +Y when no such pair), 'y' (the glTF
-    convention, no rotation) or 'z' ((x, y, z) -> (x, z, -y)).
+    limbs of the skinned rest pose hang side by side to the floor; +Y when no such pair), 'y' (the
+    glTF convention, no rotation) or 'z' ((x, y, z) -> (x, z, -y)).
     loop: the loop flag of every clip. cubic_rate (Hz) / cubic_tol: CUBICSPLINE baking (module doc).
     Every skinned mesh node (mesh + skin) contributes its triangle primitives; `primitive_ids`
     numbers them in file order. Skin weights keep the 8 strongest influences (K = 8 when any
-    primitive has JOINTS_1, else K = 4), renormalised. `notes` give the up axis and floor shift.
+    primitive has JOINTS_1, else K = 4), renormalised. `notes`: the up axis (first), the units
+    ('units: ...'), the bind space when it is not the rest pose, the floor shift.
     Raises InputError (naming the file) for unreadable / corrupt / unsupported content.
     """
     path = Path(path)
-    if not (np.isfinite(scale) and scale > 0):
-        raise InputError(path, f"scale must be a positive number, got {scale}")
+    if scale is not None and not (isinstance(scale, (int, float, np.integer, np.floating)) and np.isfinite(scale) and scale > 0):
+        raise InputError(path, f"character.scale must be a positive number or null (auto), got {scale!r}")
     if up_axis not in UP_AXES:
         raise InputError(path, f"up_axis must be one of {', '.join(UP_AXES)}, got {up_axis!r}")
     doc, bin_chunk = load_document(path)
@@ -301,23 +331,51 @@ def load_gltf(path, *, scale: float = 1.0, up_axis: str = "auto", loop: bool = T
     ibm, bind_change = _inverse_binds(path, doc, rd, used_skins, order, rest_world)
     verts, tris, prim_ids, sj, sw = _read_meshes(doc, rd, skinned, index_of, bind_change)
 
-    # Up axis, scale and floor shift: U maps the glTF world to the model frame.
-    bind_world = np.linalg.inv(ibm)  # each joint's bind-pose global transform, file frame
+    # Bind space -> the rest pose's world, when one transform does it (a turn or scale kept in the
+    # inverse binds only): the mesh is taken there, so that it stands as the skeleton does.
     size = float(np.max(np.ptp(verts, axis=0)))
-    notes = []
+    joint_weight = np.bincount(sj.ravel(), weights=sw.ravel(), minlength=nj)
+    change, agree = bind_to_rest(rest_world, ibm, joint_weight, size)
+    notes_bind = []
+    if not np.array_equal(change, np.eye(4)):
+        verts = verts @ change[:3, :3].T + change[:3, 3]
+        in_skin = np.isin(order, skin_joint_nodes)
+        ibm = np.where(in_skin[:, None, None], ibm @ np.linalg.inv(change), np.linalg.inv(rest_world))
+        turn = Rotation.from_matrix(change[:3, :3] / np.cbrt(np.linalg.det(change[:3, :3]))).magnitude()
+        notes_bind.append(f"bind space: the inverse binds hold a transform the nodes do not (a {np.degrees(turn):.3g} deg "
+                          f"turn, scale {np.cbrt(np.linalg.det(change[:3, :3])):.4g}); the bind mesh is taken into "
+                          f"the rest pose's frame (exact)")
+    elif agree < 1.0 - 1e-9:
+        notes_bind.append(f"bind pose: differs from the rest pose (the nodes' TRS) for joints holding "
+                          f"{100 * (1 - agree):.3g} % of the skin weight; kept as stored (skinning exact)")
+
+    # The posed character (the rest pose, skinned) decides the up axis and the size: that is what
+    # the pipeline shows first, whatever the bind space.
+    posed = _skin_rest(rest_world @ ibm, verts, sj, sw)
+    axes, stances = detect_up(rest_world[:, :3, 3], parents, posed, sj[:, 0])
+    axis = axes if up_axis == "auto" else "+" + up_axis
+    node_scale = float(np.cbrt(abs(np.linalg.det(rest_world[0, :3, :3]))))
+    units = choose_units(path, stances[axis], scale, node_scale if node_scale > 0 else 1.0)
+    scale = units.scale
+    if units.auto:
+        warnings.warn(f"{path}: {units.note}", stacklevel=2)
     if up_axis == "auto":
-        axis, scores = detect_up(bind_world[:, :3, 3], parents, size)
-        why = ", ".join(f"{k} {v * scale:.3g}" for k, v in scores.items() if v > 0) or "none"
-        notes.append(f"up axis: file {axis.upper()} (auto; two limbs hanging to the lowest leaf joints, "
-                     f"metres by candidate up: {why})")
+        why = ", ".join(f"{k} {v.hang * scale:.3g}" for k, v in stances.items() if v.hang > 0) or "none"
+        limbs = stances[axis].limbs
+        said = f"{limbs} limbs reach the floor" if limbs > 1 else "no two limbs reach the floor, the glTF +Y kept"
+        notes = [f"up axis: file {axis.upper()} (auto; skinned rest pose: {said}; metres two limbs hang side by "
+                 f"side by candidate up: {why})"]
     else:
-        axis = "+" + up_axis
-        notes.append(f"up axis: file {axis.upper()} (up_axis: {up_axis})")
+        notes = [f"up axis: file {axis.upper()} (up_axis: {up_axis})"]
+    notes += [units.note] + notes_bind
+
+    # U maps the glTF world to the model frame: up rotation and scale, then the floor shift.
     u = np.eye(4)
     u[:3, :3] = UP_ROTATIONS[axis] * scale
     lift = -float(np.min(verts @ u[1, :3]))
     u[1, 3] = lift
     notes.append(f"floor: lifted {lift:+.4g} m so that the lowest bind-mesh vertex is at y = 0")
+    bind_world = np.linalg.inv(ibm)  # each joint's bind-pose global transform, file frame
     fold = fold_frames(path, u, above, np.linalg.inv(above) @ bind_world, parents)
     if not fold.isotropic:
         sv = np.linalg.eigvalsh(fold.k) / scale

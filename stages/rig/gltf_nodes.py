@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
+import scipy.sparse
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial.transform import Rotation
 
 from stages.errors import InputError
@@ -186,53 +188,242 @@ def select_skeleton(nodes, parent: dict[int, int], joint_nodes: list[int], anima
 
 
 # --------------------------------------------------------------------------------------------
-# Up axis
+# Bind space vs rest pose
 # --------------------------------------------------------------------------------------------
 
-def detect_up(joint_pos: np.ndarray, parents: np.ndarray, size: float) -> tuple[str, dict[str, float]]:
-    """The file's up direction among +-X, +-Y, +-Z, from the skeleton's bind pose (`auto`).
+def bind_to_rest(rest_world: np.ndarray, ibm: np.ndarray, joint_weight: np.ndarray, size: float) -> tuple[np.ndarray, float]:
+    """The one transform C taking the bind space to the rest pose's world, if the joints holding
+    most of the skin weight agree on it: (C (4, 4), share of the skin weight that agrees with C).
 
-    A standing character has (at least) two limbs that hang from a common joint down to the floor:
-    legs from the hips, or a quadruped's legs from its hips or chest. For each candidate up u, take
-    the leaf joints lowest along u (within 10 % of `size` of the lowest leaf); the score of u is,
-    over pairs of those leaves, the largest min(drop of a, drop of b) below their lowest common
-    ancestor along u: the length of two limbs that reach the floor separately. A head, a tail or a
-    hand is one limb; toes or fingers of one foot or hand meet close by, so neither scores.
-    Works for humanoids and quadrupeds alike (a quadruped's longest extent is horizontal, so the
-    longest axis would be wrong). Returns the up with the best score when it beats +Y's by 25 % and
-    is at least 15 % of `size`, else '+y' (the glTF convention: no two such limbs, e.g. a snake, a
-    prop, a single chain), and every candidate's score (file units).
-    Assumes the bind pose stands on its legs (not lying, sitting or kneeling as modelled), the
-    legs end in leaf joints, and the inverse binds are the joints' world bind transforms (as
-    exporters write them), so bind mesh and skeleton share the frame a viewer shows.
-    joint_pos: (J, 3) bind-pose joint origins in the file's world. parents: (J,), parents[j] < j.
-    size: the bind mesh's largest bounding-box extent (file units).
+    rest_world: (J, 4, 4) rest (node TRS) world transforms; ibm: (J, 4, 4) inverse binds (file
+    frame); joint_weight: (J,) summed skin weights; size: the bind mesh's extent (file units).
+    Joint k maps its bind-space points to the rest world by C_k = rest_world_k @ ibm_k; a file
+    whose bind mesh is the rest pose has C_k = I for all. An exporter that turned (or scaled) the
+    mesh but not the skeleton stores the turn in every inverse bind: all C_k = C. C is identity
+    (bit-exact) when the agreeing C_k are within float32 noise of it, and when no C with a positive
+    determinant is shared by half the skin weight (a genuine bind pose, per joint: kept as stored).
     """
-    nj = len(parents)
-    has_child = np.zeros(nj, bool)
-    has_child[parents[parents >= 0]] = True
-    leaves = np.flatnonzero(~has_child)
-    ancestors = []
-    for j in range(nj):
+    c = rest_world @ ibm
+    lin = np.abs(np.linalg.det(c[:, :3, :3])) ** (1.0 / 3.0)
+    total = float(joint_weight.sum())
+    best, share = -1, 0.0
+    for k in np.flatnonzero(joint_weight > 0):
+        if not lin[k] > 1e-12:
+            continue
+        close = (np.abs(c[:, :3, :3] - c[k, :3, :3]).max(axis=(1, 2)) <= 1e-4 * lin[k]) & \
+                (np.abs(c[:, :3, 3] - c[k, :3, 3]).max(axis=1) <= 1e-4 * max(size, 1e-12))
+        w = float(joint_weight[close].sum()) / total
+        if w > share + 1e-12:
+            best, share = int(k), w
+    if best < 0 or share < 0.5 or np.linalg.det(c[best, :3, :3]) <= 0:
+        return np.eye(4), share
+    m = c[best]
+    if np.abs(m[:3, :3] - np.eye(3)).max() <= 1e-4 and np.abs(m[:3, 3]).max() <= 1e-4 * max(size, 1e-12):
+        return np.eye(4), share  # float32 noise of a bind pose that is the rest pose: keep the file's bits
+    return m.copy(), share
+
+
+# --------------------------------------------------------------------------------------------
+# Stance: which file axis is up and what stands on the floor (`up_axis: auto`)
+# --------------------------------------------------------------------------------------------
+
+_CONTACT = 0.02    # share of the size within which a posed vertex (or joint) touches the floor
+_STAND = 0.15      # two limbs must hang at least this share of the size for an up to stand
+_SAME_LIMB = 0.3   # floor contacts that part less than this share of the best pair's hang: one limb
+
+
+@dataclass(frozen=True)
+class Stance:
+    """How the posed character stands with one file direction taken as up (file units).
+
+    axis: '+y', '-z', ...: the file direction taken as up.
+    hang: over pairs of floor contacts, the largest min(drop of a, drop of b) from the highest
+        joint on the tree path between them down to the floor: how far two limbs hang side by side
+        (0 when fewer than two limb ends touch the floor).
+    limbs: separate limbs touching the floor (2: a biped, 4: a quadruped; 0 or 1: a prop, a snake,
+        a figure lying down).
+    height: the posed mesh's extent along the axis.
+    """
+
+    axis: str
+    hang: float
+    limbs: int
+    height: float
+
+    @property
+    def kind(self) -> str:
+        """'biped' (two limbs on the floor), 'animal' (three or more) or 'unknown'."""
+        return "biped" if self.limbs == 2 else "animal" if self.limbs > 2 else "unknown"
+
+    def describe(self) -> str:
+        """'biped, 2 limbs on the floor', ... for notes and errors."""
+        if self.kind == "unknown":
+            return "character of unknown kind, no two limbs on the floor"
+        return f"{self.kind}, {self.limbs} limbs on the floor"
+
+
+def _chains(parents: np.ndarray) -> list[list[int]]:
+    """Per joint: itself, its parent, ..., the root."""
+    out = []
+    for j in range(len(parents)):
         a = [j]
         while parents[a[-1]] >= 0:
             a.append(int(parents[a[-1]]))
-        ancestors.append(a)
-    scores: dict[str, float] = {}
-    for axis in UP_ROTATIONS:
-        h = joint_pos @ up_vector(axis)
-        low = leaves[h[leaves] <= h[leaves].min() + 0.1 * size] if leaves.size else leaves
-        best = 0.0
-        for i, a in enumerate(low):
-            anc_a = set(ancestors[a])
-            for b in low[i + 1:]:
-                c = next(n for n in ancestors[b] if n in anc_a)
-                best = max(best, min(h[c] - h[a], h[c] - h[b]))
-        scores[axis] = float(best)
-    axis = max(UP_ROTATIONS, key=lambda k: scores[k])  # first of equals: +y
-    if axis != "+y" and (scores[axis] < 0.15 * size or scores[axis] <= 1.25 * scores["+y"]):
+        out.append(a)
+    return out
+
+
+def stance_along(axis: str, joint_pos: np.ndarray, parents: np.ndarray, vertices: np.ndarray,
+                 vertex_joint: np.ndarray, chains: list | None = None) -> Stance:
+    """The Stance of the posed character with file direction `axis` up.
+
+    joint_pos: (J, 3) posed joint origins; parents: (J,), parents[j] < j, one root; vertices:
+    (V, 3) the posed (skinned) mesh; vertex_joint: (V,) each vertex's strongest joint.
+    Floor contacts: the joints owning a vertex, or placed, within 2 % of the size of the lowest
+    vertex. A contact with another contact below it in the tree is no limb's end (the ankle above
+    the toes, a long skirt's hip joint above the legs). The drop of an end below its common joint
+    with another end is from the highest joint on the path between them, so a leg that is one
+    joint at the hip with its mesh down to the foot (chibi rigs, the root on the floor) still hangs.
+    Ends parting less than 30 % of the best pair's hang (or 15 % of the size) are one limb.
+    """
+    u = up_vector(axis)
+    chains = chains if chains is not None else _chains(parents)
+    hj = joint_pos @ u
+    hv = vertices @ u
+    floor, size = float(hv.min()), float(np.max(np.ptp(vertices, axis=0)))
+    band = floor + _CONTACT * size
+    touching = np.zeros(len(parents), bool)
+    touching[np.unique(vertex_joint[hv <= band])] = True
+    touching |= hj <= band
+    end = touching.copy()
+    for j in np.flatnonzero(touching):
+        end[chains[j][1:]] = False
+    ends = np.flatnonzero(end)
+    depth = [{n: i for i, n in enumerate(chains[a])} for a in ends]
+    top = [np.maximum.accumulate(hj[chains[a]]) for a in ends]  # highest joint from the end up to each ancestor
+    drop = np.zeros((ends.size, ends.size))
+    for i in range(ends.size):
+        for k in range(i + 1, ends.size):
+            c = next(n for n in chains[ends[k]] if n in depth[i])  # their lowest common ancestor
+            drop[i, k] = drop[k, i] = min(top[i][depth[i][c]], top[k][depth[k][c]]) - floor
+    hang = float(drop.max()) if ends.size > 1 else 0.0
+    limbs = 0
+    if ends.size:
+        together = scipy.sparse.csr_matrix(drop < max(_SAME_LIMB * hang, _STAND * size))
+        limbs = int(connected_components(together, directed=False)[0])
+    return Stance(axis=axis, hang=hang, limbs=limbs, height=float(np.ptp(hv)))
+
+
+def detect_up(joint_pos: np.ndarray, parents: np.ndarray, vertices: np.ndarray,
+              vertex_joint: np.ndarray) -> tuple[str, dict[str, Stance]]:
+    """The file's up direction among +-X, +-Y, +-Z (`up_axis: auto`) and every candidate's Stance.
+
+    Skeleton and mesh together, posed as the pipeline first shows the character (the rest pose:
+    the nodes' TRS, skinned), so that the bind space of the file does not matter. A standing
+    character has (at least) two limbs that reach the floor separately: legs from the hips, a
+    quadruped's legs from its hips or chest; a head, a tail or a hand is one limb, toes or fingers
+    of one foot or hand part too low to count. The up with the largest `Stance.hang` wins when it
+    beats +Y's by 25 % and is at least 15 % of the size; else '+y' (the glTF convention: no two
+    such limbs, e.g. a snake, a prop, a single chain). Works for humanoids and quadrupeds alike
+    (a quadruped's longest extent is horizontal, so the longest axis would be wrong).
+    Assumes the rest pose stands on its legs (not lying, sitting or kneeling as modelled).
+    Arguments as for `stance_along`.
+    """
+    chains = _chains(parents)
+    size = float(np.max(np.ptp(vertices, axis=0)))
+    stances = {a: stance_along(a, joint_pos, parents, vertices, vertex_joint, chains) for a in UP_ROTATIONS}
+    axis = max(UP_ROTATIONS, key=lambda k: stances[k].hang)  # first of equals: +y
+    if axis != "+y" and (stances[axis].hang < _STAND * size or stances[axis].hang <= 1.25 * stances["+y"].hang):
         axis = "+y"
-    return axis, scores
+    return axis, stances
+
+
+# --------------------------------------------------------------------------------------------
+# Units: metres, unless that makes the character implausibly large or small for its kind
+# --------------------------------------------------------------------------------------------
+
+# Plausible posed heights (metres): a biped from a doll-sized chibi to a giant, a four-legged animal
+# from a mouse to an elephant. A file beyond them is in other units (or scaled by mistake).
+PLAUSIBLE_M = {"biped": (0.25, 4.0), "animal": (0.05, 4.0)}
+_UNKNOWN_M = (0.001, 1000.0)   # kind unknown: refused only beyond these (clearly no character) ...
+_CHARACTER_M = (0.25, 4.0)     # ... and called unusual for a character beyond these
+_TYPICAL_M = {"biped": 1.7, "animal": 0.8, "unknown": 1.7}
+_UNIT_GUESSES = ((0.01, "centimetres"), (0.001, "millimetres"))  # tried in this order
+
+
+@dataclass(frozen=True)
+class Units:
+    """The length scale taken for a glTF character.
+
+    scale: metres per file unit (glTF world units, after every node transform).
+    note: the 'units: ...' note that `inspect` and the run summary print.
+    auto: the loader chose a scale other than 1 itself (the caller warns).
+    """
+
+    scale: float
+    note: str
+    auto: bool
+
+
+def _two_digits(x: float) -> float:
+    return float(f"{x:.2g}")
+
+
+def suggest_scale(height: float, kind: str) -> float:
+    """A character.scale for a posed height (m). A biped or animal: the power of ten nearest the
+    kind's typical height when it lands in the plausible range (a unit mistake), else the factor
+    to the typical height, two digits. Unknown kind: the factor to a human's height, two digits."""
+    typical = _TYPICAL_M[kind]
+    if kind in PLAUSIBLE_M:
+        lo, hi = PLAUSIBLE_M[kind]
+        p = 10.0 ** round(np.log10(typical / height))
+        if lo <= height * p <= hi:
+            return p
+    return _two_digits(typical / height)
+
+
+def choose_units(path, stance: Stance, given: float | None, node_scale: float = 1.0) -> Units:
+    """Units of a glTF character from its posed height along the up taken (`Stance.height`, file
+    units) and its kind (`Stance.kind`).
+
+    given: the user's character.scale (taken as it is; a note says when the result is unusual) or
+    None (auto): metres when plausible for the kind (`PLAUSIBLE_M`); a biped or animal too large
+    in metres but plausible in centimetres (else millimetres) gets that scale (auto=True); any
+    other implausible size raises InputError naming character.scale and a value for it. Of unknown
+    kind (no two limbs on the floor) only beyond 1 mm - 1 km is refused; beyond 0.25 - 4 m the
+    note says the size is unusual and which scale would make it human-sized.
+    node_scale: the scale the nodes already apply (an FBX export's 0.01 above the skeleton), named.
+    """
+    kind, what = stance.kind, stance.describe()
+    if given is not None:
+        h = stance.height * given
+        note = f"units: scale {given:g} (character.scale), {h:.4g} m tall"
+        lo, hi = PLAUSIBLE_M.get(kind, _CHARACTER_M)
+        if not lo <= h <= hi:
+            note += f"; unusual for a {'character' if kind == 'unknown' else kind} ({lo:g}-{hi:g} m)"
+        return Units(given, note, False)
+    h = stance.height
+    nodes = (f", the node transforms scaling the file by {node_scale:.3g} (converted already)"
+             if abs(np.log10(node_scale)) > 0.5 else "")
+    lo, hi = PLAUSIBLE_M.get(kind, _UNKNOWN_M)
+    if lo <= h <= hi:
+        if kind == "unknown" and not _CHARACTER_M[0] <= h <= _CHARACTER_M[1]:
+            s = suggest_scale(h, kind)
+            return Units(1.0, f"units: metres (glTF convention), scale 1{nodes} (auto): {h:.4g} m tall is unusual "
+                              f"for a character, kept as its kind is unknown (no two limbs on the floor); "
+                              f"character.scale: {s:g} would make it {h * s:.3g} m, human-sized", False)
+        return Units(1.0, f"units: metres (glTF convention), scale 1{nodes} (auto: {h:.4g} m tall, plausible for a {what})", False)
+    if kind != "unknown" and h > hi:
+        for f, name in _UNIT_GUESSES:
+            if lo <= h * f <= hi:
+                return Units(f, f"units: {name}, scale {f:g} (auto: read as metres the {what} would be {h:.4g} m "
+                                f"tall, beyond {lo:g}-{hi:g} m; {h * f:.4g} m in {name}; character.scale "
+                                f"overrides)", True)
+    s = suggest_scale(h, kind)
+    tried = ", nor in centimetres or millimetres" if kind != "unknown" and h > hi else ""
+    raise InputError(path, f"character.scale: read as metres the posed {what} is {h:.4g} m tall, implausible "
+                           f"(expected {lo:g}-{hi:g} m{tried}); set character.scale: {s:g} (gives {h * s:.3g} m) "
+                           f"or the file's metres per unit")
 
 
 # --------------------------------------------------------------------------------------------
