@@ -1,7 +1,9 @@
 """Humanoid parts (stages.rig.humanoid): the same joints found by every usual naming and by the
 skeleton's shape alone; a garment whose anchors are missing gets one error listing the rig's joints."""
 import dataclasses
+import os
 
+import numpy as np
 import pytest
 
 from stages.errors import InputError
@@ -94,3 +96,47 @@ def test_a_garment_on_a_rig_without_its_anchors_is_one_error_line(assets_dir, tm
     assert len(lines) == 1 and "Traceback" not in r.stderr
     for fragment in (str(scene), "garments[0] ('top', kind tshirt)", "'RiggedSimple'", "arm_l", "Root.001"):
         assert fragment in lines[0]
+
+
+def test_how_each_part_was_found_and_its_points(builtin):
+    """found says name / shape / missing; points are the chain joints' rest positions."""
+    from stages.rig.transforms import forward_kinematics
+    h = humanoid_joints(builtin)
+    assert h.found == {"arm_l": "name", "arm_r": "name", "leg_l": "name", "leg_r": "name", "neck": "shape"}
+    w = forward_kinematics(builtin.parents, builtin.rest_local)[:, :3, 3]
+    for part in ("arm_l", "arm_r", "leg_l", "leg_r"):
+        assert np.allclose(h.points[part], w[list(getattr(h, part))])
+    assert h.short == {} and h.why == {}
+    s = humanoid_joints(_renamed(builtin, [f"j{k}" for k in range(builtin.n_joints)]))
+    assert set(s.found.values()) == {"shape"}
+
+
+def test_real_rigs_scrambled_names_give_the_same_parts(assets_dir):
+    """CesiumMan (by shape already) and the BVH (by name) with meaningless joint names: the shape
+    alone finds the same joints (the BVH's arms start past the collar, its legs past LHipJoint)."""
+    from stages.rig.bvh import load_bvh_character
+    from stages.rig.gltf import load_gltf
+    for c in (load_gltf(assets_dir / "CesiumMan.glb"), load_bvh_character(assets_dir / "cmu_131_01_walk.bvh")):
+        s = _renamed(c, [f"j{k}" for k in range(c.n_joints)])
+        assert _parts(humanoid_joints(s)) == _parts(humanoid_joints(c))
+
+
+def test_a_tshirt_on_single_joint_arms_says_why_in_one_line(tmp_path):
+    """validate a T-shirt on Kenney's 7-joint rig: exit 2, one line saying the arm is a single joint."""
+    from pipeline.assets import assets_dir
+    from tests.test_cli import cli
+    kenney = assets_dir() / "kenney_mini_male_a.glb"
+    if not kenney.is_file():
+        reason = f"real asset missing: {kenney}"
+        if os.environ.get("GARMENT_REQUIRE_ASSETS") == "1":
+            pytest.fail(reason + " [GARMENT_REQUIRE_ASSETS=1]")
+        pytest.skip(reason)
+    scene = tmp_path / "shirt_on_kenney.yaml"
+    scene.write_text(f"character: {{source: gltf, path: '{kenney}', clip: 0}}\n"
+                     "frames: {count: 5}\ngarments:\n  - {type: pattern, name: top, kind: tshirt}\n")
+    r = cli("validate", str(scene))
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in r.stderr
+    assert "arm 'arm-left' is a single joint: a sleeve needs shoulder, elbow and wrist joints" in lines[0]
+    assert "arm-right, head" in lines[0] and not lines[0].endswith("...")

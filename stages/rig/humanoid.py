@@ -384,7 +384,8 @@ class HumanoidJoints:
         missing = [p for p in parts if (getattr(self, p) is None or getattr(self, p) == -1)]
         if not missing:
             return
-        kinds = sorted({p.split("_")[0] for p in missing})
+        # what was looked for, for the parts not found at all (a short limb was found: its reason says it)
+        kinds = sorted({p.split("_")[0] for p in missing if p not in self.short})
         looked = []
         for kind in kinds:
             if kind in ("arm", "leg"):
@@ -400,7 +401,8 @@ class HumanoidJoints:
                 whys.setdefault(self.why[p], []).append(p)
         why = "; ".join(f"{', '.join(ps)}: {w}" for w, ps in whys.items())
         raise InputError(what, f"cannot find the humanoid's {', '.join(missing)}" + (f" ({why})" if why else "")
-                               + f"; the rig's joints: {', '.join(self.names)}; looked for {'; '.join(looked)}")
+                               + f"; the rig's joints: {', '.join(self.names)}"
+                               + (f"; looked for {'; '.join(looked)}" if looked else ""))
 
 
 def humanoid_joints(character) -> HumanoidJoints:
