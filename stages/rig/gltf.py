@@ -341,17 +341,21 @@ def load_gltf(path, *, scale: float | None = None, up_axis: str = "auto", loop: 
         verts = verts @ change[:3, :3].T + change[:3, 3]
         in_skin = np.isin(order, skin_joint_nodes)
         ibm = np.where(in_skin[:, None, None], ibm @ np.linalg.inv(change), np.linalg.inv(rest_world))
-        turn = Rotation.from_matrix(change[:3, :3] / np.cbrt(np.linalg.det(change[:3, :3]))).magnitude()
-        notes_bind.append(f"bind space: the inverse binds hold a transform the nodes do not (a {np.degrees(turn):.3g} deg "
-                          f"turn, scale {np.cbrt(np.linalg.det(change[:3, :3])):.4g}); the bind mesh is taken into "
-                          f"the rest pose's frame (exact)")
+        s_change = float(np.cbrt(np.linalg.det(change[:3, :3])))
+        turn = float(np.degrees(Rotation.from_matrix(change[:3, :3] / s_change).magnitude()))
+        held = [f"a {turn:.3g} deg turn"] * (turn > 0.01) + [f"scale {s_change:.4g}"] * (abs(s_change - 1) > 1e-5)
+        notes_bind.append(f"bind space: the inverse binds hold {' and '.join(held) or 'a shift'} that the nodes do "
+                          f"not; the bind mesh is taken into the rest pose's frame (skinning unchanged)")
     elif agree < 1.0 - 1e-9:
         notes_bind.append(f"bind pose: differs from the rest pose (the nodes' TRS) for joints holding "
                           f"{100 * (1 - agree):.3g} % of the skin weight; kept as stored (skinning exact)")
 
     # The posed character (the rest pose, skinned) decides the up axis and the size: that is what
     # the pipeline shows first, whatever the bind space.
-    posed = _skin_rest(rest_world @ ibm, verts, sj, sw)
+    with np.errstate(over="ignore", invalid="ignore"):
+        posed = _skin_rest(rest_world @ ibm, verts, sj, sw)
+    if not np.all(np.isfinite(posed)):
+        raise InputError(path, "the skinned rest pose is not finite (node transforms or inverse binds overflow)")
     axes, stances = detect_up(rest_world[:, :3, 3], parents, posed, sj[:, 0])
     axis = axes if up_axis == "auto" else "+" + up_axis
     node_scale = float(np.cbrt(abs(np.linalg.det(rest_world[0, :3, :3]))))

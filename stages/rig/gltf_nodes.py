@@ -256,10 +256,10 @@ class Stance:
         return "biped" if self.limbs == 2 else "animal" if self.limbs > 2 else "unknown"
 
     def describe(self) -> str:
-        """'biped, 2 limbs on the floor', ... for notes and errors."""
+        """'biped with 2 limbs on the floor', ... for notes and errors."""
         if self.kind == "unknown":
-            return "character of unknown kind, no two limbs on the floor"
-        return f"{self.kind}, {self.limbs} limbs on the floor"
+            return "character of unknown kind (no two limbs on the floor)"
+        return f"{self.kind} with {self.limbs} limbs on the floor"
 
 
 def _chains(parents: np.ndarray) -> list[list[int]]:
@@ -395,6 +395,8 @@ def choose_units(path, stance: Stance, given: float | None, node_scale: float = 
     node_scale: the scale the nodes already apply (an FBX export's 0.01 above the skeleton), named.
     """
     kind, what = stance.kind, stance.describe()
+    if not stance.height > 0:
+        raise InputError(path, "the skinned rest pose has no height (every vertex at one level along the up axis)")
     if given is not None:
         h = stance.height * given
         note = f"units: scale {given:g} (character.scale), {h:.4g} m tall"
@@ -416,12 +418,11 @@ def choose_units(path, stance: Stance, given: float | None, node_scale: float = 
     if kind != "unknown" and h > hi:
         for f, name in _UNIT_GUESSES:
             if lo <= h * f <= hi:
-                return Units(f, f"units: {name}, scale {f:g} (auto: read as metres the {what} would be {h:.4g} m "
-                                f"tall, beyond {lo:g}-{hi:g} m; {h * f:.4g} m in {name}; character.scale "
-                                f"overrides)", True)
+                return Units(f, f"units: {name}, scale {f:g} (auto: read as metres it is a {h:.4g} m tall {what}, "
+                                f"beyond {lo:g}-{hi:g} m; in {name} {h * f:.4g} m; character.scale overrides)", True)
     s = suggest_scale(h, kind)
     tried = ", nor in centimetres or millimetres" if kind != "unknown" and h > hi else ""
-    raise InputError(path, f"character.scale: read as metres the posed {what} is {h:.4g} m tall, implausible "
+    raise InputError(path, f"character.scale: read as metres this {what} is {h:.4g} m tall, implausible "
                            f"(expected {lo:g}-{hi:g} m{tried}); set character.scale: {s:g} (gives {h * s:.3g} m) "
                            f"or the file's metres per unit")
 
