@@ -250,6 +250,7 @@ def test_every_naming_finds_the_same_anchors(rigs, rig, convention):
     ("arm-left", "l", "upperarm"), ("leg-right", "r", "leg"), ("LHipJoint", "l", "hip"), ("lhand", "l", "hand"),
     ("LeftHandIndex1", "l", "hand"), ("Hips", "", "pelvis"), ("Armature", "", ""), ("leg_joint_L_1", "l", "leg"),
     ("Skeleton_arm_joint_R__2_", "r", "upperarm"), ("torso_joint_3", "", "spine"), ("j12", "", ""),
+    ("Arm_Left_Lower", "l", "lowerarm"), ("J_Bip_C_Hips", "", "pelvis"), ("rThighTwist", "r", "thigh"),
 ])
 def test_labels(name, side, part):
     assert label(name) == (side, part), tokens(name)

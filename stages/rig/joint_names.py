@@ -40,8 +40,8 @@ COMPOUNDS = {("upper", "arm"): "upperarm", ("up", "arm"): "upperarm", ("fore", "
              ("lower", "arm"): "lowerarm", ("low", "arm"): "lowerarm", ("up", "leg"): "upleg",
              ("upper", "leg"): "upperleg", ("lower", "leg"): "lowerleg", ("low", "leg"): "lowleg",
              ("collar", "bone"): "collarbone"}
-# namespaces and prefixes that say nothing about the part (listed for the reader: every word not
-# in SIDES / PARTS is ignored anyway)
+# leading words that say nothing about the part, dropped (`DEF-`, `Bip01`, `b_`, `J_Bip_C_`,
+# `Character1_`; any other word not in SIDES / PARTS is ignored too)
 PREFIXES = ("mixamorig", "def", "org", "mch", "bip", "b", "j", "character", "bone", "bn", "jnt", "joint",
             "skeleton", "c")
 
@@ -51,11 +51,14 @@ LEG_RANKS = {"thigh": 1, "shin": 2, "foot": 3}
 
 
 def tokens(name: str) -> list:
-    """Lower-case words of a joint name, namespace and digits dropped, two-word parts joined."""
+    """Lower-case words of a joint name: namespace, leading prefixes (PREFIXES) and digits dropped,
+    two-word parts joined (`upper_arm`, `ForeArm`, also apart: `Arm_Left_Lower`)."""
     name = name.rsplit(":", 1)[-1].rsplit("|", 1)[-1]
     words = []
     for piece in _SPLIT.split(name):
         words += [w.lower() for w in _CAMEL.findall(piece)]
+    while words[1:] and words[0] in PREFIXES:
+        words = words[1:]
     out = []
     for w in words:
         if out and (out[-1], w) in COMPOUNDS:
@@ -68,6 +71,12 @@ def tokens(name: str) -> list:
                 w = w[len(s):]
                 break
         out.append(w)
+    # a modifier apart from its limb word (`Arm_Left_Lower`, `Leg_R_Upper`)
+    for base in ("arm", "leg"):
+        mods = [m for m in ("upper", "up", "lower", "low", "fore") if m in out and (m, base) in COMPOUNDS]
+        if base in out and mods:
+            out[out.index(base)] = COMPOUNDS[(mods[0], base)]
+            out.remove(mods[0])
     return out
 
 
@@ -90,7 +99,7 @@ def limb_ranks(path_labels: list, kind: str) -> list:
     (Mixamo `LeftShoulder > LeftArm`) and the upper arm otherwise (CMU `LeftShoulder > LeftElbow`);
     a sided 'hip' the same against a thigh (CMU `LeftHip > LeftKnee`); 'leg' is the shin below a
     thigh and the thigh otherwise."""
-    parts = [p for p in path_labels]
+    parts = list(path_labels)
     if kind == "arm":
         has_upper = "upperarm" in parts
         return [1 if p == "shoulder" and not has_upper else 0 if p == "shoulder" else ARM_RANKS.get(p, -1)
