@@ -37,6 +37,8 @@ MIN_INSIDE = 50            # fewer grid points inside the body than this: it has
 EXCESS_P95_WARN = 0.03     # m: warn above this p95 excess
 SKIN_EXPOSED_WARN = 0.01   # warn above this share of skin points out of every collider at a sampled frame (the
                             # built-in body's hull seams at bent knees and elbows reach 0.6 %, where no garment rests)
+MAX_GRID_CELLS = 4_000_000   # cells of a frame's jittered grid at most (coarser beyond): a body of almost no
+                             # volume (a flat or open mesh) asked for cells of 0.3 mm over its whole box
 MAX_SURFACE_SAMPLES = 200_000   # collider-surface samples per frame at most (spacing grows beyond: a 10 m glTF
                                 # with 1,233 balls had 7 million at 1 cm, and its coverage took 475 s)
 
@@ -271,7 +273,7 @@ def surface_samples(colliders: ColliderSet, spacing: float, rng: np.random.Gener
     pts = []
     for (a, b, c, tri_area), area in zip(hull_tris, areas):
         n = count(area)
-        t = rng.choice(tri_area.size, size=n, p=tri_area / area)
+        t = rng.choice(tri_area.size, size=n, p=tri_area / area if area > 0 else None)   # a flat hull: any face
         u, w = rng.random(n), rng.random(n)
         flip = u + w > 1
         u[flip], w[flip] = 1 - u[flip], 1 - w[flip]
@@ -370,7 +372,8 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
         body.refit(v)
         box = _world_boxes(arrays, colliders, pose) if nc else np.array([v.min(0), v.max(0)])
         box = np.array([np.minimum(box[0], v.min(0)), np.maximum(box[1], v.max(0))])
-        h = cell
+        coarsest = (float(np.prod(np.maximum(box[1] - box[0], 1e-9))) / MAX_GRID_CELLS) ** (1 / 3)
+        h = max(cell, coarsest)
         posed = CollidersAtPose(arrays, pose)
         balls = (posed.wcenter, arrays.bradius)
         for _ in range(MAX_REFINE):
@@ -381,7 +384,9 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
                 raise InputError(f"collider coverage at frame {int(f)}", f"the skinned mesh encloses no volume "
                                  f"({int(in_body.sum())} of {grid.shape[0]} grid points inside; an open or "
                                  "inside-out mesh?): coverage and excess cannot be measured")
-            h *= 0.85 * (in_body.sum() / interior_samples) ** (1 / 3)
+            if h <= coarsest:       # MAX_GRID_CELLS: no finer grid
+                break
+            h = max(h * 0.85 * (in_body.sum() / interior_samples) ** (1 / 3), coarsest)
         any_col = posed.inside_any(grid)
         n_in = int(in_body.sum())
         vol_cell = h ** 3

@@ -75,6 +75,10 @@ def body_axis(character, part: str, joint_origins: np.ndarray) -> BodyAxis:
         part_joints(character, part, joint_origins)  # raises the explanation
     o = joint_origins[ch[0]]
     d = joint_origins[ch[1]] - o
+    if not np.linalg.norm(d) > 1e-9:     # a rig with two joints at one place (a robot's stacked pivots)
+        names = character.joint_names
+        raise InputError(f"placement {part!r}", f"joints {names[ch[0]]!r} and {names[ch[1]]!r} are at the same place "
+                         f"({np.linalg.norm(d):.3g} m apart): the {kind}'s axis needs a bone of some length")
     a = -d / np.linalg.norm(d)
     ref = y if kind == "arm" else z
     q = ref - (ref @ a) * a
@@ -247,6 +251,9 @@ def _wrap(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, axis: BodyAxis
     width = _outline_width(boundary_uv, vcap)
     if np.any(width <= 0):   # levels beyond the outline: nearest valid width
         ok = np.flatnonzero(width > 0)
+        if ok.size == 0:
+            raise InputError(f"placement on {pl.body!r}", f"the panel's outline has no width at any level "
+                             f"(v {float(vcap.min()):.3g}..{float(vcap.max()):.3g} m): a degenerate outline")
         width = np.interp(np.arange(width.size), ok, width[ok])
     phi0 = np.radians(pl.angle_deg)
     span = np.radians(pl.span_deg)
@@ -363,14 +370,54 @@ def bind_geometry(character, motion):
     return skinned, origins, dominant
 
 
+MAX_DISTANCES = 16_000_000   # (collider, point) distances in one matrix at most (128 MB): RiggedSimple's 65,430
+                             # balls times the 17,800 points of the crotch search went past 8 GB
+
+
+def near_colliders(bind, points: np.ndarray, gap: float) -> np.ndarray:
+    """(N,) bool: points whose signed distance (types._signed_distance) to some collider of `bind`
+    is below `gap` (m). With many colliders (more than MAX_DISTANCES distances in all) each hull is
+    tested on its own and each sphere only on the points within its radius + gap of its centre
+    (plus a micrometre for rounding): the same answers without the (colliders, points) matrix."""
+    from scipy.spatial import cKDTree
+
+    from stages.garments.types import _collider_distances, _colliders, _signed_distance
+    cs = bind.colliders if bind is not None else None
+    cols = _colliders(cs) if cs is not None else []
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    if not cols or p.shape[0] == 0:
+        return np.zeros(p.shape[0], bool)
+    if len(cols) * p.shape[0] <= MAX_DISTANCES:
+        return _collider_distances(bind, p)[0].min(axis=0) < gap
+    out = np.zeros(p.shape[0], bool)
+    spheres = [(c, frame) for _, _, c, frame in cols if not hasattr(c, "simplified")]
+    for _, _, c, frame in cols:
+        if hasattr(c, "simplified"):
+            out |= _signed_distance(c, bind.collider_to_local(frame, p)) < gap
+    if not spheres:
+        return out
+    # each sphere's centre in the points' frame: collider_to_local is rigid, x_local = A x + b
+    basis = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    centres = []
+    for c, frame in spheres:
+        q = bind.collider_to_local(frame, basis)
+        centres.append(np.linalg.solve((q[1:] - q[0]).T, c.center - q[0]))
+    radii = np.array([c.radius for c, _ in spheres])
+    tree = cKDTree(p)
+    near = tree.query_ball_point(np.array(centres), np.maximum(radii + gap + 1e-6, 0.0))
+    for (c, frame), idx in zip(spheres, near):
+        if idx:
+            idx = np.asarray(idx, np.int64)
+            out[idx] |= _signed_distance(c, bind.collider_to_local(frame, p[idx])) < gap
+    return out
+
+
 def inside_body(character, skinned: np.ndarray, points: np.ndarray, colliders=None, bind=None) -> np.ndarray:
     """(N,) bool: points inside the skinned body mesh (winding number >= 0.5) or inside a collider."""
     from stages.sim import winding_number
     ins = winding_number(skinned, character.triangles, points) >= 0.5
     if colliders is not None and bind is not None and (colliders.hulls or colliders.spheres):
-        from stages.garments.types import _collider_distances
-        d, _, _ = _collider_distances(bind, points)
-        ins |= (d < 0).any(axis=0)
+        ins |= near_colliders(bind, points, 0.0)
     return ins
 
 
@@ -519,7 +566,6 @@ def hug(points: np.ndarray, targets: np.ndarray, character, skinned: np.ndarray,
     tucked-in shirt) where the placement put it inside."""
     from scipy.spatial import cKDTree
 
-    from stages.garments.types import _collider_distances
     from stages.sim import winding_number
     p = np.asarray(points, np.float64)
     d = np.asarray(targets, np.float64) - p
@@ -538,8 +584,7 @@ def hug(points: np.ndarray, targets: np.ndarray, character, skinned: np.ndarray,
     s = np.minimum(steps[:, None], length[None, :])                 # (S, N)
     cand = p[None] + (s / np.maximum(length, 1e-12)[None, :])[..., None] * d[None]
     flat = cand.reshape(-1, 3)
-    dist, _, _ = _collider_distances(bind, flat)
-    blocked = (dist.min(axis=0) < gap) if dist.size else np.zeros(flat.shape[0], bool)
+    blocked = near_colliders(bind, flat, gap)
     blocked |= winding_number(skinned, character.triangles, flat) >= 0.5
     if has_under:
         blocked |= tree.query(flat, distance_upper_bound=under_gap)[0] < under_gap

@@ -121,9 +121,23 @@ def _split_count(total: int, lengths: list[float]) -> list[int]:
     return c.tolist()
 
 
-def _segment_distance(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
+def _segment_distance(p: np.ndarray, poly: np.ndarray, reach: float = np.inf) -> np.ndarray:
+    """(N,) distance from points (N, 2) to the closed polyline `poly` (S, 2); with a finite `reach`,
+    +inf for the points farther than reach from every segment (only the (point, segment) pairs
+    whose midpoints are within reach + half the longest segment are measured: a big panel has
+    thousands of points and outline segments)."""
     a, b = poly, np.roll(poly, -1, axis=0)
     ab = b - a
+    if np.isfinite(reach):
+        from scipy.spatial import cKDTree
+        half = 0.5 * float(np.linalg.norm(ab, axis=1).max(initial=0.0))
+        pairs = cKDTree(p).sparse_distance_matrix(cKDTree(0.5 * (a + b)), reach + half + 1e-12 * (1.0 + half),
+                                                  output_type="ndarray")
+        i, j = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
+        t = np.clip(np.einsum("nk,nk->n", p[i] - a[j], ab[j]) / np.einsum("nk,nk->n", ab[j], ab[j]), 0, 1)
+        out = np.full(p.shape[0], np.inf)
+        np.minimum.at(out, i, np.linalg.norm(p[i] - (a[j] + t[:, None] * ab[j]), axis=1))
+        return out
     out = np.full(p.shape[0], np.inf)
     for k in range(0, a.shape[0], 256):  # chunks bound the (N, S) temporaries
         aa, bb = a[k:k + 256], ab[k:k + 256]
@@ -133,8 +147,13 @@ def _segment_distance(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
     return out
 
 
+INSIDE_CHUNK = 4096   # points per even-odd test: its temporaries are (points, outline segments)
+
+
 def _inside(poly: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Even-odd point-in-polygon test."""
+    if p.shape[0] > INSIDE_CHUNK:
+        return np.concatenate([_inside(poly, p[k:k + INSIDE_CHUNK]) for k in range(0, p.shape[0], INSIDE_CHUNK)])
     a, b = poly, np.roll(poly, -1, axis=0)
     x, y = p[:, :1], p[:, 1:]
     cross = (a[None, :, 1] > y) != (b[None, :, 1] > y)
@@ -183,7 +202,7 @@ def mesh_panel(pattern: Pattern, panel_index: int, counts: dict, relax_rounds: i
     if pts.size:
         pts = pts[_inside(boundary, pts)]
     if pts.size:
-        pts = pts[_segment_distance(pts, boundary) > 0.5 * L]
+        pts = pts[_segment_distance(pts, boundary, 0.5 * L) > 0.5 * L]
     v = np.concatenate([boundary, pts])
     t = _cdt(v, nb, where)
     for r in range(relax_rounds):
@@ -195,7 +214,8 @@ def mesh_panel(pattern: Pattern, panel_index: int, counts: dict, relax_rounds: i
         np.add.at(move, e[:, 0], f)
         np.add.at(move, e[:, 1], -f)
         cand = v[nb:] + move[nb:]
-        ok = _inside(boundary, cand) & (_segment_distance(cand, boundary) > 0.25 * L) if cand.size else np.zeros(0, bool)
+        ok = _inside(boundary, cand) & (_segment_distance(cand, boundary, 0.25 * L) > 0.25 * L) if cand.size \
+            else np.zeros(0, bool)
         v = v.copy()
         v[nb:][ok] = cand[ok]
         if r % 5 == 4 or r == relax_rounds - 1:

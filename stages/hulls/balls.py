@@ -43,6 +43,7 @@ from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
 from stages.checks import ContractError, check_array
+from stages.errors import InputError
 from stages.hulls.balls_kernels import pairs_in_reach
 from stages.rig.types import Character, RegionSplit
 
@@ -58,6 +59,14 @@ PAIR_CELL = 0.02       # m: grid cell of the (ball, target) pair search
 SKIN_STEP = 0.005      # m: spacing of the skin samples skin balls are chosen from
 DEPTH_BALLS = 32       # the nearest ball centres a skin sample's depth is taken over
 HUMAN_SIZE = (0.5, 2.5)   # m: the lengths above are for bodies this tall (bind-pose extent); others scale them
+# Sizes that would otherwise grow with the flexible volume / area over the (unscaled) delta. RiggedSimple
+# (9.55 m, every vertex flexible) had 775,705 skin samples, 63,751 skin balls and 2.6 GB here, and the
+# garments stage then went past 8 GB; CesiumMan has 33,713 candidates and 11,017 skin samples.
+MAX_GRID = 6_000_000         # candidate grid points before the body filters (a coarser spacing beyond)
+MAX_CANDIDATES = 200_000     # candidates inside the body near flexible skin (a coarser spacing beyond)
+MAX_SKIN_SAMPLES = 100_000   # skin samples (a coarser step beyond, the skin balls grown by the extra step)
+MAX_PAIRS = 50_000_000       # (ball, target) pairs held (16 bytes each, twice while the kernel grows them): more
+                             # is one InputError, not an OOM kill (CesiumMan: 4.3 million, RiggedSimple: 13.6)
 
 
 @dataclass(frozen=True)
@@ -148,12 +157,8 @@ def fit_balls(character: Character, split: RegionSplit, poses: np.ndarray, skinn
     bind = character.vertices
     scale = body_scale(bind)
     spacing, near, min_depth = spacing * scale, NEAR_FLEXIBLE * scale, MIN_DEPTH * scale
-    lo, hi = bind[flex].min(axis=0) - near, bind[flex].max(axis=0) + near
-    axes = [np.arange(a, b + spacing, spacing) for a, b in zip(lo, hi)]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    grid = grid[cKDTree(bind[flex]).query(grid, distance_upper_bound=near)[0] < near]
     body.refit(bind)
-    grid = grid[body.inside(grid)] if grid.size else grid
+    grid = candidate_grid(bind[flex], body, spacing, near)
     _, nearest = cKDTree(bind).query(grid)
     joints = character.skin_joints[nearest].astype(np.int64)
     weights = character.skin_weights[nearest].astype(np.float64)
@@ -181,8 +186,10 @@ def fit_balls(character: Character, split: RegionSplit, poses: np.ndarray, skinn
                               skinned[check][:, edges].mean(axis=2), centers], axis=1)   # (S, T, 3)
     tiers = np.sort(np.atleast_1d(np.asarray(slack, np.float64))) * scale
     margin = (1.0 - cover) * delta
-    indptr, cols, far = pairs_in_reach(np.ascontiguousarray(centers), np.ascontiguousarray(targets),
-                                       depth + tiers[-1] + delta - margin, PAIR_CELL * scale)
+    reach = depth + tiers[-1] + delta - margin
+    check_pairs(centers[0], targets[0], reach, f"the skinned balls of {character.name!r}")
+    indptr, cols, far = pairs_in_reach(np.ascontiguousarray(centers), np.ascontiguousarray(targets), reach,
+                                       PAIR_CELL * scale)
     pair_row = np.repeat(np.arange(grid.shape[0]), np.diff(indptr))
     need = np.ones(targets.shape[1], bool)
     rows, radii, first = [], [], []      # first: each chosen ball's lowest held target (a vertex names its joint)
@@ -219,6 +226,57 @@ def fit_balls(character: Character, split: RegionSplit, poses: np.ndarray, skinn
                    np.ascontiguousarray(np.concatenate([weights[chosen], sk[2]])),
                    np.concatenate([radius, sk[3]]), np.concatenate([joint, sk[4]]).astype(np.int64),
                    flex[unheld[unheld < flex.size]].astype(np.int64), on_skin=int(sk[3].size))
+
+
+def candidate_grid(flexible: np.ndarray, body, spacing: float, near: float, *, max_grid: int = MAX_GRID,
+                   max_candidates: int = MAX_CANDIDATES) -> np.ndarray:
+    """(C, 3) points of a grid of `spacing` (m) within `near` of the flexible vertices (F, 3) and inside
+    the body (SkinDistance at the bind pose). The spacing grows by 1.25 until the grid has at most
+    max_grid points and the candidates are at most max_candidates: their count grows with the
+    flexible volume over spacing^3, and every later array of the fit with it."""
+    lo, hi = flexible.min(axis=0) - near, flexible.max(axis=0) + near
+    tree = cKDTree(flexible)
+    while True:
+        axes = [np.arange(a, b + spacing, spacing) for a, b in zip(lo, hi)]
+        if np.prod([float(a.size) for a in axes]) <= max_grid:
+            grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+            grid = grid[tree.query(grid, distance_upper_bound=near)[0] < near]
+            if grid.shape[0] <= max_candidates:
+                return grid[body.inside(grid)] if grid.size else grid
+            inside = body.inside(grid)
+            if int(inside.sum()) <= max_candidates:
+                return grid[inside]
+        spacing *= 1.25
+
+
+def check_pairs(centers: np.ndarray, targets: np.ndarray, reach: np.ndarray, where: str, most: int | None = None) -> None:
+    """InputError when the (centre, target) pairs within reach at one pose (centres (C, 3), targets
+    (T, 3), reach (C,), m), estimated from at most 4,000 evenly spread centres, exceed `most`
+    (default MAX_PAIRS): pairs_in_reach holds them all (an upper bound: it keeps the pairs within
+    reach at every pose)."""
+    most = MAX_PAIRS if most is None else most
+    if centers.shape[0] == 0 or targets.shape[0] == 0:
+        return
+    every = max(1, centers.shape[0] // 4000)
+    found = cKDTree(targets).query_ball_point(centers[::every], np.maximum(reach[::every], 0.0), return_length=True)
+    estimate = float(np.mean(found)) * centers.shape[0]
+    if estimate > most:
+        raise InputError(where, f"about {estimate:.3g} (ball, target) pairs to check, more than {most:,} "
+                         f"(~{32 * estimate / 1e9:.1f} GB): colliders.delta is too fine for a body this size, "
+                         "or use colliders.flexible: swept or sphere")
+
+
+def skin_sample_counts(vertices: np.ndarray, triangles: np.ndarray, step: float,
+                       most: int = MAX_SKIN_SAMPLES) -> tuple[np.ndarray, float]:
+    """(per triangle the barycentric grid's steps per side (M,) int64, the step used (m)): `step`, or
+    coarser (x 1.25 at a time) until the samples, (n + 1)(n + 2) / 2 a triangle, are at most `most`.
+    A side of length L gets ceil(L / step) steps (at least 1)."""
+    longest = [max(np.linalg.norm(v[i] - v[(i + 1) % 3]) for i in range(3)) for v in vertices[triangles]]
+    while True:
+        n = np.array([max(1, int(np.ceil(e / step))) for e in longest], np.int64)
+        if int(((n + 1) * (n + 2) // 2).sum()) <= most or (n == 1).all():
+            return n, step
+        step *= 1.25
 
 
 def _depth_in(points: np.ndarray, poses: np.ndarray, ball_centers: np.ndarray, ball_radius: np.ndarray,
@@ -275,10 +333,12 @@ def _skin_balls(character: Character, split: RegionSplit, triangles: np.ndarray,
     triangles = triangles[shallow]
     if triangles.shape[0] == 0:
         return empty
+    # a coarser step (a big body) leaves samples farther apart: each ball reaches that much farther,
+    # so that it still holds the samples next to it
+    steps, used = skin_sample_counts(character.vertices, triangles, step)
+    extra = used - step
     corners, bary = [], []
-    for t in triangles:
-        v = character.vertices[t]
-        n = max(1, int(np.ceil(max(np.linalg.norm(v[i] - v[(i + 1) % 3]) for i in range(3)) / step)))
+    for t, n in zip(triangles, steps):
         i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
         keep = i + j <= n
         b = np.stack([i[keep], j[keep], n - i[keep] - j[keep]], axis=1) / n
@@ -295,8 +355,9 @@ def _skin_balls(character: Character, split: RegionSplit, triangles: np.ndarray,
     weights /= weights.sum(axis=1, keepdims=True)
     centers = skin_points(bind, joints, weights, character.inverse_bind, poses)       # (S, P, 3)
     points = np.einsum("pc,spcd->spd", bary, skinned[:, corners])                     # the skin they sample
-    radius = delta + np.linalg.norm(centers - points, axis=2).max(axis=0)
+    radius = delta + extra + np.linalg.norm(centers - points, axis=2).max(axis=0)
     need = _depth_in(points, poses, ball_centers, ball_radius, hulls) < 0.0      # out of them at some pose
+    check_pairs(centers[0], points[0], radius - margin, f"the skin balls of {character.name!r}")
     indptr, cols, _ = pairs_in_reach(np.ascontiguousarray(centers), np.ascontiguousarray(points), radius - margin, cell)
     held = csr_matrix((np.ones(cols.size, bool), cols, indptr), shape=(bind.shape[0], bind.shape[0]))
     chosen, _ = _greedy_cover(held, need)

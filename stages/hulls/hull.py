@@ -1,10 +1,15 @@
 """Convex hulls (Qhull) and their inflation by a thickness delta (paper A §2.1-2.2).
 
 Degenerate input policy (never a raw Qhull traceback):
-- not an (n, 3) finite array, fewer than 4 distinct points, or collinear points -> `InputError`;
-- coplanar points (thickness <= `FLAT_RELATIVE` x extent) -> `InputError`, unless the caller passes
-  `flat_thickness > 0`: then the documented fallback is a thin slab, the points copied to
-  +-flat_thickness along the plane's normal (the hull then has volume; `fit_colliders` uses delta).
+- not an (n, 3) finite array or no points -> `InputError` naming the point set;
+- fewer than 4 distinct points, collinear or coplanar points (extent across <= `FLAT_RELATIVE` x
+  extent along) -> `InputError`, unless the caller passes `flat_thickness > 0`: then the documented
+  fallback thickens the points by +-flat_thickness across them: coplanar -> a slab (copies along the
+  plane's normal), collinear -> a square prism around the line, one distinct point -> a cube; the
+  hull then has volume (`fit_colliders` uses delta). A robot's flat plate or a region of 1-3
+  vertices gets a thin hull instead of a Qhull error.
+- points far from the origin for their extent are hulled centred (Qhull's precision is relative to
+  the largest coordinate); faces Qhull leaves degenerate are rebuilt with joggling ('QJ').
 """
 from __future__ import annotations
 
@@ -52,29 +57,51 @@ def _check_points(points, source) -> np.ndarray:
     return p
 
 
+def _principal(unique: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(axes (3, 3) rows by descending spread, extents (3,) along them) of distinct points (n, 3)."""
+    centred = unique - unique.mean(axis=0)
+    # fewer than 3 rows: zero rows give the SVD its full 3 x 3 basis and change no singular value
+    padded = np.concatenate([centred, np.zeros((max(0, 3 - centred.shape[0]), 3))])
+    _, _, axes = np.linalg.svd(padded, full_matrices=False)
+    return axes, np.ptp(centred @ axes.T, axis=0)
+
+
+def _thickened(unique: np.ndarray, axes: np.ndarray, rank: int, t: float) -> np.ndarray:
+    """The points copied to +-t along the axes across them (rank 2: the normal; 1: the two axes
+    across the line; 0: all three): a slab, a square prism or a cube around them."""
+    across = axes[rank:]
+    signs = np.array(np.meshgrid(*[[1.0, -1.0]] * across.shape[0], indexing="ij")).reshape(across.shape[0], -1).T
+    return np.concatenate([unique + t * (s @ across) for s in signs])
+
+
 def convex_hull(points, *, source="points", flat_thickness: float = 0.0) -> ConvexMesh:
     """Convex hull of (n, 3) points with Qhull, outward-oriented, only hull vertices kept.
 
     source: names the point set in error messages (e.g. the bone). flat_thickness: see the module
-    docstring (0 = coplanar input is an error). Vertices keep the input's frame and units.
+    docstring (0 = degenerate input is an error). Vertices keep the input's frame and units.
     """
     p = _check_points(points, source)
     unique = np.unique(p, axis=0)
-    if unique.shape[0] < 4:
+    if unique.shape[0] == 0:
+        raise InputError(source, "no points to build a hull of")
+    thick = flat_thickness > 0
+    if unique.shape[0] < 4 and not thick:
         raise InputError(source, f"a hull needs >= 4 distinct points, got {unique.shape[0]}")
-    centred = unique - unique.mean(axis=0)
-    _, sing, axes = np.linalg.svd(centred, full_matrices=False)
-    extent = np.ptp(centred @ axes.T, axis=0)  # along principal axes, descending spread
-    if extent[1] <= FLAT_RELATIVE * extent[0]:
+    axes, extent = _principal(unique)
+    rank = 0 if not extent[0] > 0 else 1 if extent[1] <= FLAT_RELATIVE * extent[0] else \
+        2 if extent[2] <= FLAT_RELATIVE * extent[0] else 3
+    if rank == 1 and not thick:
         raise InputError(source, f"points are collinear (extent {extent[0]:.3g} x {extent[1]:.3g})")
-    if extent[2] <= FLAT_RELATIVE * extent[0]:
-        if not flat_thickness > 0:
-            raise InputError(source, f"points are coplanar (thickness {extent[2]:.3g} over extent {extent[0]:.3g}); "
-                                     "a hull needs volume")
-        normal = axes[2]
-        unique = np.concatenate([unique + flat_thickness * normal, unique - flat_thickness * normal])
+    if rank == 2 and not thick:
+        raise InputError(source, f"points are coplanar (thickness {extent[2]:.3g} over extent {extent[0]:.3g}); "
+                                 "a hull needs volume")
+    if rank < 3:
+        unique = _thickened(unique, axes, rank, float(flat_thickness))
+        extent = extent if rank == 2 else np.maximum(extent, 2.0 * flat_thickness)
+    # far from the origin for its size: hull the centred points (Qhull's precision follows the coordinates)
+    shift = unique.mean(axis=0) if np.abs(unique).max() > 1e3 * extent[0] else np.zeros(3)
     try:
-        hull = ConvexHull(unique)
+        hull = ConvexHull(unique - shift)
     except QhullError as err:
         first = str(err).strip().splitlines()[0] if str(err).strip() else "Qhull failed"
         raise InputError(source, f"Qhull could not build a hull: {first}") from None
@@ -83,7 +110,7 @@ def convex_hull(points, *, source="points", flat_thickness: float = 0.0) -> Conv
     if (area2 <= DEGENERATE_AREA * extent[0] ** 2).any():
         # Qt triangulation of a facet with collinear boundary points; joggling avoids it.
         try:
-            mesh = _mesh_from_qhull(unique, ConvexHull(unique, qhull_options="QJ"))
+            mesh = _mesh_from_qhull(unique, ConvexHull(unique - shift, qhull_options="QJ"))
         except QhullError as err:
             raise InputError(source, f"Qhull could not build a hull: {str(err).splitlines()[0]}") from None
     return mesh

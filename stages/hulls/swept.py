@@ -14,7 +14,7 @@ paper's joint sphere (listed in the notes).
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import ConvexHull
+from scipy.spatial import ConvexHull, QhullError
 
 from stages.rig.motion_range import local_tracks
 from stages.rig.regions import is_hull_ready
@@ -135,7 +135,10 @@ def swept_points(character: Character, poses: np.ndarray, skinned: np.ndarray, b
     # poses repeat positions (a held pose, the bind pose): near-duplicates make Qhull slivers
     pts = np.unique(np.round(pts / SNAP), axis=0) * SNAP
     if is_hull_ready(pts):
-        pts = pts[ConvexHull(pts).vertices]      # only the extreme points matter to the hull
+        try:
+            pts = pts[ConvexHull(pts).vertices]      # only the extreme points matter to the hull
+        except QhullError:      # nearly flat for Qhull's precision: convex_hull thickens it (all points kept)
+            pass
     return np.ascontiguousarray(pts)
 
 

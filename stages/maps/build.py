@@ -31,6 +31,7 @@ from scipy.spatial import ConvexHull
 from scipy.spatial import QhullError
 
 from stages.checks import ContractError
+from stages.errors import InputError
 from stages.hulls.types import ColliderSet, ConvexMesh
 from stages.maps.types import HullMap, MapSet, SlabLocator
 
@@ -43,6 +44,8 @@ FLAT_TOL = 1e-12            # projected doubled area below FLAT_TOL * extent^2: 
 # -- OBB ------------------------------------------------------------------------------------------
 def surface_obb(vertices: np.ndarray, faces: np.ndarray):
     """(center (3,), axes (3,3) rows, half_extents (3,)) from the area-weighted surface covariance."""
+    if not np.isfinite(vertices).all():
+        raise ContractError("build_hull_map: the hull has non-finite vertices")
     a, b, c = (vertices[faces[:, i]] for i in range(3))
     area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
     total = area.sum()
@@ -69,7 +72,9 @@ def surface_obb(vertices: np.ndarray, faces: np.ndarray):
     proj = vertices @ axes.T
     lo, hi = proj.min(0), proj.max(0)
     center = ((lo + hi) / 2.0) @ axes
-    return center, axes, (hi - lo) / 2.0
+    # tied extents (a hull symmetric about its long axis: a tube) can swap order by rounding once
+    # axes[2] is recomputed; the box grows by that rounding instead (HullMap wants them non-increasing)
+    return center, axes, np.maximum.accumulate(((hi - lo) / 2.0)[::-1])[::-1]
 
 
 # -- planar meshes and point location -------------------------------------------------------------
@@ -330,7 +335,12 @@ def build_maps(colliders: ColliderSet, **params) -> MapSet:
     automatic choice per hull.
     """
     kinds = params.pop("kinds", None) or {}
-    maps = tuple(build_hull_map(h.simplified, kind=kinds.get(h.name, params.get("kind", "auto")),
-                                **{k: v for k, v in params.items() if k != "kind"})
-                 for h in colliders.hulls)
+    maps = []
+    for h in colliders.hulls:
+        try:
+            maps.append(build_hull_map(h.simplified, kind=kinds.get(h.name, params.get("kind", "auto")),
+                                       **{k: v for k, v in params.items() if k != "kind"}))
+        except (ContractError, InputError) as err:   # one line naming the collider, not a bare contract
+            raise InputError(f"map of collider {h.name!r} (joint {h.bone})", str(err)) from None
+    maps = tuple(maps)
     return MapSet.from_maps(maps, bones=[h.bone for h in colliders.hulls], names=[h.name for h in colliders.hulls])
