@@ -256,9 +256,9 @@ def test_labels(name, side, part):
     assert label(name) == (side, part), tokens(name)
 
 
-def _stick(names, parents, positions, name="stick"):
+def _stick(names, parents, positions, name="stick", skinless=()):
     """A character of one box per bone (around the segment from a joint to its children's mean),
-    skinned rigidly to that joint; rest frames are translations."""
+    skinned rigidly to that joint (none for the joints in `skinless`); rest frames are translations."""
     parents = np.asarray(parents, np.int32)
     p = np.asarray(positions, float)
     rest = np.tile(np.eye(4), (len(p), 1, 1))
@@ -268,10 +268,12 @@ def _stick(names, parents, positions, name="stick"):
     faces = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1], [2, 3, 7], [2, 7, 6],
                       [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
     for j in range(len(p)):
+        if j in skinless:
+            continue
         kids = np.flatnonzero(parents == j)
         a, b = p[j], (p[kids].mean(axis=0) if kids.size else p[j])
         lo, hi = np.minimum(a, b) - 0.03, np.maximum(a, b) + 0.03
-        tris.append(faces + len(verts) * 8)
+        tris.append(faces + len(owner))
         verts.append((lo + hi) / 2 + box * (hi - lo) / 2)
         owner += [j] * 8
     v = np.concatenate(verts)
@@ -446,8 +448,8 @@ def mirror(name):
      ("thigh_l", "thigh_twist_01_l", "calf_l", "foot_l", "ball_l"), False,
      ("upperarm_l", "lowerarm_l", "hand_l"), ("thigh_l", "calf_l", "foot_l")),
     # MotionBuilder without a clavicle joint: 'LeftShoulder' absent, LeftArm is the upper arm
-    ((None, "LeftArm", None, "LeftForeArm", None, "LeftHand"), ("LeftUpLeg", None, "LeftLeg", "LeftFoot", "LeftToeBase"),
-     True, ("LeftArm", "LeftForeArm", "LeftHand"), ("LeftUpLeg", "LeftLeg", "LeftFoot")),
+    ((None, "LeftArm", None, "LeftForeArm", None, "LeftHand"),
+     ("LeftUpLeg", None, "LeftLeg", "LeftFoot", "LeftToeBase"), True, ("LeftArm", "LeftForeArm", "LeftHand"), ("LeftUpLeg", "LeftLeg", "LeftFoot")),
 ])
 def test_in_between_joints_and_clavicles(arm, leg, on_path, want_arm, want_leg):
     c = _human(arm, leg, on_path=on_path)
@@ -458,3 +460,25 @@ def test_in_between_joints_and_clavicles(arm, leg, on_path, want_arm, want_leg):
     assert tuple(n[j] for j in h.leg_r) == tuple(mirror(x) for x in want_leg)
     assert (n[h.chest], n[h.neck], n[h.head]) == ("chest", "neck", "head")
     assert all(h.found[p] == "name" for p in ("arm_l", "arm_r", "leg_l", "leg_r"))
+
+
+def test_deform_joints_before_their_unskinned_copies():
+    """Rigify's ORG- copies (no skin, a shorter chain: no .001 segments) beside the DEF- chain
+    that carries the skin: the DEF- joints are the anchors (the garments split the skin by joint)."""
+    c = _human(("DEF-shoulder.L", "DEF-upper_arm.L", "DEF-upper_arm.L.001", "DEF-forearm.L", "DEF-forearm.L.001",
+                "DEF-hand.L"), ("DEF-thigh.L", "DEF-thigh.L.001", "DEF-shin.L", "DEF-foot.L", "DEF-toe.L"))
+    w = forward_kinematics(c.parents, c.rest_local)[:, :3, 3]
+    names, parents, pos = list(c.joint_names), list(c.parents), list(w)
+    for part in ("shoulder", "upper_arm", "forearm", "hand"):
+        for side in "LR":       # each ORG joint under the previous one of its side, the first under the chest
+            prev = {"shoulder": "chest", "upper_arm": f"ORG-shoulder.{side}", "forearm": f"ORG-upper_arm.{side}",
+                    "hand": f"ORG-forearm.{side}"}[part]
+            pos.append(w[names.index(f"DEF-{part}.{side}")])
+            parents.append(names.index(prev))
+            names.append(f"ORG-{part}.{side}")
+    org = {k for k, n in enumerate(names) if n.startswith("ORG-")}
+    rig = _stick(names, parents, pos, "rigify", skinless=org)
+    h = humanoid_joints(rig)
+    n = rig.joint_names
+    assert [n[j] for j in h.arm_l] == ["DEF-upper_arm.L", "DEF-forearm.L", "DEF-hand.L"]
+    assert [n[j] for j in h.arm_r] == ["DEF-upper_arm.R", "DEF-forearm.R", "DEF-hand.R"]

@@ -35,7 +35,8 @@ LEG_CHAINS = (("thigh_l", "shin_l", "foot_l"), ("thigh_l", "calf_l", "foot_l"), 
 LIMB_PARTS = {"arm": ("clavicle", "shoulder", "upperarm", "lowerarm", "hand"),
               "leg": ("hip", "thigh", "leg", "shin", "foot")}
 # what a sleeve / trouser leg is placed on
-NEEDS = {"arm": "a sleeve needs shoulder, elbow and wrist joints", "leg": "a trouser leg needs hip, knee and ankle joints"}
+NEEDS = {"arm": "a sleeve needs shoulder, elbow and wrist joints",
+         "leg": "a trouser leg needs hip, knee and ankle joints"}
 PARTS = ("arm_l", "arm_r", "leg_l", "leg_r")
 
 
@@ -186,15 +187,18 @@ def _skin(character, b: Body, joints) -> np.ndarray:
 def name_chain(b: Body, labels: list, kind: str, side: str):
     """The limb's joints by name (labels: `joint_names.label` of every joint): (upper, lower, end),
     or a shorter list for a limb named as one but of fewer than 3 joints (Kenney's `arm-left`),
-    or None. The end is the topmost hand / foot joint; upper, lower and end the topmost joints of
-    their rank (joint_names.limb_ranks) on the path to it; an upper joint at its parent's place
-    (CMU's `LHipJoint` on the hips) is passed over for the next one."""
+    or None. The end is the topmost hand / foot joint (a skinned one first); upper, lower and end
+    the topmost joints of their rank (joint_names.limb_ranks) on the path to it; an upper joint at
+    its parent's place (CMU's `LHipJoint` on the hips) is passed over for the next one."""
     parents = b.parents
     named = [j for j, (s, p) in enumerate(labels) if s == side and p in LIMB_PARTS[kind]]
     if not named:
         return None
     end_part = "hand" if kind == "arm" else "foot"
-    ends = sorted((j for j in named if labels[j][1] == end_part), key=lambda j: (b.depth[j], j))
+    # deform joints first: a rig that also lists its control / mechanism copies (Rigify's ORG- and
+    # MCH- beside DEF-) has the skin on one of them, and the garments split the skin by joint
+    skinned = np.bincount(b.dominant, minlength=len(parents)) > 0
+    ends = sorted((j for j in named if labels[j][1] == end_part), key=lambda j: (not skinned[j], b.depth[j], j))
     tips = ends or [max(named, key=lambda j: (b.depth[j], -j))]
     for tip in tips:
         path = _ancestors(parents, tip)[::-1]
