@@ -37,7 +37,6 @@ LIMB_PARTS = {"arm": ("clavicle", "shoulder", "upperarm", "lowerarm", "hand"),
 # what a sleeve / trouser leg is placed on
 NEEDS = {"arm": "a sleeve needs shoulder, elbow and wrist joints",
          "leg": "a trouser leg needs hip, knee and ankle joints"}
-PARTS = ("arm_l", "arm_r", "leg_l", "leg_r")
 
 
 def _bare(name: str) -> str:
@@ -375,10 +374,11 @@ class HumanoidJoints:
     neck: int
     head: int
     names: tuple
-    found: dict = field(default_factory=dict)
-    short: dict = field(default_factory=dict)
-    points: dict = field(default_factory=dict)
-    why: dict = field(default_factory=dict)
+    # details, not compared (points hold arrays) nor hashed: two results are equal by their joints
+    found: dict = field(default_factory=dict, compare=False)
+    short: dict = field(default_factory=dict, compare=False)
+    points: dict = field(default_factory=dict, compare=False)
+    why: dict = field(default_factory=dict, compare=False)
 
     def limb(self, kind: str, side: str):
         return getattr(self, f"{kind}_{side}")
