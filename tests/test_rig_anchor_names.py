@@ -182,30 +182,30 @@ def _parts(h):
     return (h.arm_l, h.arm_r, h.leg_l, h.leg_r, h.chest, h.neck, h.head, h.short)
 
 
-def _assets():
-    """The real assets' folder, or a skip (a failure under GARMENT_REQUIRE_ASSETS=1) naming what is missing."""
-    d = _assets_dir()
-    need = ("CesiumMan.glb", "cmu_131_01_walk.bvh", "kenney_mini_male_a.glb", "kenney_mini_female_b.glb")
-    missing = [n for n in need if not (d / n).is_file()]
-    if missing:
-        reason = f"real assets missing in {d} ({', '.join(missing)}); set {ASSETS_ENV} to their folder"
-        if os.environ.get("GARMENT_REQUIRE_ASSETS") == "1":
-            pytest.fail(reason + " [GARMENT_REQUIRE_ASSETS=1]")
-        pytest.skip(reason)
-    return d
+FILES = {"CesiumMan": ("CesiumMan", "CesiumMan.glb"), "cmu_131_01_walk": ("cmu_131_01_walk", "cmu_131_01_walk.bvh"),
+         "kenney_male_a": ("kenney", "kenney_mini_male_a.glb"), "kenney_female_b": ("kenney", "kenney_mini_female_b.glb")}
+_LOADED: dict = {}
 
 
-@pytest.fixture(scope="module")
-def rigs():
-    from stages.rig.bvh import load_bvh_character
-    from stages.rig.gltf import load_gltf
-    from stages.rig.procedural import procedural_character
-    d = _assets()
-    return {"builtin": ("builtin", procedural_character()),
-            "CesiumMan": ("CesiumMan", load_gltf(d / "CesiumMan.glb")),
-            "cmu_131_01_walk": ("cmu_131_01_walk", load_bvh_character(d / "cmu_131_01_walk.bvh")),
-            "kenney_male_a": ("kenney", load_gltf(d / "kenney_mini_male_a.glb")),
-            "kenney_female_b": ("kenney", load_gltf(d / "kenney_mini_female_b.glb"))}
+def load_rig(rig: str):
+    """(role table, Character) of a rig: the built-in one, or a real asset loaded once; a missing
+    asset skips the test naming it (a failure under GARMENT_REQUIRE_ASSETS=1)."""
+    if rig not in _LOADED:
+        if rig == "builtin":
+            from stages.rig.procedural import procedural_character
+            _LOADED[rig] = ("builtin", procedural_character())
+        else:
+            from stages.rig.bvh import load_bvh_character
+            from stages.rig.gltf import load_gltf
+            table, file = FILES[rig]
+            path = _assets_dir() / file
+            if not path.is_file():
+                reason = f"real asset missing: {path}; set {ASSETS_ENV} to the assets' folder"
+                if os.environ.get("GARMENT_REQUIRE_ASSETS") == "1":
+                    pytest.fail(reason + " [GARMENT_REQUIRE_ASSETS=1]")
+                pytest.skip(reason)
+            _LOADED[rig] = (table, load_bvh_character(path) if file.endswith(".bvh") else load_gltf(path))
+    return _LOADED[rig]
 
 
 # what the originals give (joint indices): the built-in character, CesiumMan and the BVH as before
@@ -221,15 +221,15 @@ EXPECTED = {
 
 
 @pytest.mark.parametrize("rig", list(EXPECTED))
-def test_originals(rigs, rig):
-    _, c = rigs[rig]
+def test_originals(rig):
+    _, c = load_rig(rig)
     assert _parts(humanoid_joints(c)) == EXPECTED[rig]
 
 
 @pytest.mark.parametrize("convention", list(CONVENTIONS) + ["scrambled"])
 @pytest.mark.parametrize("rig", list(EXPECTED))
-def test_every_naming_finds_the_same_anchors(rigs, rig, convention):
-    role_table, c = rigs[rig]
+def test_every_naming_finds_the_same_anchors(rig, convention):
+    role_table, c = load_rig(rig)
     names = convention_names(role_table, c.joint_names, convention)
     h = humanoid_joints(_renamed(c, names))
     assert _parts(h) == EXPECTED[rig], names
@@ -337,10 +337,10 @@ def test_robot_arm_is_never_a_leg():
     assert structural_chain(r, "leg", "r") == [7, 8, 9]
 
 
-def test_name_matches_against_the_shape_are_not_taken(rigs):
+def test_name_matches_against_the_shape_are_not_taken():
     """Arms named as legs (they do not reach the floor), legs named as arms (they do), left and
     right swapped (the 'left' limbs on -X): the names are passed over, the shape finds the limbs."""
-    _, c = rigs["builtin"]
+    _, c = load_rig("builtin")
     want = EXPECTED["builtin"]
 
     def renamed(mapping):    # part word -> new part word, or None: a meaningless name
@@ -362,11 +362,11 @@ def test_name_matches_against_the_shape_are_not_taken(rigs):
     assert _parts(h) == want and (h.found["arm_l"], h.found["leg_r"]) == ("shape", "shape")
 
 
-def test_kenney_single_joint_limbs(rigs):
+def test_kenney_single_joint_limbs():
     """Kenney's limbs are one joint each: no (upper, lower, end) chain, a reason in one line, and
     shoulder / elbow / wrist points measured on the skin (the arm's end at the hand, 0.384 m out;
     the leg's at the floor)."""
-    _, c = rigs["kenney_male_a"]
+    _, c = load_rig("kenney_male_a")
     h = humanoid_joints(c)
     assert limb_chain(c, "arm", "l") is None and structural_chain(c, "leg", "l") is None
     assert h.why["arm_l"] == "arm 'arm-left' is a single joint: a sleeve needs shoulder, elbow and wrist joints"
@@ -382,10 +382,10 @@ def test_kenney_single_joint_limbs(rigs):
 
 
 @pytest.mark.parametrize("rig", ["kenney_male_a", "kenney_female_b"])
-def test_several_skins_detection_does_not_depend_on_which(rigs, rig):
+def test_several_skins_detection_does_not_depend_on_which(rig):
     """Kenney has a body and a head mesh: their order swapped, or the body's skin alone, gives the
     same anchors (and the same short limbs)."""
-    _, c = rigs[rig]
+    _, c = load_rig(rig)
     assert np.unique(c.primitive_ids).size == 2
     want = _parts(humanoid_joints(c))
     order = np.argsort(-c.primitive_ids, kind="stable")        # head mesh first
