@@ -60,6 +60,10 @@ def warm_simulation(params, threads: int = 1, cloth_audit: bool = True, vertex_s
     x, tri = rectangle_cloth(0.3, 0.3, 4, 4, center=(0.0, 0.25, 0.0))
     cloths = [build_garment(f"cloth{i}", x + [0.0, 0.02 * i, 0.0], tri) for i in range(len(layers or [0]))]
     with numba_threads(threads):
+        if params.cloth_collision:   # sewing simulates without the cloth phase: the step loop's other variant
+            from dataclasses import replace
+            simulate(character, toy_motion(2), colliders, maps, cloths[:1], replace(params, cloth_collision=False),
+                     threads=threads)
         result = simulate(character, toy_motion(2), colliders, maps, cloths, params, threads=threads,
                           layers=None if layers is None else np.asarray(layers))
         if on_simulated is not None:

@@ -93,7 +93,7 @@ class _Timer:
 
 # simulation keys whose scene default (null) means "the preset's value" (stages.sim.types.PRESETS)
 PRESET_KEYS = ("substeps", "iterations", "damping", "tethers", "stretch_stiffness", "bend_stiffness",
-               "cloth_collision", "pinch", "cloth_contact_every")
+               "cloth_collision", "pinch", "cloth_contact_every", "settle_frames")
 
 
 def sim_params(scene: Scene):

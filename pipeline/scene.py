@@ -236,6 +236,8 @@ SCENE_SPEC = {
         "cloth_contact_every": Field("int", None, "sub-steps per cloth collision call (the largest divisor of substeps "
                                      "up to it); the sub-steps between calls hold the pairs the last call found within "
                                      "two thicknesses (preset: 5). 1: a call every sub-step", lo=1, hi=1000),
+        "settle_frames": Field("int", None, "frames the garments hang, damped, at the first frame's pose before "
+                               "frame 0 is recorded (preset: 10; paper 0)", lo=0, hi=300),
         "body_audit": Field("bool", True, "count particles inside the true skinned mesh per frame"),
         "cloth_audit": Field("bool", True, "per frame edge strain and cloth edges crossing cloth triangles (sim/<garment>/strain, sim/intersections/...)"),
         "strain_colors": Field("bool", False, "colour the cloth meshes by per-vertex edge strain (blue 0 -> red 10 %)"),

@@ -36,7 +36,7 @@ def test_scene_keys_layer_and_cloth_collision():
     assert p.cloth_collision and p.cloth_thickness == 0.003
     plain = parse_scene_text("garments: [{type: rectangle, name: a}, {type: rectangle, name: b}]", source="s.yaml")
     assert garment_layers(plain) == [0, 1]                     # earlier in the list = inner
-    assert not sim_params(plain).cloth_collision               # off unless the scene turns it on
+    assert sim_params(plain).cloth_collision                   # on in the default preset
     assert not sim_params(parse_scene_text("simulation: {preset: paper}", source="s.yaml")).cloth_collision
     off = parse_scene_text("simulation: {cloth_collision: off}", source="s.yaml")
     assert sim_params(off).cloth_collision is False
@@ -156,4 +156,5 @@ def test_shipped_scenes_turn_cloth_collision_on_with_their_layers():
     assert garment_layers(tucked) == [0, 1]                    # the T-shirt tucked into the skirt
     assert sim_params(tucked).cloth_collision
     assert sim_params(load_scene(REPO / "scenes" / "long_skirt.yaml")).cloth_collision
-    assert not sim_params(load_scene(REPO / "scenes" / "default.yaml")).cloth_collision
+    assert sim_params(load_scene(REPO / "scenes" / "default.yaml")).cloth_collision       # the default preset's
+    assert not sim_params(load_scene(REPO / "scenes" / "drape.yaml")).settle_frames == 0

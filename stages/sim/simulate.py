@@ -360,6 +360,27 @@ def winding_number(vertices, triangles, points, *, exact: bool = False, beta: fl
     return out
 
 
+def settle(cloth, cols, m, prm, params, gravity, wind, fwd0, inv0, max_speed2, goff, flags, cc) -> None:
+    """params.settle_frames frames of the step loop at the frame-0 pose (fwd0 / inv0 (J, 4, 4)) with
+    the velocity damped by SETTLE_DAMPING per 1/30 s, not recorded; then xp = x (the garment starts
+    at rest). cc: the cloth phase's state (ClothPhase.rest) or None. The other arguments are
+    run_frames'."""
+    from stages.sim.types import REFERENCE_STEP, SETTLE_DAMPING
+    ss, f = params.substeps, params.settle_frames
+    damped = (prm[0], 1.0 - (1.0 - SETTLE_DAMPING) ** (params.step / REFERENCE_STEP)) + tuple(prm[2:])
+    k = f * ss
+    fwd = np.ascontiguousarray(np.repeat(fwd0[None], k, axis=0))
+    inv = np.ascontiguousarray(np.repeat(inv0[None], k, axis=0))
+    z = np.zeros((k, 3))
+    n, g = cloth[0].shape[0], goff.size - 1
+    done = step.run_frames(cloth, cols, m, damped, gravity, wind, fwd, inv, inv, z, z, ss, max_speed2, goff,
+                           np.zeros((f, n, 3), np.float32), np.zeros((f, g), np.int32), np.zeros((f, step.N_COUNTS)),
+                           np.zeros(f, np.int64), flags, np.zeros(step.N_TIMERS, np.int64), cc)
+    if done < f:
+        raise SimulationDiverged(0, np.zeros(0, np.int64), [], float("nan"))
+    cloth[1][:] = cloth[0]
+
+
 # -- the stage ----------------------------------------------------------------------------------------
 def simulate(character, motion, colliders, maps, garments, params: SimParams, *, obstacles=None,
              progress=None, threads: int | None = 1, layers=None, partial: dict | None = None,
@@ -508,6 +529,13 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     # frame 0: the initial state; count particles starting inside a collider (no response)
     fwd0 = np.ascontiguousarray(motion.joint_world[0])
     inv_0 = np.ascontiguousarray(np.linalg.inv(fwd0))
+    if cphase is not None:   # garments that start interpenetrating: sorted by their layers before frame 0
+        cphase.settle(cloth, cols, col.m, prm, gravity, wind, fwd0, inv_0, ss, max2, sysm.goff, flags)
+    if params.settle_frames:   # the garments hang under full gravity at the frame-0 pose before frame 0
+        settle(cloth, cols, col.m, prm, params, gravity, wind, fwd0, inv_0, max2, sysm.goff, flags,
+               cphase.rest if cphase is not None else None)
+        if cphase is not None:
+            cphase.settled[:] = cphase.counters
     collider_grid.collider_frames(fwd0, inv_0, inv_0, col.m, col.joint, col.kind, col.index, col.bcenter, col.bradius,
                       col.sph_center, col.tq, col.tq0, col.fq, col.cw)
     body_collide.count_inside(sysm.x, sysm.inv_mass, col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.cw,
@@ -516,8 +544,6 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     sysm.speed2[:] = 0.0
     step.record_frame(sysm.x, flags, np.inf, sysm.goff, rel[0], pen_col[0], counts[0])
     audit_frames(0, 1)
-    if cphase is not None:   # garments that start interpenetrating: sorted by their layers before frame 1
-        cphase.settle(cloth, cols, col.m, prm, gravity, wind, fwd0, inv_0, ss, max2, sysm.goff, flags)
     if progress is not None:
         progress(1, nf)
 

@@ -91,6 +91,10 @@ class SimParams:
         outer feature against inner triangles up to 3 cm off, pushing it several ways), its rounds
         never converged and the fail-safe undid the sorting (on the skinned balls 200-300 crossing
         edges left; 1.5 cm: none after the first settling frame, 8 times fewer cycles).
+    settle_frames: frames of the step at the frame-0 pose, heavily damped (SETTLE_DAMPING), before
+        frame 0 is recorded, then the velocity zeroed: a sewn garment hangs under full gravity
+        before the motion starts (sewing runs at a tiny gravity; without settling the garment
+        dropped ~2 cm at once between frames 0 and 1).
     """
 
     dt: float = 1.0 / 30.0
@@ -118,6 +122,7 @@ class SimParams:
     cloth_thickness: float = 0.003
     cloth_contact_every: int = 1
     cloth_layer_depth0: float = 0.015
+    settle_frames: int = 0
 
     def __post_init__(self):
         o = "SimParams"
@@ -150,6 +155,9 @@ class SimParams:
         rng("max_speed", 0.0, 1e6, lo_open=True)
         rng("cloth_thickness", 0.0, 0.1, lo_open=True)
         rng("cloth_layer_depth0", self.cloth_thickness, 1.0)
+        if not (isinstance(self.settle_frames, (int, np.integer)) and not isinstance(self.settle_frames, (bool, np.bool_))
+                and 0 <= self.settle_frames <= 10000):
+            raise ContractError(f"{o}.settle_frames: expected an integer in [0, 10000], got {self.settle_frames!r}")
         v = self.cloth_contact_every
         if not (isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_)) and v >= 1):
             raise ContractError(f"{o}.cloth_contact_every: expected an integer >= 1, got {v!r}")
@@ -208,12 +216,13 @@ class SimParams:
 
 
 # Named parameter sets. "default": the dataclass defaults with cloth x cloth collision on (a call
-# every 5 sub-steps, the contacts held between): garments layered or long enough to fold pass
-# through each other and themselves without it. "paper": paper A's step (one Verlet step and 3 rounds
+# every 5 sub-steps, the contacts held between: garments layered or long enough to fold pass
+# through each other and themselves without it) and 10 settling frames before frame 0. "paper": paper A's step (one Verlet step and 3 rounds
 # of spring correction per 1/30 s frame, no tethers, no cloth collision), whose figures it reproduces.
 PINCH_RULES = ("midpoint", "escape")
+SETTLE_DAMPING = 0.3     # share of the velocity lost per 1/30 s while a garment settles before frame 0
 PRESETS = {
-    "default": {"cloth_collision": True, "cloth_contact_every": 5},
+    "default": {"cloth_collision": True, "cloth_contact_every": 5, "settle_frames": 10},
     "paper": {"substeps": 1, "iterations": 3, "tethers": False, "cloth_collision": False, "pinch": "escape",
               "bend_stiffness": 1.0},
 }
