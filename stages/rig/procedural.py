@@ -237,8 +237,7 @@ def body_measurements(character: Character) -> dict:
     world = forward_kinematics(character.parents, character.rest_local)
     root_xz = world[character.root_joint, [0, 2], 3]
     out = {"height": h}
-    for key, frac in (("chest", 0.72), ("waist", 0.62), ("hips", 0.53)):
-        y = y0 + frac * h
+    for key, y in _torso_slices(character, world[:, :3, 3], y0, h).items():
         out[f"{key}_y"] = y
         out[key] = _girth(v, character.triangles, y, root_xz)
     from stages.rig.humanoid import limb_chain
@@ -247,6 +246,34 @@ def body_measurements(character: Character) -> dict:
         chain = limb_chain(character, kind, "l")
         out[key] = float(np.linalg.norm(np.diff(pos[chain], axis=0), axis=1).sum()) if chain else float("nan")
     return out
+
+
+# where a tape goes on an adult body, as shares of the height above the lowest vertex
+SLICE_SHARES = {"chest": 0.72, "waist": 0.62, "hips": 0.53}
+SHOULDER_SHARE = 0.81    # the upper-arm joints' height on the same bodies
+
+
+def _torso_slices(character: Character, joints: np.ndarray, y0: float, h: float) -> dict:
+    """{chest, waist, hips}: the heights (world y) the girths are taken at. By adult proportions
+    (SLICE_SHARES) unless they miss the torso the skeleton has: a chest tape 5 % of the height
+    above the upper-arm joints, or a hips tape 10 % below or 20 % above the upper-leg joints (a
+    chibi's or a child's hips and shoulders sit far lower in its height: Kenney's mini characters
+    have a head half their height, where the proportional slices cut). Then the slices go between the upper-leg joints
+    (hips) and the upper-arm joints, in the same ratios."""
+    from stages.rig.humanoid import limb_chain
+    shares = {k: y0 + f * h for k, f in SLICE_SHARES.items()}
+    legs = [limb_chain(character, "leg", s) for s in ("l", "r")]
+    arms = [limb_chain(character, "arm", s) for s in ("l", "r")]
+    if not (all(legs) and all(arms)):
+        return shares
+    hip = float(np.mean([joints[c[0], 1] for c in legs]))
+    shoulder = float(np.mean([joints[c[0], 1] for c in arms]))
+    if not shoulder > hip:
+        return shares
+    if shares["chest"] < shoulder + 0.05 * h and hip - 0.1 * h < shares["hips"] < hip + 0.2 * h:
+        return shares       # the adult proportions fit this skeleton well enough (every shipped character)
+    span = (shoulder - hip) / (SHOULDER_SHARE - SLICE_SHARES["hips"])
+    return {k: hip + (f - SLICE_SHARES["hips"]) * span for k, f in SLICE_SHARES.items()}
 
 
 def _girth(vertices, triangles, y, axis_xz):
@@ -282,10 +309,17 @@ def _girth(vertices, triangles, y, axis_xz):
         pts = ends[label == c]
         if len(pts) < 3:
             continue
-        hull = ConvexHull(pts)
-        per = float(hull.area)  # in 2D, 'area' is the perimeter
-        eq = hull.equations
-        inside = np.all(eq[:, :2] @ axis_xz + eq[:, 2] <= 0)
+        centred = pts - pts.mean(axis=0)
+        sv = np.linalg.svd(centred, compute_uv=False)
+        if sv[1] <= 1e-9 * max(sv[0], 1e-300):
+            # a loop flattened onto a line (a flat plate cut edge-on, a mesh with coincident
+            # sheets: Kenney's chibi body): Qhull refuses it; a tape around it measures twice its length
+            per, inside = 2.0 * float(np.ptp(centred @ np.linalg.svd(centred)[2][0])), False
+        else:
+            hull = ConvexHull(pts)
+            per = float(hull.area)  # in 2D, 'area' is the perimeter
+            eq = hull.equations
+            inside = np.all(eq[:, :2] @ axis_xz + eq[:, 2] <= 0)
         if inside and per > best_len:
             best, best_len = c, per
         if per > fallback_len:
