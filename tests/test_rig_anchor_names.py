@@ -329,7 +329,8 @@ def _robot(names):
 
 def test_robot_arm_is_never_a_leg():
     """Rooted at the chest with arms hanging below the root: the legs are the chains down to the
-    floor, the arms the chains off the root; the neck the root's child between them."""
+    floor, the arms the chains off the root; the neck the root's child between them. (The reported
+    failure: the shape rule before token names took the arms for the legs here and found no arms.)"""
     r = _robot([f"j{k}" for k in range(21)])
     h = humanoid_joints(r)
     assert (h.leg_l, h.leg_r, h.arm_l, h.arm_r) == ((3, 4, 5), (7, 8, 9), (11, 12, 13), (15, 16, 17))
@@ -482,3 +483,18 @@ def test_deform_joints_before_their_unskinned_copies():
     n = rig.joint_names
     assert [n[j] for j in h.arm_l] == ["DEF-upper_arm.L", "DEF-forearm.L", "DEF-hand.L"]
     assert [n[j] for j in h.arm_r] == ["DEF-upper_arm.R", "DEF-forearm.R", "DEF-hand.R"]
+
+
+def test_arms_hanging_straight_down_found_by_shape():
+    """Meaningless names, arms straight down beside the body (hands at the hips): still arms."""
+    names, parents = ["pelvis", "spine", "chest", "neck", "head"], [-1, 0, 1, 2, 3]
+    pos = [(0, 1.0, 0), (0, 1.15, 0), (0, 1.3, 0), (0, 1.5, 0), (0, 1.6, 0)]
+    for s in (1, -1):
+        b = len(names)
+        parents += [2, b, b + 1, b + 2, 0, b + 4, b + 5, b + 6]
+        pos += [(s * 0.03, 1.45, 0), (s * 0.18, 1.45, 0), (s * 0.2, 1.15, 0), (s * 0.21, 0.88, 0),
+                (s * 0.1, 0.95, 0), (s * 0.1, 0.5, 0), (s * 0.1, 0.08, 0), (s * 0.1, 0.02, 0.12)]
+        names += [f"x{b + k}" for k in range(8)]
+    h = humanoid_joints(_stick(names, parents, pos))
+    assert (h.arm_l, h.arm_r, h.leg_l, h.leg_r) == ((6, 7, 8), (14, 15, 16), (9, 10, 11), (17, 18, 19))
+    assert (h.chest, h.neck, h.head) == (2, 3, 4) and h.found["neck"] == "shape"

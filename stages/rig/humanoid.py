@@ -260,14 +260,15 @@ def shape_leg(b: Body, side: str):
 
 def shape_arm(b: Body, side: str, legs: set):
     """An arm from the rest pose alone: the branch off the body's axis (its parent's subtree spans
-    both sides, its own stays on this side; not in a leg) reaching farthest sideways, at least 15 %
-    of the height; the chain starts at the longest bone of its main path that leaves room for two
-    more joints (the upper arm, not a clavicle)."""
+    both sides, its own stays on this side; not in a leg) reaching farthest sideways, at least 10 %
+    of the height (beyond the torso: arms hanging straight down reach about 14 %); the chain starts
+    at the longest bone of its main path that leaves room for two more joints (the upper arm, not a
+    clavicle)."""
     sign = 1.0 if side == "l" else -1.0
     parents = b.parents
     top = set(_ancestors(parents, b.root))
     reach = (b.sub_hi[:, 0] if sign > 0 else -b.sub_lo[:, 0]) - sign * b.x0
-    best, most = None, 0.15 * b.height
+    best, most = None, 0.1 * b.height
     for j in range(len(parents)):
         p = parents[j]
         if j in top or j in legs or p < 0 or _crosses(b, j, sign) or not (_crosses(b, p, sign) or p in top):
