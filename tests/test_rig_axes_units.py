@@ -6,6 +6,7 @@ standing on its feet at its true height. Implausible sizes are scaled with a not
 one line naming character.scale; an explicit scale is taken as it is; the real assets load as before."""
 from __future__ import annotations
 
+import functools
 import os
 import subprocess
 import sys
@@ -507,3 +508,67 @@ def test_rigged_simple_is_kept_and_called_unusual(assets_dir):
     assert note.startswith("units: metres (glTF convention), scale 1 (auto): 9.551 m tall is unusual for a character")
     assert "character.scale: 0.18 would make it 1.72 m, human-sized" in note
     assert np.ptp(c.vertices[:, 1]) == pytest.approx(9.551, abs=1e-3)
+
+
+def restored_copy(src: Path, dst: Path, turn: Rotation, where: str) -> None:
+    """`src` re-stored turned by `turn` (float32 as stored). where='nodes': the scene's root nodes
+    turned, the bind meshes and inverse binds with them (an exporter's other up axis: the viewer
+    shows it turned); where='inverse_binds': only the bind meshes turned, the inverse binds
+    turning them back (the viewer shows it as before; the bind mesh alone lies turned)."""
+    g = pygltflib.GLTF2().load(str(src))
+    blob = bytearray(g.binary_blob())
+    t4 = np.eye(4)
+    t4[:3, :3] = turn.as_matrix()
+    done = set()
+
+    def rewrite(i, fn, n):
+        if i in done:
+            return
+        done.add(i)
+        a, v = g.accessors[i], g.bufferViews[g.accessors[i].bufferView]
+        stride = v.byteStride or 4 * n
+        off = (v.byteOffset or 0) + (a.byteOffset or 0)
+        raw = np.frombuffer(bytes(blob), np.uint8, count=(a.count - 1) * stride + 4 * n, offset=off)
+        x = np.lib.stride_tricks.as_strided(raw.view(np.uint8), (a.count, 4 * n), (stride, 1)).copy().view(np.float32)
+        y = fn(x.astype(np.float64)).astype(np.float32)
+        for r in range(a.count):
+            blob[off + r * stride:off + r * stride + 4 * n] = y[r].tobytes()
+        if a.min is not None:
+            a.min, a.max = y.min(axis=0).tolist(), y.max(axis=0).tolist()
+
+    for node in g.nodes:
+        if node.skin is not None:
+            for prim in g.meshes[node.mesh].primitives:
+                rewrite(prim.attributes.POSITION, turn.apply, 3)
+            rewrite(g.skins[node.skin].inverseBindMatrices,
+                    lambda m: (m.reshape(-1, 4, 4).transpose(0, 2, 1) @ np.linalg.inv(t4)).transpose(0, 2, 1).reshape(-1, 16), 16)
+    if where == "nodes":
+        root = pygltflib.Node(name="turned", rotation=quat(turn), children=list(g.scenes[g.scene or 0].nodes))
+        g.nodes.append(root)
+        g.scenes[g.scene or 0].nodes = [len(g.nodes) - 1]
+    g.set_binary_blob(bytes(blob))
+    g.save_binary(str(dst))
+
+
+@functools.lru_cache(maxsize=2)
+def _original(path: str):
+    return load_gltf(path)
+
+
+@pytest.mark.parametrize("name", ["CesiumMan.glb", "kenney_mini_male_a.glb"])
+@pytest.mark.parametrize("stored_up", ["-y", "+z", "-z", "+x", "-x"])
+@pytest.mark.parametrize("where", ["nodes", "inverse_binds"])
+def test_real_assets_restored_any_way_stand_as_the_original(assets_dir, tmp_path, name, stored_up, where):
+    if not (assets_dir / name).is_file():
+        pytest.skip(f"{name} not in {assets_dir}")
+    restored_copy(assets_dir / name, tmp_path / name, _STAND[stored_up], where)
+    orig = _original(str(assets_dir / name))
+    c, warned = load_quiet(tmp_path / name)
+    want = stored_up if where == "nodes" else "+y"
+    assert not warned and c.notes[0].startswith(f"up axis: file {want.upper()} (auto; skinned rest pose: 2 limbs")
+    np.testing.assert_allclose(posed_rest(c), posed_rest(orig), atol=2e-5)
+    np.testing.assert_allclose(c.vertices, orig.vertices, atol=2e-5)
+    times = np.array([0.1, 0.7])
+    m0, m1 = sample_motion(orig, 0, times), sample_motion(c, 0, times)
+    np.testing.assert_allclose(skin(c, m1) + m1.root_translation[:, None], skin(orig, m0) + m0.root_translation[:, None],
+                               atol=5e-5)

@@ -346,7 +346,7 @@ def load_gltf(path, *, scale: float | None = None, up_axis: str = "auto", loop: 
         held = [f"a {turn:.3g} deg turn"] * (turn > 0.01) + [f"scale {s_change:.4g}"] * (abs(s_change - 1) > 1e-5)
         notes_bind.append(f"bind space: the inverse binds hold {' and '.join(held) or 'a shift'} that the nodes do "
                           f"not; the bind mesh is taken into the rest pose's frame (skinning unchanged)")
-    elif agree < 1.0 - 1e-9:
+    elif agree < 1.0 - 1e-9:  # e.g. bound in a T-pose, rested in an A-pose: exact as stored
         notes_bind.append(f"bind pose: differs from the rest pose (the nodes' TRS) for joints holding "
                           f"{100 * (1 - agree):.3g} % of the skin weight; kept as stored (skinning exact)")
 

@@ -4,7 +4,12 @@ The glTF spec places a skinned vertex at `sum_k w_k * global(joint_k) @ inverse_
 global() multiplies every ancestor node's transform. The `Character` keeps rigid bone-local frames
 (colliders live there), Y up, metres, feet on y = 0; `fold_frames` says how the nodes above the
 skeleton, the up-axis rotation, the scale and the floor shift are folded in so that skinning stays
-the spec's (module doc of stages.rig.gltf states what is exact). `detect_up` is the `auto` rule.
+the spec's (module doc of stages.rig.gltf states what is exact).
+The character is judged as the pipeline first shows it, the rest pose skinned (skeleton and mesh
+together), whatever the file's bind space: `bind_to_rest` finds a turn or scale kept in the
+inverse binds only, `detect_up` is the `up_axis: auto` rule (two limbs hanging side by side to
+the floor; `Stance` per candidate up), `choose_units` the `scale: null` rule (metres unless
+implausible for a biped or animal of that height; cm / mm, or one error naming the scale to set).
 """
 from __future__ import annotations
 
@@ -193,7 +198,7 @@ def select_skeleton(nodes, parent: dict[int, int], joint_nodes: list[int], anima
 
 def bind_to_rest(rest_world: np.ndarray, ibm: np.ndarray, joint_weight: np.ndarray, size: float) -> tuple[np.ndarray, float]:
     """The one transform C taking the bind space to the rest pose's world, if the joints holding
-    most of the skin weight agree on it: (C (4, 4), share of the skin weight that agrees with C).
+    most of the skin weight agree on it: (C (4, 4), share of the skin weight whose joints agree with C).
 
     rest_world: (J, 4, 4) rest (node TRS) world transforms; ibm: (J, 4, 4) inverse binds (file
     frame); joint_weight: (J,) summed skin weights; size: the bind mesh's extent (file units).
@@ -206,21 +211,25 @@ def bind_to_rest(rest_world: np.ndarray, ibm: np.ndarray, joint_weight: np.ndarr
     c = rest_world @ ibm
     lin = np.abs(np.linalg.det(c[:, :3, :3])) ** (1.0 / 3.0)
     total = float(joint_weight.sum())
+    tol_t = 1e-4 * max(size, 1e-12)
+
+    def agreeing(m: np.ndarray, s: float) -> float:
+        close = ((np.abs(c[:, :3, :3] - m[:3, :3]).max(axis=(1, 2)) <= 1e-4 * s)
+                 & (np.abs(c[:, :3, 3] - m[:3, 3]).max(axis=1) <= tol_t))
+        return float(joint_weight[close].sum()) / total
+
     best, share = -1, 0.0
     for k in np.flatnonzero(joint_weight > 0):
-        if not lin[k] > 1e-12:
-            continue
-        close = (np.abs(c[:, :3, :3] - c[k, :3, :3]).max(axis=(1, 2)) <= 1e-4 * lin[k]) & \
-                (np.abs(c[:, :3, 3] - c[k, :3, 3]).max(axis=1) <= 1e-4 * max(size, 1e-12))
-        w = float(joint_weight[close].sum()) / total
-        if w > share + 1e-12:
-            best, share = int(k), w
-    if best < 0 or share < 0.5 or np.linalg.det(c[best, :3, :3]) <= 0:
-        return np.eye(4), share
-    m = c[best]
-    if np.abs(m[:3, :3] - np.eye(3)).max() <= 1e-4 and np.abs(m[:3, 3]).max() <= 1e-4 * max(size, 1e-12):
-        return np.eye(4), share  # float32 noise of a bind pose that is the rest pose: keep the file's bits
-    return m.copy(), share
+        if lin[k] > 1e-12:
+            w = agreeing(c[k], lin[k])
+            if w > share + 1e-12:
+                best, share = int(k), w
+    if best >= 0 and share >= 0.5 and np.linalg.det(c[best, :3, :3]) > 0:
+        m = c[best]
+        if np.abs(m[:3, :3] - np.eye(3)).max() > 1e-4 or np.abs(m[:3, 3]).max() > tol_t:
+            return m.copy(), share
+    # float32 noise of a bind pose that is the rest pose, or no shared change: keep the file's bits
+    return np.eye(4), agreeing(np.eye(4), 1.0)
 
 
 # --------------------------------------------------------------------------------------------
