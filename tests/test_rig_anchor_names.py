@@ -498,3 +498,29 @@ def test_arms_hanging_straight_down_found_by_shape():
     h = humanoid_joints(_stick(names, parents, pos))
     assert (h.arm_l, h.arm_r, h.leg_l, h.leg_r) == ((6, 7, 8), (14, 15, 16), (9, 10, 11), (17, 18, 19))
     assert (h.chest, h.neck, h.head) == (2, 3, 4) and h.found["neck"] == "shape"
+
+
+@pytest.mark.parametrize("scrambled", [False, True])
+def test_unskinned_ik_helpers_are_not_limbs(scrambled):
+    """Unreal's ik_hand_l / ik_foot_l (no skin, at the hand and the foot; here a little beyond
+    them): neither by name nor by shape are they the limb's end."""
+    c = _human(("clavicle_l", "upperarm_l", None, "lowerarm_l", None, "hand_l"),
+               ("thigh_l", None, "calf_l", "foot_l", "ball_l"))
+    w = forward_kinematics(c.parents, c.rest_local)[:, :3, 3]
+    names, parents, pos = list(c.joint_names), list(c.parents), list(w)
+    helpers = [("ik_hand_root", 0, (0, 0, 0)), ("ik_hand_gun", -1, (0.75, 1.45, 0)), ("ik_hand_l", -1, (0.76, 1.45, 0)),
+               ("ik_hand_r", -2, (-0.76, 1.45, 0)), ("ik_foot_l", 0, (0.1, -0.02, 0.05)),
+               ("ik_foot_r", 0, (-0.1, -0.02, 0.05))]
+    for n, p, x in helpers:
+        parents.append(p if p == 0 else len(names) + p)
+        names.append(n)
+        pos.append(np.array(x, float))
+    skinless = set(range(c.n_joints, len(names)))
+    rig = _stick(names if not scrambled else [f"q{k}" for k in range(len(names))], parents, pos, "ik",
+                 skinless=skinless)
+    h = humanoid_joints(rig)
+    n = names
+    assert [n[j] for j in h.arm_l] == ["upperarm_l", "lowerarm_l", "hand_l"]
+    assert [n[j] for j in h.arm_r] == ["upperarm_r", "lowerarm_r", "hand_r"]
+    assert [n[j] for j in h.leg_l] == ["thigh_l", "calf_l", "foot_l"]
+    assert [n[j] for j in h.leg_r] == ["thigh_r", "calf_r", "foot_r"]

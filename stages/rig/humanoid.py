@@ -95,8 +95,9 @@ def _rest_positions(character) -> np.ndarray:
 class Body(NamedTuple):
     """The rest pose as detection reads it. w: (J, 3) joint positions; lo / hi: (J, 3) the lowest
     and highest coordinates of each joint and its dominant skin (every mesh of the character);
-    sub_lo / sub_hi: the same over each joint's subtree; y0 / height: the floor and the height of
-    joints and skin together; x0: the root's x (the body's mid-plane)."""
+    sub_lo / sub_hi: the same over each joint's subtree; sub_skin: (J,) how many vertices the
+    subtree's joints carry (dominant); y0 / height: the floor and the height of joints and skin
+    together; x0: the root's x (the body's mid-plane)."""
 
     parents: np.ndarray
     root: int
@@ -105,6 +106,7 @@ class Body(NamedTuple):
     hi: np.ndarray
     sub_lo: np.ndarray
     sub_hi: np.ndarray
+    sub_skin: np.ndarray
     depth: np.ndarray
     dominant: np.ndarray
     y0: float
@@ -122,16 +124,19 @@ def rest_body(character) -> Body:
     np.minimum.at(lo, dom, v)
     np.maximum.at(hi, dom, v)
     sub_lo, sub_hi = lo.copy(), hi.copy()
+    sub_skin = np.bincount(dom, minlength=len(parents))
     for k in range(len(parents) - 1, 0, -1):    # children after parents: fold each subtree upwards
         p = parents[k]
         sub_lo[p] = np.minimum(sub_lo[p], sub_lo[k])
         sub_hi[p] = np.maximum(sub_hi[p], sub_hi[k])
+        sub_skin[p] += sub_skin[k]
     depth = np.zeros(len(parents), int)
     for k in range(1, len(parents)):
         depth[k] = depth[parents[k]] + 1
     y0, y1 = float(lo[:, 1].min()), float(hi[:, 1].max())
     root = int(character.root_joint)
-    return Body(parents, root, w, lo, hi, sub_lo, sub_hi, depth, dom, y0, (y1 - y0) or 1.0, float(w[root, 0]))
+    return Body(parents, root, w, lo, hi, sub_lo, sub_hi, sub_skin, depth, dom, y0, (y1 - y0) or 1.0,
+                float(w[root, 0]))
 
 
 def _crosses(b: Body, j: int, sign: float) -> bool:
@@ -244,6 +249,8 @@ def shape_leg(b: Body, side: str):
     best = None
     for f in feet:
         start = _branch_start(b, f, sign)
+        if b.sub_skin[start] == 0:      # a helper without skin (Unreal's ik_foot_l at the ankle)
+            continue
         key = (b.depth[start], b.lo[f, 1], -sign * b.w[f, 0], f)
         if best is None or key < best[0]:
             best = (key, start, f)
@@ -272,6 +279,8 @@ def shape_arm(b: Body, side: str, legs: set):
     for j in range(len(parents)):
         p = parents[j]
         if j in top or j in legs or p < 0 or _crosses(b, j, sign) or not (_crosses(b, p, sign) or p in top):
+            continue
+        if b.sub_skin[j] == 0:          # a helper without skin (Unreal's ik_hand_l at the hand)
             continue
         if reach[j] > most:
             best, most = j, reach[j]
