@@ -154,8 +154,9 @@ def write_figure(path: Path, figure, *, node_up="+y", mesh_up="+y", units="m", a
     clip: a LINEAR clip 'walk' (hips translation, thigh / shin rotations).
     Returns {"rest": (V, 3) the rest pose skinned by the spec in the file's world, "world_up":
     the unit vector that is the figure's up there, "metres": metres per world unit, "glb": path,
-    "bind_world": (J, 4, 4), "ibm": (J, 4, 4), "mesh": stored positions, "joints", "weights",
-    "locals": rest local matrices, "parents", "above": (4, 4)}.
+    "ibm": (J, 4, 4) and "mesh" (V, 3) as stored (float32), "joints" / "weights" (V, 2), "locals":
+    (J, 4, 4) rest local matrices, "parents", "above": (4, 4), "rest_world": (J, 4, 4),
+    "true": (V, 3) the figure in metres, Y up}.
     """
     names = [n for n, _, _ in figure]
     parents = np.array([-1 if p is None else names.index(p) for _, p, _ in figure])
@@ -242,7 +243,8 @@ def walk_clip(g: Glb, figure, locals_rest):
     for node, path, vals in ((0, "translation", sway),
                              (names.index("thigh_l"), "rotation", np.stack([r.as_quat() for r in swing])),
                              (names.index("shin_l"), "rotation", np.stack([(r.inv()).as_quat() for r in swing]))):
-        samplers.append(pygltflib.AnimationSampler(input=time_acc, output=g.accessor(vals, np.float32, "VEC3" if vals.shape[1] == 3 else "VEC4"),
+        out = g.accessor(vals, np.float32, "VEC3" if vals.shape[1] == 3 else "VEC4")
+        samplers.append(pygltflib.AnimationSampler(input=time_acc, output=out,
                                                    interpolation="LINEAR"))
         channels.append(pygltflib.AnimationChannel(sampler=len(samplers) - 1,
                                                    target=pygltflib.AnimationChannelTarget(node=node, path=path)))
@@ -281,6 +283,8 @@ def assert_stands(c, ref: dict, figure, rel=1e-4):
     g = forward_kinematics(c.parents, c.rest_local)
     joints_y = g[:, 1, 3]
     assert joints_y[c.joint_names.index(names[top])] > 0.8 * np.ptp(posed[:, 1])  # the head is up
+    feet = [c.joint_names.index(n) for n in names if n.startswith(("foot", "toe", "paw"))]
+    assert feet and np.all(joints_y[feet] < 0.1 * np.ptp(posed[:, 1]))  # on its feet (two or four)
     # the bind mesh stands with the rest pose (the loader took the bind space into the rest frame)
     assert c.vertices[:, 1].min() == pytest.approx(0.0, abs=1e-9)
 
@@ -309,7 +313,8 @@ def test_stands_whichever_way_skeleton_and_mesh_are_stored(tmp_path, figure, nod
     assert any(n.startswith("units: metres (glTF convention), scale 1 (auto") for n in c.notes) and not warned
     assert_stands(c, ref, fig)
     if mesh_up != node_up:  # the inverse binds hold a turn: the bind mesh was taken into the rest frame
-        assert any(n.startswith("bind space: the inverse binds hold a") and "deg turn that the nodes do not" in n for n in c.notes)
+        assert any(n.startswith("bind space: the inverse binds hold a") and "deg turn that the nodes do not" in n
+                   for n in c.notes)
     else:
         assert not any(n.startswith(("bind space", "bind pose")) for n in c.notes)
 
@@ -395,7 +400,8 @@ def test_cm_quadruped_reported_79_m_is_scaled(tmp_path):
     ref = write_figure(tmp_path / "dog.glb", QUADRUPED, units="cm")
     c, warned = load_quiet(ref["glb"])
     note = next(n for n in c.notes if n.startswith("units:"))
-    assert "it is a 103.9 m tall animal with 4 limbs on the floor" in note and "in centimetres 1.039 m" in note and "character.scale overrides" in note
+    assert "it is a 103.9 m tall animal with 4 limbs on the floor" in note and "in centimetres 1.039 m" in note
+    assert "character.scale overrides" in note
     assert np.ptp(posed_rest(c)[:, 1]) == pytest.approx(1.039, rel=0.02)
 
 

@@ -276,7 +276,8 @@ def load_gltf(path, *, scale: float | None = None, up_axis: str = "auto", loop: 
     Raises InputError (naming the file) for unreadable / corrupt / unsupported content.
     """
     path = Path(path)
-    if scale is not None and not (isinstance(scale, (int, float, np.integer, np.floating)) and np.isfinite(scale) and scale > 0):
+    number = isinstance(scale, (int, float, np.integer, np.floating)) and not isinstance(scale, bool)
+    if scale is not None and not (number and np.isfinite(scale) and scale > 0):
         raise InputError(path, f"character.scale must be a positive number or null (auto), got {scale!r}")
     if up_axis not in UP_AXES:
         raise InputError(path, f"up_axis must be one of {', '.join(UP_AXES)}, got {up_axis!r}")

@@ -196,7 +196,8 @@ def select_skeleton(nodes, parent: dict[int, int], joint_nodes: list[int], anima
 # Bind space vs rest pose
 # --------------------------------------------------------------------------------------------
 
-def bind_to_rest(rest_world: np.ndarray, ibm: np.ndarray, joint_weight: np.ndarray, size: float) -> tuple[np.ndarray, float]:
+def bind_to_rest(rest_world: np.ndarray, ibm: np.ndarray, joint_weight: np.ndarray,
+                 size: float) -> tuple[np.ndarray, float]:
     """The one transform C taking the bind space to the rest pose's world, if the joints holding
     most of the skin weight agree on it: (C (4, 4), share of the skin weight whose joints agree with C).
 
@@ -423,7 +424,8 @@ def choose_units(path, stance: Stance, given: float | None, node_scale: float = 
             return Units(1.0, f"units: metres (glTF convention), scale 1{nodes} (auto): {h:.4g} m tall is unusual "
                               f"for a character, kept as its kind is unknown (no two limbs on the floor); "
                               f"character.scale: {s:g} would make it {h * s:.3g} m, human-sized", False)
-        return Units(1.0, f"units: metres (glTF convention), scale 1{nodes} (auto: {h:.4g} m tall, plausible for a {what})", False)
+        return Units(1.0, f"units: metres (glTF convention), scale 1{nodes} (auto: {h:.4g} m tall, plausible for "
+                          f"a {what})", False)
     if kind != "unknown" and h > hi:
         for f, name in _UNIT_GUESSES:
             if lo <= h * f <= hi:
