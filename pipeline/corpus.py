@@ -79,8 +79,9 @@ def survey(label: str, spec: dict, kinds) -> CorpusCharacter:
 
 
 def _slug(text: str) -> str:
-    import re
-    return re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-")[:40] or "x"
+    """The case label as the sweep keeps it (pipeline.sweep_file._slug leaves this one unchanged)."""
+    from pipeline.sweep_file import _slug as sweep_slug
+    return sweep_slug(text, 40).rstrip("-.") or "x"
 
 
 def cases_of(c: CorpusCharacter, *, full: bool = False) -> list[dict]:

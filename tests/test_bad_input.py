@@ -300,4 +300,5 @@ def test_cesium_man_stored_z_up_dresses_and_runs(assets_dir, tmp_path, monkeypat
     assert main(["run", str(scene), "-q"]) == 0, capsys.readouterr().err
     from tests.rrd_read import rows
     assert "up axis: file +Z (auto" in str(rows(tmp_path / "out.rrd", "rig/notes", "TextDocument:text")[0][1])
-    assert len(rows(tmp_path / "out.rrd", "sim/skirt/mesh", "Mesh3D:vertex_positions")) == 2
+    # the clip's 2 frames after the blend-in from the T-pose (dressed there) into its first pose
+    assert len(rows(tmp_path / "out.rrd", "sim/skirt/mesh", "Mesh3D:vertex_positions")) > 2

@@ -99,7 +99,7 @@ def test_scene_camera_holds_every_frames_body_and_garment_from_a_front_three_qua
     pos, target = blueprint_views(blueprint(walk))["scene"]["eye"]
     body = np.stack([v for _, v in rows(walk, "rig/mesh", "Mesh3D:vertex_positions")])
     cloth = np.stack([v for _, v in rows(walk, "sim/skirt/mesh", "Mesh3D:vertex_positions")])
-    assert len(body) == len(cloth) == 16
+    assert len(body) == len(cloth) > 16                  # the clip's 16 frames after the blend-in
     assert np.ptp(body[:, :, 2].mean(1)) > 0.3          # it walks: a camera on frame 0 alone would not do
     cam = Camera(pos, target)
     assert cam.sees(body, aspect=ASPECT_OVERVIEW) and cam.sees(cloth, aspect=ASPECT_OVERVIEW)
@@ -127,7 +127,8 @@ def test_body_is_skin_coloured_garments_in_fabric_colours_regions_only_in_the_ri
     labels = rows(walk, "rig/regions/labels", "Points3D:labels")
     assert {"pelvis", "head", "thigh_l"} <= {str(x) for x in labels[0][1]}
     pins = rows(walk, "sim/skirt/attached", "Points3D:positions")
-    assert len(pins) == 16 and len(pins[0][1]) > 10            # pins shown every frame
+    frames = len(rows(walk, "sim/skirt/mesh", "Mesh3D:vertex_positions"))
+    assert len(pins) == frames and len(pins[0][1]) > 10        # pins shown every frame
     bp = blueprint(walk)
     views = blueprint_views(bp)
     assert "+ /sim/skirt/attached" in views["scene"]["contents"]

@@ -280,7 +280,7 @@ def test_scene_output_export_matches_the_recording_and_carries_pattern_uvs(scene
                                                        "tiny_export.skirt.npz"]
     back = ex.from_recording(rec)
     assert [m.name for m in back.meshes] == ["skirt", "body"]
-    assert back.fps == pytest.approx(1 / 0.0333333, rel=1e-6) and len(back.times) == 4
+    assert back.fps == pytest.approx(1 / 0.0333333, rel=1e-6) and len(back.times) == summary.frames > 4   # + blend-in
     for m in back.meshes:
         z = np.load(d / "run" / "exports" / f"tiny_export.{m.name}.npz")
         np.testing.assert_array_equal(z["vertices_seq"], m.vertices_seq)   # the run's arrays = the recording's
@@ -359,7 +359,8 @@ def test_walk_tshirt_skirt_every_format_reads_back_exactly(tmp_path, monkeypatch
                  "--format", formats, "-o", "out"]) == 0
     capsys.readouterr()
     data = ex.from_recording(tmp_path / "recordings" / "walk_tshirt_skirt.rrd")
-    assert [m.name for m in data.meshes] == ["skirt", "tshirt", "body"] and len(data.times) == 5
+    # the 5 clip frames after the blend-in from the rest pose, where the garments are dressed
+    assert [m.name for m in data.meshes] == ["skirt", "tshirt", "body"] and len(data.times) > 5
     for m in data.meshes:
         if m.kind == "garment":   # the run's UV layout (checked per format against it)
             z = np.load(tmp_path / "out" / f"walk_tshirt_skirt.{m.name}.npz")

@@ -23,7 +23,7 @@ SWEEP = """\
 base:
   name: tiny
   character: {source: procedural, clip: walk}
-  frames: {count: 2}
+  frames: {count: 2, blend_in: 0}   # the sweep's mechanics: dressed on the clip's first pose, no blend frames
   colliders: {report_every: 0}
   garments:
     - {type: pattern, name: garment, kind: short_skirt}

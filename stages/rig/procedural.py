@@ -260,14 +260,14 @@ def _torso_slices(character: Character, joints: np.ndarray, y0: float, h: float)
     chibi's or a child's hips and shoulders sit far lower in its height: Kenney's mini characters
     have a head half their height, where the proportional slices cut). Then the slices go between the upper-leg joints
     (hips) and the upper-arm joints, in the same ratios."""
-    from stages.rig.humanoid import limb_chain
+    from stages.rig.humanoid import humanoid_joints
     shares = {k: y0 + f * h for k, f in SLICE_SHARES.items()}
-    legs = [limb_chain(character, "leg", s) for s in ("l", "r")]
-    arms = [limb_chain(character, "arm", s) for s in ("l", "r")]
-    if not (all(legs) and all(arms)):
+    # each limb's upper point at rest: its upper joint, also on a limb of one joint (a chibi's)
+    tops = humanoid_joints(character).points
+    if not all(p in tops for p in ("arm_l", "arm_r", "leg_l", "leg_r")):
         return shares
-    hip = float(np.mean([joints[c[0], 1] for c in legs]))
-    shoulder = float(np.mean([joints[c[0], 1] for c in arms]))
+    hip = float(np.mean([tops[p][0][1] for p in ("leg_l", "leg_r")]))
+    shoulder = float(np.mean([tops[p][0][1] for p in ("arm_l", "arm_r")]))
     if not shoulder > hip:
         return shares
     if shares["chest"] < shoulder + 0.05 * h and hip - 0.1 * h < shares["hips"] < hip + 0.2 * h:
