@@ -47,16 +47,6 @@ def _tree(names, parents) -> list:
     return out
 
 
-def _limb_by_name(character, kind: str, side: str) -> bool:
-    from stages.rig.humanoid import ARM_CHAINS, LEG_CHAINS, _bare, mirror_name
-    bare = {_bare(n) for n in character.joint_names}
-    for chain in (ARM_CHAINS if kind == "arm" else LEG_CHAINS):
-        c = chain if side == "l" else tuple(mirror_name(n) for n in chain)
-        if all(n in bare for n in c):
-            return True
-    return False
-
-
 def bone_mapping(character) -> dict:
     """Each humanoid part -> {"joints": [names] or None, "found": 'name' | 'shape' | 'missing'};
     plus "needs": garment kind -> the parts it anchors on that are missing."""
@@ -68,13 +58,17 @@ def bone_mapping(character) -> dict:
     for kind in ("arm", "leg"):
         for side in ("l", "r"):
             chain = h.limb(kind, side)
-            parts[f"{kind}_{side}"] = {
-                "joints": None if chain is None else [names[j] for j in chain],
-                "found": "missing" if chain is None else ("name" if _limb_by_name(character, kind, side) else "shape")}
+            part = f"{kind}_{side}"
+            parts[part] = {"joints": None if chain is None else [names[j] for j in chain],
+                           "found": "missing" if chain is None else h.found.get(part, "shape"),
+                           "why": h.why.get(part, "")}
     for part in ("chest", "neck", "head"):
         j = getattr(h, part)
-        # the spine parts are always placed by the skeleton's shape: where the arms branch off
-        parts[part] = {"joints": None if j < 0 else [names[j]], "found": "missing" if j < 0 else "shape"}
+        # the spine parts are placed by the skeleton's shape (where the arms branch off), a neck by its
+        # name where no arms are found
+        parts[part] = {"joints": None if j < 0 else [names[j]],
+                       "found": "missing" if j < 0 else h.found.get(part, "shape") if part == "neck" else "shape",
+                       "why": h.why.get(part, "")}
     missing = {p for p, v in parts.items() if v["found"] == "missing"}
     needs = {kind: sorted(set(anchors) & missing) for kind, anchors in ANCHORS.items() if set(anchors) & missing}
     return {"parts": parts, "missing": sorted(missing), "garments_blocked": needs,
@@ -142,6 +136,8 @@ def text(facts: dict) -> str:
         what = " > ".join(p["joints"]) if p["joints"] else "-"
         how = {"name": "by name", "shape": "by the skeleton's shape", "missing": "MISSING"}[p["found"]]
         lines.append(f"  {part:<6} {what}  ({how})")
+        if p.get("why") and p["found"] == "missing":
+            lines.append(f"         {p['why']}")
     if h["garments_blocked"]:
         for kind, parts in h["garments_blocked"].items():
             lines.append(f"  garment {kind!r} cannot be dressed: needs {', '.join(h['anchors'][kind])}; "
