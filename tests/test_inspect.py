@@ -57,8 +57,8 @@ def test_cmu_bvh(assets_dir):
     assert f["clips"][0]["duration_s"] == pytest.approx(994 / 120, abs=1e-3)
     assert "120 Hz" in f["units"]["notes"][0]
     parts = f["humanoid"]["parts"]
-    assert parts["arm_l"] == {"joints": ["LeftShoulder", "LeftElbow", "LeftWrist"], "found": "name"}
-    assert parts["leg_r"] == {"joints": ["RightHip", "RightKnee", "RightAnkle"], "found": "name"}
+    assert parts["arm_l"] == {"joints": ["LeftShoulder", "LeftElbow", "LeftWrist"], "found": "name", "why": ""}
+    assert parts["leg_r"] == {"joints": ["RightHip", "RightKnee", "RightAnkle"], "found": "name", "why": ""}
     assert parts["head"]["found"] == "shape" and f["humanoid"]["missing"] == []
 
 
@@ -78,7 +78,7 @@ def test_builtin_matches_by_name():
     assert [c["name"] for c in f["clips"]] == ["rest", "walk", "arm_raise", "turn"]
     assert f["mesh"]["height_m"] == pytest.approx(1.75, abs=1e-3)
     parts = f["humanoid"]["parts"]
-    assert parts["arm_r"] == {"joints": ["upperarm_r", "forearm_r", "hand_r"], "found": "name"}
+    assert parts["arm_r"] == {"joints": ["upperarm_r", "forearm_r", "hand_r"], "found": "name", "why": ""}
     assert parts["neck"]["joints"] == ["neck"] and parts["head"]["joints"] == ["head"]
 
 
