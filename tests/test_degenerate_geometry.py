@@ -94,6 +94,45 @@ def test_fit_hull_and_its_map_on_degenerate_regions(name):
     assert hm.cell_tris.size > 0 and hm.cell_start[-1] == hm.cell_tris.size
 
 
+def _random_set(rng, kind):
+    """A random degenerate or nearly degenerate point set, turned and moved off the origin."""
+    n = int(rng.integers(1, 60))
+    s, thin = 10.0 ** rng.uniform(-4, 2), 10.0 ** rng.uniform(-9, -1)
+    p = [lambda: rng.normal(size=(n, 3)) * [1, 1, 0],                            # coplanar
+         lambda: np.outer(rng.normal(size=n), rng.normal(size=3)),               # collinear
+         lambda: np.repeat(rng.normal(size=(max(1, n // 10), 3)), 10, axis=0),   # few points, repeated
+         lambda: rng.normal(size=(n, 3)) * [1, thin, 1],                         # nearly flat
+         lambda: rng.normal(size=(n, 3)) * [1, thin, thin],                      # nearly collinear
+         lambda: rng.uniform(size=(n, 3)).round(1),                              # on a grid: coplanar facets
+         lambda: np.c_[rng.normal(size=(n, 1)), np.round(rng.normal(size=(n, 1))) * thin,
+                       rng.normal(size=(n, 1))]][kind]()                         # a few thin layers
+    turn = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    return (p @ turn.T) * s + rng.normal(size=3) * s * 10 ** rng.uniform(0, 4), s
+
+
+def test_random_nearly_degenerate_regions_fit_and_map():
+    """Thin, far-off, gridded sets: Qhull's slivers and joggled facets folded the inflated hull (up to
+    0.3 % of its size) and build_hull_map refused it; every one now gives a convex, containing hull."""
+    rng = np.random.default_rng(11)
+    for i in range(140):
+        pts, s = _random_set(rng, i % 7)
+        delta = 0.01 * s
+        _, _, simplified, report = fit_hull(pts, delta, 40, source=f"case {i}", max_offset=0.5 * delta)
+        assert report.worst_violation <= 1e-6 * (np.abs(pts).max() + delta), i
+        hm = build_hull_map(simplified)
+        assert np.isfinite(hm.planes).all() and (hm.half_extents > 0).all(), i
+
+
+def test_when_qhull_gives_nothing_usable_the_hull_is_the_box(monkeypatch):
+    from stages.hulls import hull
+    pts = DEGENERATE["far from the origin"]
+    monkeypatch.setattr(hull, "_qhull_mesh", lambda points, shift, options=None: None)
+    box = convex_hull(pts, source="bone 'x'")
+    assert box.vertices.shape == (8, 3) and box.faces.shape == (12, 3)
+    _check_hull(box, pts, 1e-15 * np.abs(pts).max())     # planes' rounding at 1e6 m
+    assert hull._convexity(box) <= 1e-12 * np.abs(pts).max()
+
+
 def test_a_map_failure_names_the_collider():
     from dataclasses import replace
 
@@ -334,3 +373,27 @@ def test_too_many_ball_pairs_is_one_line_before_the_memory_goes(monkeypatch):
         fit_character(tube, motion.joint_world, split="motion", flexible="balls", delta=0.01)
     msg = str(err.value)
     assert "'tube'" in msg and "more than 1,000" in msg and "colliders.delta" in msg and "\n" not in msg
+
+
+def test_riggedsimple_ball_fit_is_bounded(assets_dir, monkeypatch):
+    """RiggedSimple (a 9.55 m bending cylinder, every vertex flexible) had 775,705 skin samples and
+    65,430 balls (2.6 GB in the colliders stage, past 8 GB in the garments stage): every size of the
+    fit is capped now."""
+    from stages.hulls import balls
+    from stages.rig.gltf import load_gltf
+    from stages.rig.skinning import sample_motion
+    ch = load_gltf(assets_dir / "RiggedSimple.glb")
+    motion = sample_motion(ch, 0, np.arange(30) / 30.0)
+    seen = []
+    real = balls.pairs_in_reach
+
+    def recording(centers, targets, reach, cell):
+        out = real(centers, targets, reach, cell)
+        seen.append((centers.shape[1], targets.shape[1], out[1].size))
+        return out
+    monkeypatch.setattr(balls, "pairs_in_reach", recording)
+    _, colliders = fit_character(ch, motion.joint_world, split="motion", flexible="balls", delta=0.01)
+    (candidates, _, pairs), (skin_samples, _, skin_pairs) = seen
+    assert candidates <= balls.MAX_CANDIDATES and skin_samples <= balls.MAX_SKIN_SAMPLES
+    assert max(pairs, skin_pairs) <= balls.MAX_PAIRS
+    assert 0 < len(colliders.spheres) < 10_000

@@ -4,7 +4,7 @@ Degenerate input policy (never a raw Qhull traceback):
 - not an (n, 3) finite array or no points -> `InputError` naming the point set;
 - fewer than 4 distinct points, collinear or coplanar points (extent across <= `FLAT_RELATIVE` x
   extent along) -> `InputError`, unless the caller passes `flat_thickness > 0`: then the documented
-  fallback thickens the points by +-flat_thickness across them: coplanar -> a slab (copies along the
+  fallback thickens the points (also those thinner than `THIN_RELATIVE`) by +-flat_thickness across them: coplanar -> a slab (copies along the
   plane's normal), collinear -> a square prism around the line, one distinct point -> a cube; the
   hull then has volume (`fit_colliders` uses delta). A robot's flat plate or a region of 1-3
   vertices gets a thin hull instead of a Qhull error.
@@ -22,6 +22,10 @@ from stages.hulls.types import ConvexMesh
 
 # Points whose smallest principal extent is below this fraction of the largest are called flat.
 FLAT_RELATIVE = 1e-9
+# With a flat_thickness, points this thin (across / along) are thickened too: Qhull hulls them, but
+# the sliver faces round their rim left the inflated, simplified hull non-convex by up to 0.3 % of
+# its size (random sets 1e-7 thick). Rigid regions are never this thin (regions.is_hull_ready: 1e-3).
+THIN_RELATIVE = 1e-4
 # Faces with twice-area below this fraction of extent^2 count as degenerate.
 DEGENERATE_AREA = 1e-14
 # Inflation: a vertex whose normal makes a dot product below this with an adjacent face normal is
@@ -88,8 +92,8 @@ def convex_hull(points, *, source="points", flat_thickness: float = 0.0) -> Conv
     if unique.shape[0] < 4 and not thick:
         raise InputError(source, f"a hull needs >= 4 distinct points, got {unique.shape[0]}")
     axes, extent = _principal(unique)
-    rank = 0 if not extent[0] > 0 else 1 if extent[1] <= FLAT_RELATIVE * extent[0] else \
-        2 if extent[2] <= FLAT_RELATIVE * extent[0] else 3
+    flat = (THIN_RELATIVE if thick else FLAT_RELATIVE) * extent[0]
+    rank = 0 if not extent[0] > 0 else 1 if extent[1] <= flat else 2 if extent[2] <= flat else 3
     if rank == 1 and not thick:
         raise InputError(source, f"points are collinear (extent {extent[0]:.3g} x {extent[1]:.3g})")
     if rank == 2 and not thick:
@@ -100,20 +104,58 @@ def convex_hull(points, *, source="points", flat_thickness: float = 0.0) -> Conv
         extent = extent if rank == 2 else np.maximum(extent, 2.0 * flat_thickness)
     # far from the origin for its size: hull the centred points (Qhull's precision follows the coordinates)
     shift = unique.mean(axis=0) if np.abs(unique).max() > 1e3 * extent[0] else np.zeros(3)
+    size = float(extent[0])
+    # Qt triangulation of a facet with collinear boundary points leaves degenerate faces (and a sliver's
+    # plane folds the mesh); joggling avoids them, but the joggled facets put back on the points can
+    # fold too (a thin set: 0.3 % of its size); then a hull of the points moved out from their centroid
+    # by 1-2e-8 of their size (it contains them), and last their bounding box
+    for pts, options in ((unique, None), (unique, "QJ"), (_outward(unique, JITTER_RELATIVE * size), None)):
+        mesh = _qhull_mesh(pts, shift, options)
+        if mesh is not None and not _degenerate(mesh, size) and _convexity(mesh) <= CONVEX_RELATIVE * size:
+            return mesh
+    return _box(unique, axes, size)
+
+
+CONVEX_RELATIVE = 5e-7   # a vertex this far (x size) in front of a face plane: the hull folds (maps: 1e-6 x half)
+JITTER_RELATIVE = 1e-8   # how far (x size) the last fallback moves the points out
+
+
+def _qhull_mesh(points: np.ndarray, shift: np.ndarray, options: str | None = None) -> ConvexMesh | None:
+    """The hull's mesh on `points`, hulled at points - shift; None when Qhull refuses them."""
     try:
-        hull = ConvexHull(unique - shift)
-    except QhullError as err:
-        first = str(err).strip().splitlines()[0] if str(err).strip() else "Qhull failed"
-        raise InputError(source, f"Qhull could not build a hull: {first}") from None
-    mesh = _mesh_from_qhull(unique, hull)
+        return _mesh_from_qhull(points, ConvexHull(points - shift, qhull_options=options))
+    except QhullError:
+        return None
+
+
+def _degenerate(mesh: ConvexMesh, size: float) -> bool:
     _, area2 = face_normals(mesh.vertices, mesh.faces)
-    if (area2 <= DEGENERATE_AREA * extent[0] ** 2).any():
-        # Qt triangulation of a facet with collinear boundary points; joggling avoids it.
-        try:
-            mesh = _mesh_from_qhull(unique, ConvexHull(unique - shift, qhull_options="QJ"))
-        except QhullError as err:
-            raise InputError(source, f"Qhull could not build a hull: {str(err).splitlines()[0]}") from None
-    return mesh
+    return bool((area2 <= DEGENERATE_AREA * size ** 2).any())
+
+
+def _convexity(mesh: ConvexMesh) -> float:
+    """Largest distance (m) of a vertex in front of a face plane (0 for a convex mesh)."""
+    pl = mesh.planes
+    return float(max((mesh.vertices @ pl[:, :3].T - pl[:, 3]).max(), 0.0))
+
+
+def _box(points: np.ndarray, axes: np.ndarray, size: float) -> ConvexMesh:
+    """The box around the points along `axes` (3, 3), grown by 1e-9 of their size and 1e-14 of their
+    largest coordinate for rounding."""
+    proj = points @ axes.T
+    pad = 1e-9 * size + 1e-14 * float(np.abs(points).max())
+    lo, hi = proj.min(axis=0) - pad, proj.max(axis=0) + pad
+    corners = np.array(np.meshgrid(*zip(lo, hi), indexing="ij")).reshape(3, -1).T @ axes
+    return _mesh_from_qhull(corners, ConvexHull(corners - corners.mean(axis=0)))
+
+
+def _outward(points: np.ndarray, eps: float) -> np.ndarray:
+    """Points moved away from their centroid by eps to 2 eps (seeded): no three stay collinear, and
+    their hull contains the points (the centroid is inside it, each point between it and its move)."""
+    d = points - points.mean(axis=0)
+    r = np.linalg.norm(d, axis=1, keepdims=True)
+    step = eps * (1.0 + np.random.default_rng(0).random((points.shape[0], 1)))
+    return points + np.where(r > 0, step / np.where(r > 0, r, 1.0), 0.0) * d
 
 
 def _mesh_from_qhull(points: np.ndarray, hull: ConvexHull) -> ConvexMesh:
