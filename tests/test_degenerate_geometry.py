@@ -148,7 +148,12 @@ def test_a_map_failure_names_the_collider():
     bad = replace(colliders, hulls=(replace(h, simplified=ConvexMesh(v, h.simplified.faces)),) + colliders.hulls[1:])
     with pytest.raises(InputError) as err:
         build_maps(bad)
-    assert f"collider {h.name!r}" in str(err.value) and "\n" not in str(err.value)
+    assert f"collider {h.name!r}" in str(err.value) and "not convex" in str(err.value) and "\n" not in str(err.value)
+    from stages.maps.build import surface_obb
+    from stages.checks import ContractError
+    v[0] = np.nan        # ConvexMesh refuses it; the OBB of raw arrays says so too
+    with pytest.raises(ContractError, match="non-finite"):
+        surface_obb(v, h.simplified.faces)
 
 
 def test_swept_points_survive_a_qhull_failure(monkeypatch):
@@ -397,3 +402,14 @@ def test_riggedsimple_ball_fit_is_bounded(assets_dir, monkeypatch):
     assert candidates <= balls.MAX_CANDIDATES and skin_samples <= balls.MAX_SKIN_SAMPLES
     assert max(pairs, skin_pairs) <= balls.MAX_PAIRS
     assert 0 < len(colliders.spheres) < 10_000
+
+
+def test_a_panel_too_big_for_its_edge_length_is_one_line():
+    from stages.garments.library import square
+    from stages.garments.triangulate import MAX_PANEL_VERTICES, triangulate_pattern
+    ok = triangulate_pattern(square({"height": 1.75}, size=1.0))
+    assert 1000 < ok.uv.shape[0] < MAX_PANEL_VERTICES
+    with pytest.raises(InputError) as err:
+        triangulate_pattern(square({"height": 1.75}, size=12.0, name="tarp"))
+    msg = str(err.value)
+    assert "pattern 'tarp' panel 'square'" in msg and "more than 100,000" in msg and "edge_length" in msg

@@ -147,6 +147,7 @@ def _segment_distance(p: np.ndarray, poly: np.ndarray, reach: float = np.inf) ->
     return out
 
 
+MAX_PANEL_VERTICES = 100_000   # one panel's vertices at most (CesiumMan's and the built-in body's: under 1,000)
 INSIDE_CHUNK = 4096   # points per even-odd test: its temporaries are (points, outline segments)
 
 
@@ -191,6 +192,14 @@ def mesh_panel(pattern: Pattern, panel_index: int, counts: dict, relax_rounds: i
     d = np.linalg.norm(boundary - np.roll(boundary, -1, axis=0), axis=1)
     if d.min() < 1e-6 * L:
         raise InputError(where, "two consecutive outline points coincide (zero-length edge?)")
+    # the vertex count grows with the panel's area over L^2 (a 9.55 m body's short skirt: 28,000)
+    x, y = boundary[:, 0], boundary[:, 1]
+    area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+    estimate = nb + int(area / (L * L * np.sqrt(3) / 2))
+    if estimate > MAX_PANEL_VERTICES:
+        w, h_ = np.ptp(boundary, axis=0)
+        raise InputError(where, f"about {estimate:,} vertices at edge length {L:g} m (a panel {w:.3g} x {h_:.3g} m), "
+                                f"more than {MAX_PANEL_VERTICES:,}: a longer edge_length or a smaller garment")
     # interior: hexagonal lattice of spacing L, away from the outline
     lo, hi = boundary.min(axis=0), boundary.max(axis=0)
     h = L * np.sqrt(3) / 2
