@@ -413,3 +413,12 @@ def test_a_panel_too_big_for_its_edge_length_is_one_line():
         triangulate_pattern(square({"height": 1.75}, size=12.0, name="tarp"))
     msg = str(err.value)
     assert "pattern 'tarp' panel 'square'" in msg and "more than 100,000" in msg and "edge_length" in msg
+
+
+def test_cross_sections_of_no_levels_is_one_line():
+    from stages.garments.placement import BodyAxis, _cross_sections
+    axis = BodyAxis(np.zeros(3), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
+    pts = np.random.default_rng(0).normal(size=(50, 3)) * 0.01
+    assert _cross_sections(pts, axis, np.arange(-0.01, 0.011, 0.01), 0.0, True).shape == (3, 2)
+    with pytest.raises(InputError, match="no levels"):
+        _cross_sections(pts, axis, np.arange(0.02, 0.015, 0.01), 0.0, True)     # a 1.5 cm CesiumMan's skirt range

@@ -112,6 +112,9 @@ def _superellipse(phi: np.ndarray, n: float):
 def _cross_sections(points: np.ndarray, axis: BodyAxis, levels: np.ndarray, offset: float, monotone_down: bool,
                     exponent: float = 2.0):
     """(L, 2) superellipse semi-axes (along P, Q) at axis coordinates `levels`."""
+    if levels.size == 0:     # the caller's range of levels was empty (a body of a few centimetres)
+        raise InputError("body cross-sections", "no levels to measure: the range between the body's landmarks "
+                         f"is shorter than the {LEVEL_STEP} m step (a body this small cannot be dressed)")
     rel = points - axis.origin
     t, p, q = rel @ axis.a, rel @ axis.p, rel @ axis.q
     ab = np.full((levels.size, 2), np.nan)
