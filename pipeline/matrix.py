@@ -62,7 +62,8 @@ class Prepared:
         from stages.rig.skinning import skin
         self.character = load_character(scene)
         check_references(scene, self.character)
-        self.motion = sample_scene_motion(scene, self.character, frame_times(scene))
+        # the motion a scene with a garment plays (the blend-in from the rest pose, where it is dressed)
+        self.motion = sample_scene_motion(scene, self.character, frame_times(scene), dressed=True)
         self.skinned = skin(self.character, self.motion)
         _, self.colliders = split_and_fit(scene, self.character, self.motion)
         m = scene["colliders"]["map"]

@@ -217,30 +217,31 @@ def check_references(scene: Scene, character) -> None:
                 raise SceneError(f"{src}: garments[{i}].{key}: {name!r} is not a joint of {character.name!r}{hint}")
 
 
-def blend_in_seconds(scene: Scene, character) -> float:
+def blend_in_seconds(scene: Scene, character, dressed: bool | None = None) -> float:
     """The scene's blend-in: `frames.blend_in` when given, else (auto) sized by stages.rig.blend from
     how far the clip's pose at `frames.start` is from the rest pose, where garments are dressed; 0
-    without garments."""
+    when nothing is dressed (dressed: None = the scene has garments)."""
     from stages.rig.blend import blend_seconds, pose_distance
     from stages.rig.skinning import sample_clip
     given = scene["frames"]["blend_in"]
     if given is not None:
         return float(given)
     clip = scene["character"]["clip"]
-    if clip == "rest" or not character.clips or not scene["garments"]:
+    dressed = bool(scene["garments"]) if dressed is None else dressed
+    if clip == "rest" or not character.clips or not dressed:
         return 0.0
     first = sample_clip(character, character.clip(clip), np.array([scene["frames"]["start"]]))[0]
     height = float(np.ptp(character.vertices[:, 1])) if len(character.vertices) else 0.0
     return blend_seconds(pose_distance(character, character.rest_local, first), height)
 
 
-def sample_scene_motion(scene: Scene, character, times: np.ndarray):
+def sample_scene_motion(scene: Scene, character, times: np.ndarray, dressed: bool | None = None):
     """The clip at `times`, after the blend-in (`blend_in_seconds`) from the rest pose."""
     from stages.rig.skinning import rest_motion, sample_motion
     clip = scene["character"]["clip"]
     if clip == "rest" or not character.clips:
         return rest_motion(character, len(times), scene["simulation"]["dt"])
-    blend = int(round(blend_in_seconds(scene, character) / scene["simulation"]["dt"]))
+    blend = int(round(blend_in_seconds(scene, character, dressed) / scene["simulation"]["dt"]))
     if blend and len(times) < 2:
         times = frame_times(scene, 2)[:2]
     return sample_motion(character, clip, times, blend_frames=blend)
