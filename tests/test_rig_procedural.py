@@ -121,6 +121,39 @@ def test_girth_of_a_cylinder_is_its_circumference():
     assert got == pytest.approx(2 * 64 * 0.12 * np.sin(np.pi / 64), rel=1e-9)
 
 
+def test_girth_of_a_loop_flattened_onto_a_line_is_twice_its_length():
+    """A plate standing edge-on to the cut (every crossing point on one line in xz): Qhull refuses
+    it (QH6154 on the Kenney characters); the tape goes round it, twice its width."""
+    plate = trimesh.creation.box(extents=(0.3, 1.0, 1e-12))      # zero thickness in z
+    got = _girth(np.asarray(plate.vertices, float), np.asarray(plate.faces), 0.1, np.zeros(2))
+    assert got == pytest.approx(0.6, rel=1e-9)
+
+
+def test_torso_tapes_follow_the_skeleton_where_adult_proportions_miss_it(character):
+    """The built-in body keeps its proportional tapes (72 / 62 / 53 % of the height); a body whose
+    arms and legs start far lower in its height (a chibi: a head half its height) gets them between
+    its leg and arm joints instead of across its head."""
+    from stages.rig.procedural import SHOULDER_SHARE, SLICE_SHARES, _torso_slices
+    world = forward_kinematics(character.parents, character.rest_local)[:, :3, 3]
+    y0, h = float(character.vertices[:, 1].min()), float(np.ptp(character.vertices[:, 1]))
+    assert _torso_slices(character, world, y0, h) == {k: y0 + f * h for k, f in SLICE_SHARES.items()}
+    m = body_measurements(character)
+    assert (m["chest_y"], m["hips_y"]) == (y0 + 0.72 * h, y0 + 0.53 * h)
+    # the same skeleton and skin in a mesh twice as tall (a big head above it): the tapes stay on the torso
+    tall = np.concatenate([character.vertices, [[0.0, y0 + 2 * h, 0.0]]])
+    from dataclasses import replace
+    chibi = replace(character, vertices=tall,
+                    skin_joints=np.concatenate([character.skin_joints, character.skin_joints[:1]]),
+                    skin_weights=np.concatenate([character.skin_weights, character.skin_weights[:1]]),
+                    primitive_ids=np.concatenate([character.primitive_ids, character.primitive_ids[:1]]))
+    got = _torso_slices(chibi, world, y0, 2 * h)
+    hip = np.mean([world[character.joint_names.index(n), 1] for n in ("thigh_l", "thigh_r")])
+    shoulder = np.mean([world[character.joint_names.index(n), 1] for n in ("upperarm_l", "upperarm_r")])
+    assert got["hips"] == pytest.approx(hip) and hip < got["waist"] < got["chest"] < shoulder
+    share = (got["chest"] - hip) / (shoulder - hip)
+    assert share == pytest.approx((SLICE_SHARES["chest"] - SLICE_SHARES["hips"]) / (SHOULDER_SHARE - SLICE_SHARES["hips"]))
+
+
 def _fk(character, clip):
     return forward_kinematics(character.parents, trs_to_matrix(clip.translations, clip.rotations, clip.scales))
 
