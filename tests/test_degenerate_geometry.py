@@ -422,3 +422,34 @@ def test_cross_sections_of_no_levels_is_one_line():
     assert _cross_sections(pts, axis, np.arange(-0.01, 0.011, 0.01), 0.0, True).shape == (3, 2)
     with pytest.raises(InputError, match="no levels"):
         _cross_sections(pts, axis, np.arange(0.02, 0.015, 0.01), 0.0, True)     # a 1.5 cm CesiumMan's skirt range
+
+
+@pytest.mark.parametrize("name", ["one point", "two points", "same x", "collinear", "duplicates", "tiny scale"])
+def test_body_cross_sections_of_degenerate_points(name):
+    """The placement's cross-section ellipses (also the garment measurements' girths) of degenerate
+    body points: finite, at least the 1 cm floor, never shrinking downwards for the hips."""
+    from stages.garments.placement import BodyAxis, _cross_sections
+    axis = BodyAxis(np.zeros(3), np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
+    pts = DEGENERATE[name]
+    levels = np.arange(-0.05, 0.3, 0.01)
+    ab = _cross_sections(pts, axis, levels, 0.005, True)
+    assert ab.shape == (levels.size, 2) and np.isfinite(ab).all() and (ab >= 0.015 - 1e-12).all()
+    assert (np.diff(ab, axis=0) <= 1e-12).all()
+
+
+def test_surface_samples_of_a_flat_hull():
+    """A collider of zero area (every vertex in one plane) gets samples on its faces, not a division by 0."""
+    from types import SimpleNamespace
+
+    from stages.coverage.measure import surface_samples
+    from stages.hulls.types import ConvexMesh
+    flat = ConvexMesh(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]]),
+                      np.array([[0, 1, 2], [1, 3, 2], [0, 2, 1], [1, 2, 3]], np.int32))
+    cs = SimpleNamespace(hulls=[SimpleNamespace(simplified=flat)], spheres=[])
+    pts, areas = surface_samples(cs, 0.1, np.random.default_rng(0))
+    assert areas[0] > 0 and pts[0].shape[0] >= 64 and np.isfinite(pts[0]).all()
+    zero = ConvexMesh(np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]]),
+                      np.array([[0, 1, 2], [1, 3, 2], [0, 2, 1], [1, 2, 3]], np.int32))
+    pts, areas = surface_samples(SimpleNamespace(hulls=[SimpleNamespace(simplified=zero)], spheres=[]), 0.1,
+                                 np.random.default_rng(0))
+    assert areas[0] == 0 and np.isfinite(pts[0]).all() and (pts[0][:, 1:] == 0).all()

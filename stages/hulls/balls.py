@@ -27,6 +27,11 @@ Fitting (`fit_balls`), over the check poses (about every CHECK_EVERY-th pose of 
   them CesiumMan's armpits and chest (18 unheld vertices on 4-8 cm triangles) stood up to 11.6 mm out
   of every collider, and its skin showed through the T-shirt.
 
+Bounded sizes: the candidates, the skin samples and the (ball, target) pairs grow with the flexible
+volume / area over the spacing (a body all flexible and metres wide). The spacing and the skin step grow
+beyond MAX_GRID / MAX_CANDIDATES / MAX_SKIN_SAMPLES (skin balls then reach the extra step farther), and
+more than MAX_PAIRS pairs is one InputError before they are searched.
+
 Measured by `python -m pipeline bench coverage` (60-frame walk, delta 1 cm, tiers 5 mm + 1 cm, rigid
 regions as hulls), coverage min / excess p95 / max / shell: built-in 99.80 % / 1.6 / 2.9 cm / 38 % (140
 balls), CesiumMan 99.91 % / 1.5 / 2.8 cm / 34 % (744), CMU BVH skin 99.98 % / 1.6 / 2.5 cm / 47 % (711).
