@@ -375,42 +375,40 @@ def bind_geometry(character, motion):
 
 MAX_DISTANCES = 16_000_000   # (collider, point) distances in one matrix at most (128 MB): RiggedSimple's 65,430
                              # balls times the 17,800 points of the crotch search went past 8 GB
+POINT_CHUNK = 50_000         # points tested at once, fewer for hulls of many faces (their plane distances are
+                             # (points, faces): RiggedSimple's swept hulls took 1 GB for 17,800 points)
 
 
 def near_colliders(bind, points: np.ndarray, gap: float) -> np.ndarray:
     """(N,) bool: points whose signed distance (types._signed_distance) to some collider of `bind`
-    is below `gap` (m). With many colliders (more than MAX_DISTANCES distances in all) each hull is
-    tested on its own and each sphere only on the points within its radius + gap of its centre
-    (plus a micrometre for rounding): the same answers without the (colliders, points) matrix."""
+    is below `gap` (m), POINT_CHUNK points at a time. With many colliders (more than MAX_DISTANCES
+    distances in all) each hull is tested on its own and each sphere only on the points within its
+    radius + gap (+ 1 um for rounding) of its centre: the matrix's answers without the matrix."""
     from scipy.spatial import cKDTree
 
     from stages.garments.types import _collider_distances, _colliders, _signed_distance
-    cs = bind.colliders if bind is not None else None
-    cols = _colliders(cs) if cs is not None else []
+    cols = _colliders(bind.colliders) if bind is not None and bind.colliders is not None else []
     p = np.asarray(points, np.float64).reshape(-1, 3)
+    faces = max([c.simplified.faces.shape[0] for _, _, c, _ in cols if hasattr(c, "simplified")], default=1)
+    step = max(1, min(POINT_CHUNK, MAX_DISTANCES // faces))
+    if p.shape[0] > step:
+        return np.concatenate([near_colliders(bind, p[a:a + step], gap) for a in range(0, len(p), step)])
     if not cols or p.shape[0] == 0:
         return np.zeros(p.shape[0], bool)
     if len(cols) * p.shape[0] <= MAX_DISTANCES:
         return _collider_distances(bind, p)[0].min(axis=0) < gap
     out = np.zeros(p.shape[0], bool)
     spheres = [(c, frame) for _, _, c, frame in cols if not hasattr(c, "simplified")]
-    for _, _, c, frame in cols:
-        if hasattr(c, "simplified"):
-            out |= _signed_distance(c, bind.collider_to_local(frame, p)) < gap
-    if not spheres:
-        return out
+    for c, frame in [(c, frame) for _, _, c, frame in cols if hasattr(c, "simplified")]:
+        out |= _signed_distance(c, bind.collider_to_local(frame, p)) < gap
     # each sphere's centre in the points' frame: collider_to_local is rigid, x_local = A x + b
     basis = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
-    centres = []
-    for c, frame in spheres:
-        q = bind.collider_to_local(frame, basis)
-        centres.append(np.linalg.solve((q[1:] - q[0]).T, c.center - q[0]))
+    centres = [np.linalg.solve((q[1:] - q[0]).T, c.center - q[0])
+               for c, q in ((c, bind.collider_to_local(frame, basis)) for c, frame in spheres)]
     radii = np.array([c.radius for c, _ in spheres])
-    tree = cKDTree(p)
-    near = tree.query_ball_point(np.array(centres), np.maximum(radii + gap + 1e-6, 0.0))
+    near = cKDTree(p).query_ball_point(np.array(centres).reshape(-1, 3), np.maximum(radii + gap + 1e-6, 0.0))
     for (c, frame), idx in zip(spheres, near):
         if idx:
-            idx = np.asarray(idx, np.int64)
             out[idx] |= _signed_distance(c, bind.collider_to_local(frame, p[idx])) < gap
     return out
 
