@@ -73,7 +73,7 @@ class Prepared:
 
 def run_pair(prepared: Prepared, scene) -> dict:
     """Dress, sew and simulate the scene's one garment on a prepared character; the pair's figures."""
-    from pipeline.run import ignored_colliders, sim_params
+    from pipeline.run import ignored_colliders, motion_substeps, sim_params
     from pipeline.dressing import build_scene_garments, garment_fits
     from stages.garments.fit import BODY_SHARE_MAX, FIT_GAP_MAX
     from stages.sim import simulate
@@ -87,7 +87,10 @@ def run_pair(prepared: Prepared, scene) -> dict:
         warnings.simplefilter("always")
         try:
             garments, builds = build_scene_garments(scene, p.character, p.motion, p.colliders, p.maps)
-            result = simulate(p.character, p.motion, p.colliders, p.maps, garments, sim_params(scene),
+            params, note = motion_substeps(scene, sim_params(scene), p.skinned, float(np.ptp(p.character.vertices[:, 1])))
+            if note:
+                warnings.warn(note, stacklevel=1)
+            result = simulate(p.character, p.motion, p.colliders, p.maps, garments, params,
                               ignore_colliders=ignored_colliders(scene, p.character))
         except (SceneError, InputError, ContractError, SimulationDiverged) as err:   # what `run` exits 2 on
             # the scene and garment are the row: keep what went wrong

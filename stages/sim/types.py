@@ -94,7 +94,8 @@ class SimParams:
     settle_frames: frames of the step at the frame-0 pose, heavily damped (SETTLE_DAMPING), before
         frame 0 is recorded, then the velocity zeroed: a sewn garment hangs under full gravity
         before the motion starts (sewing runs at a tiny gravity; without settling the garment
-        dropped ~2 cm at once between frames 0 and 1).
+        dropped ~2 cm at once between frames 0 and 1). Only when every garment is attached to the
+        body and there are no obstacles: a free cloth falls from where the scene puts it.
     """
 
     dt: float = 1.0 / 30.0
