@@ -117,12 +117,32 @@ def scene_pattern(scene: Scene, index: int, character, motion, colliders, under=
         raise SceneError(f"{_garment_where(scene, index, character)}: {err.problem}") from None
     try:
         below = np.concatenate([u.positions for u in under]) if len(under) else None
-        return library_pattern(g["kind"], garment_measurements(character, colliders, motion, under=below),
-                               edge_length=g["edge_length"], name=g["name"],
-                               **{k: float(v) for k, v in g["options"].items()})
+        pattern = library_pattern(g["kind"], garment_measurements(character, colliders, motion, under=below),
+                                  edge_length=g["edge_length"], name=g["name"],
+                                  **{k: float(v) for k, v in g["options"].items()})
     except (ContractError, InputError) as err:
         raise SceneError(f"{_garment_where(scene, index, character)}: the pattern cannot be sized for this body: "
                          f"{err}") from None
+    check_pattern_size(scene, index, character, pattern)
+    return pattern
+
+
+MAX_PATTERN_PARTICLES = 100_000   # ~10x the largest shipped garment; memory and time grow with it
+
+
+def check_pattern_size(scene: Scene, index: int, character, pattern) -> None:
+    """A pattern whose panels would mesh into more than MAX_PATTERN_PARTICLES particles at its edge
+    length (a body far larger than a person's, a tiny edge length) is one SceneError saying which
+    key to change, before any meshing (a skirt sized for a 9.5 m cylinder: half a million)."""
+    from stages.garments.patterns import polygon_area
+    area = sum(polygon_area(p.polyline(64)) for p in pattern.panels)
+    particles = area / (pattern.edge_length ** 2 * np.sqrt(3.0) / 4.0) / 2.0   # a triangle mesh: ~2 triangles a vertex
+    if particles > MAX_PATTERN_PARTICLES:
+        height = float(np.ptp(character.vertices[:, 1])) if len(character.vertices) else float("nan")
+        raise SceneError(f"{_garment_where(scene, index, character)}: the pattern sized for this body ({height:.2f} m "
+                         f"tall) would have about {particles:,.0f} particles at edge_length {pattern.edge_length} m "
+                         f"(at most {MAX_PATTERN_PARTICLES:,}); set a larger garments[{index}].edge_length, or "
+                         f"character.scale if the body's size is wrong")
 
 
 def place_scene_pattern(scene: Scene, index: int, character, motion, colliders):

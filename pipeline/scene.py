@@ -161,12 +161,12 @@ SCENE_SPEC = {
         "bind_pose": Field("str", None, "bvh: pose the skin is built and bound in (default neutral)",
                            choices=("neutral", "frame0", "rest")),
         "body": Field("section", {}, "built-in character / generated BVH skin sizes", fields={
-            "height": Field("float", 1.75, "m", lo=0.5, hi=3.0),
-            "chest": Field("float", 1.0, "girth scale", lo=0.3, hi=3.0),
-            "waist": Field("float", 1.0, "girth scale", lo=0.3, hi=3.0),
-            "hips": Field("float", 1.0, "girth scale", lo=0.3, hi=3.0),
-            "arms": Field("float", 1.0, "girth scale", lo=0.3, hi=3.0),
-            "legs": Field("float", 1.0, "girth scale", lo=0.3, hi=3.0),
+            "height": Field("float", 1.75, "m", lo=0.5, hi=2.5),
+            "chest": Field("float", 1.0, "girth scale", lo=0.5, hi=2.0),
+            "waist": Field("float", 1.0, "girth scale", lo=0.5, hi=2.0),
+            "hips": Field("float", 1.0, "girth scale", lo=0.5, hi=2.0),
+            "arms": Field("float", 1.0, "girth scale", lo=0.5, hi=2.0),
+            "legs": Field("float", 1.0, "girth scale", lo=0.5, hi=2.0),
         }),
     }),
     "frames": Field("section", {}, "which part of the clip to run", fields={

@@ -302,3 +302,17 @@ def test_cesium_man_stored_z_up_dresses_and_runs(assets_dir, tmp_path, monkeypat
     assert "up axis: file +Z (auto" in str(rows(tmp_path / "out.rrd", "rig/notes", "TextDocument:text")[0][1])
     # the clip's 2 frames after the blend-in from the T-pose (dressed there) into its first pose
     assert len(rows(tmp_path / "out.rrd", "sim/skirt/mesh", "Mesh3D:vertex_positions")) > 2
+
+
+def test_a_pattern_too_fine_for_its_body_is_one_line_before_meshing(tmp_path, monkeypatch, capsys):
+    """A long skirt cut at the smallest edge length on the tallest built-in body would mesh into
+    ~150,000 particles: refused with the key to change, before triangulating or sewing."""
+    scene = tmp_path / "fine.yaml"
+    scene.write_text("character: {source: procedural, clip: rest, body: {height: 2.5, hips: 2.0}}\n"
+                     "colliders: {report_every: 0}\n"
+                     "garments:\n  - {type: pattern, name: skirt, kind: long_skirt, edge_length: 0.005}\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(["validate", str(scene)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "fine.yaml" in err and "garments[0].edge_length" in err, err
+    assert "particles" in err and "at most 100,000" in err
