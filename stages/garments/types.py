@@ -545,10 +545,11 @@ def build_garment(name: str, positions, triangles, *, rest_positions=None, densi
 
 def _rest_from_triangles(tri, tri_rest, edges, bend, n):
     """Rest lengths of stretch and bend springs and triangle areas from per-triangle edge lengths."""
-    e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]])
+    # edge keys a * n + b in int64: in int32 they wrap above 46,340 particles
+    e = np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]).astype(np.int64)
     le = np.concatenate([tri_rest[:, 0], tri_rest[:, 1], tri_rest[:, 2]])
-    code = np.sort(e, axis=1) @ np.array([n, 1])
-    ecode = edges[:, 0] * n + edges[:, 1]
+    code = np.sort(e, axis=1) @ np.array([n, 1], np.int64)
+    ecode = edges[:, 0].astype(np.int64) * n + edges[:, 1]
     idx = np.searchsorted(ecode, code)
     stretch = np.bincount(idx, weights=le, minlength=len(edges)) / np.bincount(idx, minlength=len(edges))
     l0, l1, l2 = tri_rest[:, 0], tri_rest[:, 1], tri_rest[:, 2]

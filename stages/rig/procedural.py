@@ -279,7 +279,7 @@ def _torso_slices(character: Character, joints: np.ndarray, y0: float, h: float)
 def _girth(vertices, triangles, y, axis_xz):
     """Convex-hull perimeter of the cross-section loop at height y that encloses axis_xz (or the
     largest loop when none does)."""
-    from scipy.spatial import ConvexHull
+    from scipy.spatial import ConvexHull, QhullError
     from scipy.spatial import cKDTree
 
     d = vertices[:, 1] - y
@@ -316,7 +316,13 @@ def _girth(vertices, triangles, y, axis_xz):
             # sheets: Kenney's chibi body): Qhull refuses it; a tape around it measures twice its length
             per, inside = 2.0 * float(np.ptp(centred @ np.linalg.svd(centred)[2][0])), False
         else:
-            hull = ConvexHull(pts)
+            try:
+                hull = ConvexHull(pts)
+            except QhullError:   # nearly flat beyond the rank test's reach: measured as a flat loop
+                per, inside = 2.0 * float(np.ptp(centred @ np.linalg.svd(centred)[2][0])), False
+                if per > fallback_len:
+                    fallback_len = per
+                continue
             per = float(hull.area)  # in 2D, 'area' is the perimeter
             eq = hull.equations
             inside = np.all(eq[:, :2] @ axis_xz + eq[:, 2] <= 0)
