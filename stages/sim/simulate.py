@@ -360,11 +360,11 @@ def winding_number(vertices, triangles, points, *, exact: bool = False, beta: fl
     return out
 
 
-def settle(cloth, cols, m, prm, params, gravity, wind, fwd0, inv0, max_speed2, goff, flags, cc) -> None:
+def settle(cloth, cols, m, prm, params, gravity, wind, fwd0, inv0, max_speed2, goff, flags, cc) -> bool:
     """params.settle_frames frames of the step loop at the frame-0 pose (fwd0 / inv0 (J, 4, 4)) with
     the velocity damped by SETTLE_DAMPING per 1/30 s, not recorded; then xp = x (the garment starts
     at rest). cc: the cloth phase's state (ClothPhase.rest) or None. The other arguments are
-    run_frames'."""
+    run_frames'. False when the cloth diverged (the state left as it diverged)."""
     from stages.sim.types import REFERENCE_STEP, SETTLE_DAMPING
     ss, f = params.substeps, params.settle_frames
     damped = (prm[0], 1.0 - (1.0 - SETTLE_DAMPING) ** (params.step / REFERENCE_STEP)) + tuple(prm[2:])
@@ -377,8 +377,9 @@ def settle(cloth, cols, m, prm, params, gravity, wind, fwd0, inv0, max_speed2, g
                            np.zeros((f, n, 3), np.float32), np.zeros((f, g), np.int32), np.zeros((f, step.N_COUNTS)),
                            np.zeros(f, np.int64), flags, np.zeros(step.N_TIMERS, np.int64), cc)
     if done < f:
-        raise SimulationDiverged(0, np.zeros(0, np.int64), [], float("nan"))
+        return False
     cloth[1][:] = cloth[0]
+    return True
 
 
 # -- the stage ----------------------------------------------------------------------------------------
@@ -536,8 +537,9 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     # meets only frame by frame) falls from where the scene puts it
     worn = obstacles is None and all((g.attach_joint >= 0).any() or (g.inverse_mass == 0).any() for g in garments)
     if params.settle_frames and worn:
-        settle(cloth, cols, col.m, prm, params, gravity, wind, fwd0, inv_0, max2, sysm.goff, flags,
-               cphase.rest if cphase is not None else None)
+        if not settle(cloth, cols, col.m, prm, params, gravity, wind, fwd0, inv_0, max2, sysm.goff, flags,
+                      cphase.rest if cphase is not None else None):
+            raise diverged(0)
         if cphase is not None:
             cphase.settled[:] = cphase.counters
     collider_grid.collider_frames(fwd0, inv_0, inv_0, col.m, col.joint, col.kind, col.index, col.bcenter, col.bradius,
