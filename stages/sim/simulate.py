@@ -530,12 +530,13 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     # frame 0: the initial state; count particles starting inside a collider (no response)
     fwd0 = np.ascontiguousarray(motion.joint_world[0])
     inv_0 = np.ascontiguousarray(np.linalg.inv(fwd0))
-    if cphase is not None:   # garments that start interpenetrating: sorted by their layers before frame 0
-        cphase.settle(cloth, cols, col.m, prm, gravity, wind, fwd0, inv_0, ss, max2, sysm.goff, flags)
-    # worn garments (every one attached to the body) hang under full gravity at the frame-0 pose before
-    # frame 0; a free cloth (a sheet dropped on the character or on obstacles, which the step loop below
-    # meets only frame by frame) falls from where the scene puts it
+    # worn garments (every one attached to the body) are sorted by their layers and hang under full
+    # gravity at the frame-0 pose before frame 0; a free cloth (a sheet dropped on the character or on
+    # obstacles, which the step loop below meets only frame by frame) is recorded where the scene puts
+    # it, and sorted after frame 0
     worn = obstacles is None and all((g.attach_joint >= 0).any() or (g.inverse_mass == 0).any() for g in garments)
+    if cphase is not None and worn:   # garments that start interpenetrating: sorted by their layers
+        cphase.settle(cloth, cols, col.m, prm, gravity, wind, fwd0, inv_0, ss, max2, sysm.goff, flags)
     if params.settle_frames and worn:
         if not settle(cloth, cols, col.m, prm, params, gravity, wind, fwd0, inv_0, max2, sysm.goff, flags,
                       cphase.rest if cphase is not None else None):
@@ -550,6 +551,8 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     sysm.speed2[:] = 0.0
     step.record_frame(sysm.x, flags, np.inf, sysm.goff, rel[0], pen_col[0], counts[0])
     audit_frames(0, 1)
+    if cphase is not None and not worn:
+        cphase.settle(cloth, cols, col.m, prm, gravity, wind, fwd0, inv_0, ss, max2, sysm.goff, flags)
     if progress is not None:
         progress(1, nf)
 
