@@ -218,3 +218,29 @@ def test_aero_forces_held_over_a_time_span():
     blown = np.abs(a - c).max()
     assert blown > 0.02                                                     # the wind moves the cloth
     assert np.abs(a - b).max() < 0.05 * blown
+
+
+def test_worn_garment_settles_before_frame_0_and_a_blow_up_there_names_its_particles():
+    """settle_frames: an attached sheet hangs (damped, then at rest) before frame 0 is recorded; a
+    free one is recorded where it was put. Cloth that blows up while settling is a divergence at
+    frame 0 naming the particles (not an internal error)."""
+    from dataclasses import replace as dc_replace
+    from stages.garments.simple import rectangle_cloth
+    from stages.garments.types import attach_indices, bind_pose, build_garment
+    from stages.sim import SimParams, SimulationDiverged, simulate
+    from stages.sim.scenes import toy_character, toy_motion
+    x, t = rectangle_cloth(0.2, 0.2, 6, 6, center=(0.0, 1.0, 0.0), normal=(0.0, 1.0, 0.0))   # flat
+    ch = toy_character(np.zeros((0, 3)), np.zeros((0, 3), np.int32))
+    motion = toy_motion(3)
+    top = list(np.flatnonzero(x[:, 0] < x[:, 0].min() + 1e-9))     # held along one edge: it swings down
+    worn = build_garment("worn", x, t, attachments=[attach_indices(top)], bind=bind_pose(ch, motion))
+    free = build_garment("free", x, t)
+    p = SimParams(body_audit=False, substeps=4, settle_frames=5)
+    r = simulate(ch, motion, None, None, [worn], p)
+    r0 = simulate(ch, motion, None, None, [worn], dc_replace(p, settle_frames=0))
+    hang0, hang1 = r.garments[0].positions[0], r0.garments[0].positions[0]
+    assert hang0[:, 1].min() < hang1[:, 1].min() - 0.02        # it had swung down before frame 0
+    np.testing.assert_allclose(simulate(ch, motion, None, None, [free], p).garments[0].positions[0], x, atol=1e-6)
+    with pytest.raises(SimulationDiverged) as err:
+        simulate(ch, motion, None, None, [worn], dc_replace(p, max_speed=1e-3))
+    assert err.value.frame == 0 and err.value.particles.size > 0 and err.value.partial is None

@@ -496,7 +496,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     max2 = float(params.max_speed) ** 2
 
     def audit_frames(f0, f1):
-        if audit is None:
+        if audit is None or f1 <= f0:
             return
         t0 = time.perf_counter()
         verts = skin(character, body_motion, frames=list(range(f0, f1)))
