@@ -238,8 +238,15 @@ def body_measurements(character: Character) -> dict:
     root_xz = world[character.root_joint, [0, 2], 3]
     out = {"height": h}
     for key, y in _torso_slices(character, world[:, :3, 3], y0, h).items():
+        # a tape in a gap between meshes (a chibi's torso ends just above its leg joints) goes to the
+        # nearest height within 5 % of the body's where it meets the body
+        for dy in (0.0, *[s * k * 0.01 * h for k in range(1, 6) for s in (1, -1)]):
+            g = _girth(v, character.triangles, y + dy, root_xz)
+            if np.isfinite(g):
+                y += dy
+                break
         out[f"{key}_y"] = y
-        out[key] = _girth(v, character.triangles, y, root_xz)
+        out[key] = g
     from stages.rig.humanoid import limb_chain
     pos = world[:, :3, 3]
     for key, kind in (("arm_length", "arm"), ("leg_length", "leg")):
