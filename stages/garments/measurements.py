@@ -48,15 +48,16 @@ def garment_measurements(character, colliders=None, motion=None, *, clearance: f
             m[f"thigh_up_y_{side}"] = float(d[1] / np.linalg.norm(d))
             m[f"thigh_len_{side}"] = float(np.linalg.norm(d))
             m[f"shin_len_{side}"] = float(np.linalg.norm(lw[leg[2]] - lw[leg[1]]))
-    if arm is None and "arm_l" in humanoid_joints(character).points:
+    parts = humanoid_joints(character)
+    if arm is None and "arm_l" in parts.points:
         # an arm of one joint (a chibi's): its upper point, measured on the skeleton like a chain's
-        top = humanoid_joints(character).points["arm_l"][0]
+        top = parts.points["arm_l"][0]
         m["shoulder_y"] = float(top[1])
         m["shoulder_half"] = float(abs(top[0] - root[0]))
     m.setdefault("shoulder_y", y0 + 0.81 * h)
     m.setdefault("shoulder_half", 0.105 * h)
     m.setdefault("arm_girth", 0.21 * h)
-    neck = humanoid_joints(character).neck
+    neck = parts.neck
     m["neck_y"] = float(w[neck, 1]) if neck >= 0 else y0 + 0.82 * h
     m["floor_y"] = y0
     m.update(clearance_measurements(character, colliders, motion, clearance=clearance, under=under))

@@ -265,8 +265,8 @@ def _torso_slices(character: Character, joints: np.ndarray, y0: float, h: float)
     (SLICE_SHARES) unless they miss the torso the skeleton has: a chest tape 5 % of the height
     above the upper-arm joints, or a hips tape 10 % below or 20 % above the upper-leg joints (a
     chibi's or a child's hips and shoulders sit far lower in its height: Kenney's mini characters
-    have a head half their height, where the proportional slices cut). Then the slices go between the upper-leg joints
-    (hips) and the upper-arm joints, in the same ratios."""
+    have a head half their height, where the proportional slices cut). Then the slices go between
+    the upper-leg joints (hips) and the upper-arm joints, in the same ratios."""
     from stages.rig.humanoid import humanoid_joints
     shares = {k: y0 + f * h for k, f in SLICE_SHARES.items()}
     # each limb's upper point at rest: its upper joint, also on a limb of one joint (a chibi's)
@@ -317,22 +317,19 @@ def _girth(vertices, triangles, y, axis_xz):
         if len(pts) < 3:
             continue
         centred = pts - pts.mean(axis=0)
-        sv = np.linalg.svd(centred, compute_uv=False)
-        if sv[1] <= 1e-9 * max(sv[0], 1e-300):
-            # a loop flattened onto a line (a flat plate cut edge-on, a mesh with coincident
-            # sheets: Kenney's chibi body): Qhull refuses it; a tape around it measures twice its length
-            per, inside = 2.0 * float(np.ptp(centred @ np.linalg.svd(centred)[2][0])), False
-        else:
+        _, sv, axes = np.linalg.svd(centred, full_matrices=False)
+        # a loop flattened onto a line (a flat plate cut edge-on, a mesh with coincident sheets:
+        # Kenney's chibi body) is refused by Qhull; a tape around it measures twice its length
+        flat_length = 2.0 * float(np.ptp(centred @ axes[0]))
+        per, inside = flat_length, False
+        if sv[1] > 1e-9 * max(sv[0], 1e-300):
             try:
                 hull = ConvexHull(pts)
+                per = float(hull.area)  # in 2D, 'area' is the perimeter
+                eq = hull.equations
+                inside = np.all(eq[:, :2] @ axis_xz + eq[:, 2] <= 0)
             except QhullError:   # nearly flat beyond the rank test's reach: measured as a flat loop
-                per, inside = 2.0 * float(np.ptp(centred @ np.linalg.svd(centred)[2][0])), False
-                if per > fallback_len:
-                    fallback_len = per
-                continue
-            per = float(hull.area)  # in 2D, 'area' is the perimeter
-            eq = hull.equations
-            inside = np.all(eq[:, :2] @ axis_xz + eq[:, 2] <= 0)
+                pass
         if inside and per > best_len:
             best, best_len = c, per
         if per > fallback_len:

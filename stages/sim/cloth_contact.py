@@ -581,16 +581,9 @@ class ClothPhase:
         """SETTLE_FRAMES frames of the step loop at the frame-0 pose (fwd0 / inv0 (J, 4, 4)) with the
         sorting depth (`first`), not recorded; then xp = x (the sorting moves are not velocity). The
         other arguments are simulate()'s run_frames arguments."""
-        from stages.sim import step
-        k = self.settle_frames * substeps
-        fwd = np.ascontiguousarray(np.repeat(fwd0[None], k, axis=0))
-        inv = np.ascontiguousarray(np.repeat(inv0[None], k, axis=0))
-        z = np.zeros((k, 3))
-        f, n, g = self.settle_frames, cloth[0].shape[0], goff.size - 1
-        step.run_frames(cloth, cols, m, prm, gravity, wind, fwd, inv, inv, z, z, substeps, max_speed2, goff,
-                        np.zeros((f, n, 3), np.float32), np.zeros((f, g), np.int32), np.zeros((f, step.N_COUNTS)),
-                        np.zeros(f, np.int64), flags, np.zeros(step.N_TIMERS, np.int64), self.first)
-        cloth[1][:] = cloth[0]
+        from stages.sim.settle import hold_pose
+        hold_pose(cloth, cols, m, prm, self.settle_frames, gravity, wind, fwd0, inv0, substeps, max_speed2, goff,
+                  flags, self.first)
         self.settled[:] = self.counters
 
     def summary(self) -> dict:
