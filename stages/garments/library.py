@@ -297,7 +297,10 @@ def shorts(meas: dict, *, leg_length: float | None = None, ease: float = 0.2, hi
     band_top + WAIST_EASE (without colliders: waist + ease and clear_top), hem radius
     thigh_low_radius + leg_ease (see _pants)."""
     _need(meas, "height")
-    L = 0.12 * meas["height"] if leg_length is None else leg_length
+    # 12 % of the height below the crotch, at most half the way to the floor
+    crotch = (meas["crotch_y"] if "crotch_y" in meas else meas.get("hips_y", np.inf) - 0.05 * meas["height"]) \
+        - meas.get("floor_y", 0.0)
+    L = min(0.12 * meas["height"], 0.5 * crotch) if leg_length is None else leg_length
     r = meas.get("thigh_low_radius", 0.055 * meas["height"]) + leg_ease
     return _pants(meas, leg_length=L, hem_radius=r, ease=ease, hip_ease=hip_ease, crotch_drop=crotch_drop,
                   edge_length=edge_length, name=name)
@@ -323,7 +326,9 @@ def trousers(meas: dict, *, leg_length: float | None = None, ease: float = 0.2, 
 def cape(meas: dict, *, length: float | None = None, edge_length: float = 0.03, name: str = "cape") -> Pattern:
     _need(meas, "height", "shoulder_y", "shoulder_half")
     h = meas["height"]
-    L = 0.45 * h if length is None else length
+    # 45 % of the height, but at most 65 % of the way from its top to the floor (a chibi's shoulders
+    # are at 40 % of its height)
+    L = min(0.45 * h, 0.65 * (meas["shoulder_y"] + 0.03 * h - meas.get("floor_y", 0.0))) if length is None else length
     top = meas["shoulder_half"] + 0.02
     bottom = top + 0.25 * L
     edges = (line("hem", (bottom, 0.0)), line("side_l", (top, L)), line("top", (-top, L)), line("side_r", (-bottom, 0.0)))
@@ -352,7 +357,10 @@ def library_pattern(kind: str, measurements: dict, **overrides) -> Pattern:
         _need(measurements, "height", "waist_y")
         short = kind == "short_skirt"
         # a long skirt reaches 80 % of the way from where it is worn to the floor
-        kw = dict(length=0.25 * measurements["height"] if short else 0.8 * (waistband_y(measurements) - measurements.get("floor_y", 0.0)),
+        room = waistband_y(measurements) - measurements.get("floor_y", 0.0)
+        # a short skirt: a quarter of the height, but at most 45 % of the way to the floor (a chibi's
+        # legs are a quarter of its height); a long one 80 % of the way
+        kw = dict(length=min(0.25 * measurements["height"], 0.45 * room) if short else 0.8 * room,
                   flare=1.35 if short else 1.9, name="skirt" if short else "long_skirt")
         kw.update(overrides)
         return skirt(measurements, **kw)

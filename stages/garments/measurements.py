@@ -99,7 +99,7 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
         the other measures: a waistband is hugged over what is tucked under it (make_garment), and
         shorts cut round a T-shirt's tail were too wide to sew on the BVH walk.
     """
-    from stages.rig.humanoid import humanoid_joints, limb_chain, subtree
+    from stages.rig.humanoid import humanoid_joints, limb_chain, limb_joint_sets, subtree
     from stages.garments.placement import (_cross_sections, bind_geometry, body_axis,
                                            collider_points, frame_poses0, part_joints)
     from stages.rig.skinning import rest_motion
@@ -116,16 +116,14 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
     parents = np.asarray(character.parents)
     torso = np.isin(owner, list(part_joints(character, "torso", origins)))
     hips = np.isin(owner, list(part_joints(character, "hips", origins)))
-    leg_joints = set()
-    arm_sets = []
-    for side in ("l", "r"):
-        ch = limb_chain(character, "leg", side)
-        if ch is not None:
-            leg_joints |= set(subtree(parents, ch[0]))
-        ch = limb_chain(character, "arm", side)
-        if ch is not None:
-            arm_sets.append(ch)
-    neck_j = humanoid_joints(character).neck
+    limbs = limb_joint_sets(character)
+    leg_joints = limbs["leg_l"] | limbs["leg_r"]
+    arm_joints = limbs["arm_l"] | limbs["arm_r"]
+    parts = humanoid_joints(character)
+    # each arm's upper joint, of a chain or of a shorter arm (a chibi's single joint)
+    arm_upper = [(parts.limb("arm", s) or parts.short.get(f"arm_{s}"))[0] for s in ("l", "r")
+                 if parts.limb("arm", s) or parts.short.get(f"arm_{s}")]
+    neck_j = parts.neck
     headneck = subtree(parents, neck_j) if neck_j >= 0 else set()
     neckpts = np.isin(owner, list(headneck))
     legs = np.isin(owner, list(leg_joints))
@@ -155,9 +153,9 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
     out["neck_low"] = (float(pts[m, 1].min()) if m.any() else b["chest_y"] + 0.1 * b["height"]) - clearance
     out["neck_front"] = (float(rel[m, 2].max()) if m.any() else 0.03 * b["height"]) + clearance
     out["neck_back"] = (float(rel[m, 2].min()) if m.any() else -0.03 * b["height"]) - clearance
-    upper = (torso | np.isin(owner, [a[0] for a in arm_sets])) & ~neckpts & ~legs
-    if arm_sets:
-        sh = float(np.mean([abs(origins[a[0], 0] - root[0]) for a in arm_sets]))
+    upper = (torso | np.isin(owner, arm_upper)) & ~neckpts & ~legs
+    if arm_upper:
+        sh = float(np.mean([abs(origins[a, 0] - root[0]) for a in arm_upper]))
     else:
         sh = 0.105 * b["height"]
     # beside the neck (and its colliders) out to the shoulder joint, or 5 cm beyond the neck where
@@ -204,13 +202,12 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
                           if colliders is not None else None).reshape(ys.size, zs.size).any(axis=1)
     free = np.flatnonzero(~blocked)
     out["crotch_y"] = (float(ys[free[0]]) if free.size else b["hips_y"] - 0.05 * b["height"]) - clearance
-    arms = np.isin(owner, list(set().union(*[subtree(parents, a[0]) for a in arm_sets]))) if arm_sets else \
-        np.zeros(len(pts), bool)
+    arms = np.isin(owner, list(arm_joints))
     trunk = (torso | hips | legs) & ~neckpts & ~arms
     # skirt_top: the waist, or lower where the upper arms' colliders (CesiumMan's shoulder spheres)
     # come down beside the torso: a waistband there would be pushed about by them
     reach = out["clear_waist"] / (2 * np.pi) + clearance
-    upper_arms = np.isin(owner, [a[0] for a in arm_sets]) & (np.hypot(rel[:, 0], rel[:, 2]) <= reach)
+    upper_arms = np.isin(owner, arm_upper) & (np.hypot(rel[:, 0], rel[:, 2]) <= reach)
     top = b["waist_y"]
     if upper_arms.any():
         top = min(top, float(pts[upper_arms, 1].min()) - clearance)

@@ -21,7 +21,7 @@ import numpy as np
 from stages.errors import InputError
 from stages.garments.patterns import Pattern, Placement
 from stages.garments.triangulate import FlatPattern
-from stages.rig.humanoid import limb_chain, subtree
+from stages.rig.humanoid import limb_chain, limb_joint_sets, subtree
 
 SLAB = 0.03        # m, half height of the body slab measured for one cross-section level
 LEVEL_STEP = 0.01  # m, spacing of cross-section levels along the axis
@@ -46,11 +46,11 @@ def part_joints(character, part: str, joint_origins: np.ndarray) -> set:
     for c in np.flatnonzero(parents == root):
         if joint_origins[c, 1] < joint_origins[root, 1] - 1e-3:
             legs |= subtree(parents, int(c))
-    arms = set()
-    for side in ("l", "r"):
-        ch = limb_chain(character, "arm", side)
-        if ch is not None:
-            arms |= subtree(parents, ch[0])
+    # the limbs found by name or shape, also of one joint (a chibi's arm is not torso; its legs start
+    # at the root's height, not below it)
+    limbs = limb_joint_sets(character)
+    legs |= limbs["leg_l"] | limbs["leg_r"]
+    arms = limbs["arm_l"] | limbs["arm_r"]
     if part == "hips":
         return (legs | {root}) - arms
     if part == "torso":

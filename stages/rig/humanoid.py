@@ -472,3 +472,12 @@ def humanoid_joints(character) -> HumanoidJoints:
                        else "no joint above where the arms branch off")
     return HumanoidJoints(root, chains["arm_l"], chains["arm_r"], chains["leg_l"], chains["leg_r"], chest, neck, head,
                           tuple(character.joint_names), found, short, points, why)
+
+
+def limb_joint_sets(character) -> dict:
+    """part ('arm_l', 'arm_r', 'leg_l', 'leg_r') -> the set of joints whose skin is that limb: the
+    subtree of its upper joint, for a chain and for a limb of fewer joints alike (a chibi's one-joint
+    arm is still an arm: its skin is not the torso's). Empty where none is found."""
+    b = rest_body(character)
+    return {part: subtree(b.parents, joints[0]) if joints else set()
+            for part, (joints, *_rest) in find_limbs(character, b).items()}

@@ -1,0 +1,50 @@
+"""Built-in patterns on a chibi (Kenney's mini characters: a head half the height, one-joint arms and
+legs): sized from the torso, not from the arms beside it, and short enough to stay off the floor."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stages.garments.library import library_pattern, waistband_y
+from stages.garments.measurements import garment_measurements
+
+
+@pytest.fixture(scope="module", params=["kenney_mini_male_a.glb", "kenney_mini_female_b.glb"])
+def chibi(request, assets_dir):
+    path = assets_dir / request.param
+    if not path.is_file():
+        pytest.skip(f"{path} missing")
+    from stages.rig.gltf import load_gltf
+    return load_gltf(path)
+
+
+def test_a_one_joint_arm_is_not_torso(chibi):
+    from stages.rig.humanoid import limb_joint_sets
+    from stages.garments.placement import part_joints
+    from stages.rig.transforms import forward_kinematics
+    names = list(chibi.joint_names)
+    sets = limb_joint_sets(chibi)
+    assert sets["arm_l"] == {names.index("arm-left")} and sets["leg_r"] == {names.index("leg-right")}
+    origins = forward_kinematics(chibi.parents, chibi.rest_local)[:, :3, 3]
+    torso = part_joints(chibi, "torso", origins)
+    assert not torso & (sets["arm_l"] | sets["arm_r"] | sets["leg_l"] | sets["leg_r"])
+    assert names.index("leg-left") in part_joints(chibi, "hips", origins)
+
+
+def test_girths_are_the_torso_s(chibi):
+    m = garment_measurements(chibi)
+    # the torso box is about 0.30 x 0.25 m: girths round it, not round the arms held out beside it
+    # (with them: 1.75-1.79 m), and the hips with the legs (without: 0.05 m)
+    assert 0.8 < m["clear_chest"] < 1.2 and 0.8 < m["clear_waist"] < 1.2
+    assert 0.6 < m["clear_hips"] < 1.2
+
+
+@pytest.mark.parametrize("kind", ["short_skirt", "long_skirt", "cape"])
+def test_hems_stay_off_the_floor(chibi, kind):
+    # adult proportions (a short skirt a quarter of the height, a cape 45 %) reached 8 cm below a
+    # chibi's floor; now at most a share of the way from where the garment hangs to the floor
+    m = garment_measurements(chibi)
+    p = library_pattern(kind, m)
+    top = m["shoulder_y"] + 0.03 * m["height"] if kind == "cape" else waistband_y(m)
+    v = np.concatenate([np.asarray(e.points, float).reshape(-1, 2)[:, 1] for panel in p.panels for e in panel.edges])
+    assert np.ptp(v) < 0.85 * (top - m["floor_y"])
