@@ -73,7 +73,7 @@ class Prepared:
 
 def run_pair(prepared: Prepared, scene) -> dict:
     """Dress, sew and simulate the scene's one garment on a prepared character; the pair's figures."""
-    from pipeline.run import ignored_colliders, motion_substeps, sim_params
+    from pipeline.run import ignored_colliders, motion_speed_limit, motion_substeps, sim_params
     from pipeline.dressing import build_scene_garments, garment_fits
     from stages.garments.fit import BODY_SHARE_MAX, FIT_GAP_MAX
     from stages.sim import simulate
@@ -87,7 +87,9 @@ def run_pair(prepared: Prepared, scene) -> dict:
         warnings.simplefilter("always")
         try:
             garments, builds = build_scene_garments(scene, p.character, p.motion, p.colliders, p.maps)
-            params, note = motion_substeps(scene, sim_params(scene), p.skinned, float(np.ptp(p.character.vertices[:, 1])))
+            height = float(np.ptp(p.character.vertices[:, 1]))
+            params, note = motion_substeps(scene, sim_params(scene), p.skinned, height)
+            params = motion_speed_limit(scene, params, p.skinned, p.motion.root_translation, p.motion.times, height)
             if note:
                 warnings.warn(note, stacklevel=1)
             result = simulate(p.character, p.motion, p.colliders, p.maps, garments, params,

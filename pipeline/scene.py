@@ -232,12 +232,19 @@ SCENE_SPEC = {
         "pinch": Field("str", None, "midpoint | escape (preset; paper: escape): cloth pressed between the colliders of two "
                        "joints (an arm lowered onto the torso) stays in the middle of their overlap, or leaves their union",
                        choices=("midpoint", "escape")),
+        "entry_side": Field("bool", None, "on | off (preset: off): cloth a limb pushes past its middle in one "
+                            "step leaves the limb by the side it came in, not the far side (the paper's map "
+                            "response would wrap it round the limb)"),
         "cloth_thickness": Field("float", 0.003, "distance kept between cloth layers, m", lo=0.0, lo_open=True, hi=0.1),
         "cloth_contact_every": Field("int", None, "sub-steps per cloth collision call (the largest divisor of substeps "
                                      "up to it); the sub-steps between calls hold the pairs the last call found within "
                                      "two thicknesses (preset: 5). 1: a call every sub-step", lo=1, hi=1000),
         "settle_frames": Field("int", None, "frames the garments hang, damped, at the first frame's pose before "
                                "frame 0 is recorded (preset: 10; paper 0)", lo=0, hi=300),
+        "speed_limit": Field("float", None, "m/s: the cloth's speed (relative to the character's root) is capped "
+                             "at this at every sub-step, so that cloth a collider throws cannot fly off; null: "
+                             "from the clip (3 times its fastest skin speed plus twice the speed of a fall "
+                             "from the body's height; paper preset: none); 0: none", lo=0.0, hi=1e6),
         "body_audit": Field("bool", True, "count particles inside the true skinned mesh per frame"),
         "cloth_audit": Field("bool", True, "per frame edge strain and cloth edges crossing cloth triangles (sim/<garment>/strain, sim/intersections/...)"),
         "strain_colors": Field("bool", False, "colour the cloth meshes by per-vertex edge strain (blue 0 -> red 10 %)"),

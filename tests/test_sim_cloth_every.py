@@ -92,8 +92,8 @@ def test_bounded_projection_is_respond_where_every_particle_moves():
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     inv_mass = np.ones(n)      # all movable: no move exceeds its contact's depth, so the bound never binds
     a, b = x.copy(), x.copy()
-    respond(a, inv_mass, _contact_buffer(n, idx, w, d), m, 0.003)
-    respond(b, inv_mass, _contact_buffer(n, idx, w, d), m, 0.003, True)
+    respond(a, inv_mass, _contact_buffer(n, idx, w, d), m, 0.003, np.inf)
+    respond(b, inv_mass, _contact_buffer(n, idx, w, d), m, 0.003, 1.0)
     assert np.any(a != x)
     np.testing.assert_array_equal(a, b)
 
@@ -109,9 +109,11 @@ def test_a_held_contact_moves_no_particle_farther_than_its_depth():
     d = np.array([[0.0, 1.0, 0.0]])
     target = 0.003
     depth = target - 0.001
-    a, b = x.copy(), x.copy()
-    respond(a, inv_mass, _contact_buffer(4, idx, w, d), 1, target)
-    respond(b, inv_mass, _contact_buffer(4, idx, w, d), 1, target, True)
+    a, b, c = x.copy(), x.copy(), x.copy()
+    respond(a, inv_mass, _contact_buffer(4, idx, w, d), 1, target, np.inf)
+    respond(b, inv_mass, _contact_buffer(4, idx, w, d), 1, target, 1.0)
+    respond(c, inv_mass, _contact_buffer(4, idx, w, d), 1, target)     # a call's bound: 3 depths
     assert np.linalg.norm(a[3] - x[3]) > 50 * depth
     assert np.linalg.norm(b[3] - x[3]) == pytest.approx(depth)
+    assert np.linalg.norm(c[3] - x[3]) == pytest.approx(3 * depth)
     np.testing.assert_array_equal(b[:3], x[:3])

@@ -93,3 +93,42 @@ def test_integrate_is_the_reference_bit_for_bit(seed, n, t, use_aero, all_free):
             np.testing.assert_array_equal(xp, ref[1])
     finally:
         numba.set_num_threads(old)
+
+
+def _limit_speed_reference(x, xp, inv_mass, vh, h):
+    """Plain-Python limit_speed: (xp, limited, speed2)."""
+    xp = xp.copy()
+    limited = np.zeros(len(x), bool)
+    speed2 = np.zeros(len(x))
+    for i in range(len(x)):
+        if inv_mass[i] == 0.0:
+            continue
+        v = x[i] - xp[i]
+        if np.linalg.norm(v) > vh:
+            xp[i] = x[i] - v * (vh / np.linalg.norm(v))
+            limited[i] = True
+        speed2[i] = np.sum((x[i] - xp[i]) ** 2) / h ** 2
+    return xp, limited, speed2
+
+
+def test_limit_speed_caps_free_particles_as_the_reference_does():
+    from stages.sim.integrate import LIMITED, limit_speed
+    rng = np.random.default_rng(3)
+    n, h, vh = 200, 1.0 / 600.0, 0.01
+    x = rng.normal(size=(n, 3))
+    xp = x - rng.normal(scale=0.01, size=(n, 3))
+    inv_mass = np.where(rng.random(n) < 0.2, 0.0, 1.0)
+    want_xp, want_lim, want_s2 = _limit_speed_reference(x, xp, inv_mass, vh, h)
+    corrected = np.zeros(n, np.int32)
+    corrected[::3] = 1                       # a collider's mark is kept
+    speed2 = np.full(n, -1.0)
+    got = xp.copy()
+    limit_speed(x, got, inv_mass, vh, speed2, h, corrected)
+    np.testing.assert_allclose(got, want_xp, rtol=0, atol=1e-15)
+    assert want_lim.any() and (~want_lim & (inv_mass > 0)).any()
+    np.testing.assert_array_equal((corrected & LIMITED) != 0, want_lim)
+    np.testing.assert_array_equal(corrected & 1, (np.arange(n) % 3 == 0).astype(np.int32))
+    free = inv_mass > 0
+    np.testing.assert_allclose(speed2[free], want_s2[free], rtol=1e-12)
+    assert np.all(np.linalg.norm(x - got, axis=1)[free] <= vh * (1 + 1e-12))
+    np.testing.assert_array_equal(got[~free], xp[~free])      # pinned particles untouched

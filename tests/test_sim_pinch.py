@@ -3,6 +3,7 @@ stages.sim.body_collide.escape_union moves the particle out of the union instead
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings, strategies as st
 
 from stages.hulls.types import ColliderSet, SphereCollider
@@ -179,3 +180,60 @@ def test_pinch_on_the_axis_ends_in_the_middle_of_the_lens(r1, r2, overlap, where
                                  pinch=True)
     assert ins[0] == PINCHED and corr[0] == 1
     np.testing.assert_allclose(out[0], [(a + b) / 2, 0.0, 0.0], atol=1e-6 * max(1.0, d))
+
+
+def _cube_planes(half=1.0):
+    n = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], np.float64)
+    return np.ascontiguousarray(np.hstack([n, np.full((6, 1), half)])), np.array([0, 6], np.int64)
+
+
+def _entry_reference(inside, q, o, n=20001):
+    """The first point from q towards o (sampled) that is outside, or None when o is inside."""
+    if inside(o):
+        return None
+    ts = np.linspace(0.0, 1.0, n)
+    for t in ts:
+        p = q + t * (o - q)
+        if not inside(p):
+            return p
+    return None
+
+
+def test_entry_side_leaves_a_box_by_the_face_it_came_in_by():
+    from stages.sim.body_collide import _entry_side
+    planes, fs = _cube_planes()
+    rng = np.random.default_rng(5)
+    inside = lambda p: bool(np.all(np.abs(p) <= 1.0))     # noqa: E731
+    for _ in range(200):
+        q = rng.uniform(-0.99, 0.99, 3)
+        o = rng.uniform(-3, 3, 3)
+        found, r0, r1, r2, n0, n1, n2 = _entry_side(False, 0.0, fs, planes, 0, *q, *o)
+        ref = _entry_reference(inside, q, o)
+        assert found == (ref is not None)
+        if found:
+            np.testing.assert_allclose([r0, r1, r2], ref, atol=5e-4 * np.linalg.norm(o - q))
+            r = np.array([r0, r1, r2])
+            k = int(np.argmax(np.abs(r)))
+            want = np.zeros(3)
+            want[k] = np.sign(r[k])
+            np.testing.assert_allclose([n0, n1, n2], want)   # the face it is on
+    # cloth pushed past a thin limb's middle from below: out below (the map's centre-out ray: above)
+    found, r0, r1, r2, n0, n1, n2 = _entry_side(False, 0.0, fs, planes, 0, 0.0, 0.4, 0.0, 0.0, -3.0, 0.0)
+    assert found and r1 == pytest.approx(-1.0) and n1 == -1.0
+
+
+def test_entry_side_on_a_sphere():
+    from stages.sim.body_collide import _entry_side
+    planes, fs = _cube_planes()
+    rng = np.random.default_rng(6)
+    inside = lambda p: bool(p @ p <= 1.0)     # noqa: E731
+    for _ in range(200):
+        q = rng.normal(size=3)
+        q *= rng.uniform(0.0, 0.99) / np.linalg.norm(q)
+        o = rng.uniform(-3, 3, 3)
+        found, r0, r1, r2, n0, n1, n2 = _entry_side(True, 1.0, fs, planes, 0, *q, *o)
+        ref = _entry_reference(inside, q, o)
+        assert found == (ref is not None)
+        if found:
+            np.testing.assert_allclose([r0, r1, r2], ref, atol=5e-4 * np.linalg.norm(o - q))
+            np.testing.assert_allclose([n0, n1, n2], np.array([r0, r1, r2]) / np.linalg.norm([r0, r1, r2]))

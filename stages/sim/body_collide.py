@@ -150,6 +150,48 @@ EDGE_EPS = 1e-12     # m: slack of the exit-face containment test (rounding is ~
 
 
 @njit(cache=True, _nrt=False, forceinline=True)
+def _entry_side(sphere, rad, face_start, planes, idx, q0, q1, q2, o0, o1, o2):
+    """(found, r0, r1, r2, n0, n1, n2): where the query-frame point q, inside the convex collider,
+    leaves it going back towards o (the particle's start-of-step position in the collider's frame),
+    with the outward normal there; found False when o is not outside the collider along that path
+    (the particle did not come in through it). The side it came in by: a thin limb pressing cloth onto
+    the body takes a particle past its middle in one step, and the map's response (from the middle
+    out) then puts it on the limb's far side, the cloth wrapped round the limb (issue 38)."""
+    e0 = o0 - q0
+    e1 = o1 - q1
+    e2 = o2 - q2
+    dist = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+    if dist < 1e-12:
+        return False, q0, q1, q2, 0.0, 0.0, 0.0
+    e0 /= dist
+    e1 /= dist
+    e2 /= dist
+    if sphere:
+        b = q0 * e0 + q1 * e1 + q2 * e2
+        cc = q0 * q0 + q1 * q1 + q2 * q2 - rad * rad
+        t = -b + math.sqrt(max(b * b - cc, 0.0))
+        if not (0.0 <= t < dist):
+            return False, q0, q1, q2, 0.0, 0.0, 0.0
+        r0 = q0 + t * e0
+        r1 = q1 + t * e1
+        r2 = q2 + t * e2
+        k = 1.0 / max(math.sqrt(r0 * r0 + r1 * r1 + r2 * r2), 1e-300)
+        return True, r0, r1, r2, r0 * k, r1 * k, r2 * k
+    t = np.inf
+    best = -1
+    for f in range(face_start[idx], face_start[idx + 1]):
+        nd = planes[f, 0] * e0 + planes[f, 1] * e1 + planes[f, 2] * e2
+        if nd > 0.0:
+            tf = (planes[f, 3] - (planes[f, 0] * q0 + planes[f, 1] * q1 + planes[f, 2] * q2)) / nd
+            if tf < t:
+                t = tf
+                best = f
+    if best < 0 or not (0.0 <= t < dist):
+        return False, q0, q1, q2, 0.0, 0.0, 0.0
+    return True, q0 + t * e0, q1 + t * e1, q2 + t * e2, planes[best, 0], planes[best, 1], planes[best, 2]
+
+
+@njit(cache=True, _nrt=False, forceinline=True)
 def _cached_face(mkind, half, planes, face_edges, src_range, h, f, q0, q1, q2):
     """(known, inside, r0, r1, r2): the paper's hull query answered from one remembered face f.
 
@@ -361,7 +403,7 @@ SCREEN_MAX = 4      # collide screens every particle against every collider up t
 @serial_and_parallel(cache=True, _nrt=False)
 def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
             grid_start, grid_items, grid_box, grid_dims, face_edges, src_range, friction, passes, corrected, inside,
-            speed2, contact, h, col_joint, pinch):
+            speed2, contact, h, col_joint, pinch, entry):
     """Collision detection and response of every free particle against every collider.
 
     Per particle: the colliders listed in its grid cell (build_grid) whose world bounding sphere
@@ -376,7 +418,10 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
     (they press from opposite sides: an arm lowered onto the torso), it is pinched: it moves halfway
     along c's push, to the middle of their overlap (no friction, inelastic; inside[i] = PINCHED).
     Otherwise `escape_union` moves it to a point outside all of them (no friction, inelastic along
-    the escape). The response gets Coulomb friction relative to the collider: its tangential travel
+    the escape). With `entry` (bool), a push the map's response would make away from where the
+    particle came from (its start-of-step position in the collider's frame, o: (r - q) . (o - q) < 0)
+    goes instead to where the path back towards o leaves the collider, when o is outside it
+    (_entry_side): the cloth stays on the side of the limb it was on. The response gets Coulomb friction relative to the collider: its tangential travel
     over the step loses up to `friction` times the push's normal depth.
     corrected[i] |= 1 if the particle was pushed; inside[i] = 1 if it is still inside a collider at
     the end (PINCHED if pinched); speed2[i] = |x - xp|^2 / h^2 at the end (divergence check).
@@ -573,6 +618,16 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
                                     inside[i] = 1
                                 break
                         else:
+                            if entry:
+                                # the map pushes it away from where it came from: out the side it came in by
+                                o0, o1, o2 = apply12(tq0, c, xp[i, 0], xp[i, 1], xp[i, 2])
+                                if (r0 - q0) * (o0 - q0) + (r1 - q1) * (o1 - q1) + (r2 - q2) * (o2 - q2) < 0.0:
+                                    sph = col_kind[c] == KIND_SPHERE
+                                    found, s0, s1, s2, m0, m1, m2 = _entry_side(
+                                        sph, sph_radius[idx] if sph else 0.0, face_start, planes, idx,
+                                        q0, q1, q2, o0, o1, o2)
+                                    if found:
+                                        r0, r1, r2, n0, n1, n2 = s0, s1, s2, m0, m1, m2
                             pushed, wx, wy, wz = _push(c, q0, q1, q2, r0, r1, r2, n0, n1, n2, tq0, fq, xp, i, friction)
                             if pushed:
                                 px = wx
@@ -583,7 +638,7 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
                                 continue
                 streak += 1
             if last >= 0:
-                corrected[i] = 1
+                corrected[i] |= 1
                 x[i, 0] = px
                 x[i, 1] = py
                 x[i, 2] = pz

@@ -19,17 +19,19 @@ SETTLED = 0.25       # a round that finds no crossing and no pair closer than (1
 
 
 @njit(cache=True, _nrt=False)
-def respond(x, inv_mass, work, n, target, bounded=False):
+def respond(x, inv_mass, work, n, target, bound=3.0):
     """Project contacts 0..n-1 in buffer order (Gauss-Seidel): C = dir . sum_k w_k x_k - target;
     if C < 0 each particle moves by -C w_k inv_mass_k / sum_j w_j^2 inv_mass_j along dir.
 
-    bounded: no particle moves farther than -C, the contact's depth (the held contacts projected
-    between calls, stages.sim.step.cloth_phase). Where a contact's only movable particle has a small
-    weight (a triangle corner beside pinned ones) the projection moves it by depth / weight; a call's
-    rounds re-detect such a pair and its fail-safe bounds it, but a held contact keeps the last call's
-    direction and weights and is projected every sub-step: against a collider pushing the particle
-    back (CesiumMan's hand folding the skirt at the hip) it moved a corner 100 depths a sub-step until
-    the run diverged. Where every particle of a contact moves, none moves that far: no change."""
+    bound: no particle moves farther than `bound` times -C, the contact's depth. Where a contact's
+    only movable particle has a small weight (a triangle corner beside pinned ones) the projection
+    would move it by depth / weight: a held contact (projected every sub-step between calls with the
+    last call's direction and weights, stages.sim.step.cloth_phase, bound 1) against a collider
+    pushing the particle back (CesiumMan's hand folding the skirt at the hip) moved a corner 100
+    depths a sub-step until the run diverged; in a call, a Kenney chibi's skirt pressed by its arm
+    boxes threw corners tens of metres (a call's fail-safe only reverts what still crosses). Where
+    every particle of a contact moves, none moves farther than 3 depths (its largest weight is at
+    least 1/2, and the move is depth w_k / sum w_j^2): the calls' bound 3 changes nothing there."""
     moved, corrected, c_kind, c_feat, c_idx, c_w, c_dir = work
     for k in range(n):
         dx = c_dir[k, 0]
@@ -50,8 +52,7 @@ def respond(x, inv_mass, work, n, target, bounded=False):
             sc = lam * c_w[k, j] * inv_mass[i]
             if sc == 0.0:
                 continue
-            if bounded:
-                sc = min(max(sc, cval), -cval)
+            sc = min(max(sc, bound * cval), -bound * cval)
             x[i, 0] += sc * dx
             x[i, 1] += sc * dy
             x[i, 2] += sc * dz

@@ -218,6 +218,36 @@ def gather_forces(tri_force, vt_table, vertex_force):
                 vertex_force[i + lane, 2] = f[3 * lane + 2]
 
 
+LIMITED = 2    # limit_speed's mark in corrected[i] (bit 1; bit 0: pushed by a collider)
+
+
+@serial_and_parallel(cache=True, _nrt=False)
+def limit_speed(x, xp, inv_mass, vh, speed2, h, corrected):
+    """Cap the Verlet velocity (x - xp) / h of every free particle at vh / h (m/s, relative frame):
+    xp moves towards x, x stays. A particle a collider response or a pinch has thrown far in one
+    step (a chibi's arm box pressing the skirt onto its leg: 117 m/s, diverged) then carries no more
+    than the limit into the next step, and the springs pull it back. Marks corrected[i] |= LIMITED;
+    speed2[i] becomes |x - xp|^2 / h^2 after the cap (the step's final speed: collide's was taken
+    before the cloth phase)."""
+    vh2 = vh * vh
+    ih2 = 1.0 / (h * h)
+    for i in prange(x.shape[0]):
+        if inv_mass[i] == 0.0:
+            continue
+        v0 = x[i, 0] - xp[i, 0]
+        v1 = x[i, 1] - xp[i, 1]
+        v2 = x[i, 2] - xp[i, 2]
+        d2 = v0 * v0 + v1 * v1 + v2 * v2
+        if d2 > vh2:
+            k = vh / np.sqrt(d2)
+            xp[i, 0] = x[i, 0] - k * v0
+            xp[i, 1] = x[i, 1] - k * v1
+            xp[i, 2] = x[i, 2] - k * v2
+            corrected[i] |= LIMITED
+            d2 = vh2
+        speed2[i] = d2 * ih2
+
+
 def identity_table(n: int):
     """(N, 1) int32: vertex i lists row i (a `vt_table` over per-vertex force rows)."""
     return np.arange(n, dtype=np.int32).reshape(n, 1)

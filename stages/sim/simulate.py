@@ -461,12 +461,13 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     rel = np.zeros((nf, n, 3), np.float32)       # relative frame; root translation added at the end
     pen_col = np.zeros((nf, len(garments)), np.int32)
     pen_body = np.full((nf, len(garments)), -1, np.int32)
-    counts = np.zeros((nf, step.N_COUNTS))        # corrected particles, max speed^2, pinched particles
+    counts = np.zeros((nf, step.N_COUNTS))        # see step.record_frame
     step_cycles = np.zeros(nf, np.int64)
     n_obst = np.zeros(nf, np.int32)                                # obstacle contacts per frame
     obst_points = [np.zeros((0, 3), np.float32) for _ in range(nf)]
     prm = (h, params.step_damping(), s, k_drag, k_lift, float(params.friction), use_aero, int(params.iterations),
-           int(params.collision_passes), method, int(params.aero_steps()), params.pinch == "midpoint")
+           int(params.collision_passes), method, int(params.aero_steps()), params.pinch == "midpoint",
+           float(params.speed_limit) * h, bool(params.entry_side))
     cloth, cols, flags = sysm.cloth(), col.cols(), sysm.flags()
     # one thread: the serial kernels (compiled several times faster than the parallel ones)
     import numba
@@ -491,7 +492,8 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
         res = _result(garments, pos, pen_col, pen_body, counts[:, 0].astype(np.int32),
                       np.sqrt(counts[:, 1]), step_ms, motion.times, timings, timers, max(f_end - 1, 0) * ss,
                       params, notes, f_end)
-        return dataclasses.replace(res, pinched=counts[:f_end, 2].astype(np.int32), contacts_obstacles=n_obst[:f_end].copy(), contact_points=tuple(obst_points[:f_end]),
+        return dataclasses.replace(res, pinched=counts[:f_end, 2].astype(np.int32),
+                                   speed_limited=counts[:f_end, 3].astype(np.int32), contacts_obstacles=n_obst[:f_end].copy(), contact_points=tuple(obst_points[:f_end]),
                                    cloth_contact=cphase.summary() if cphase is not None else {})
 
     def diverged(f):

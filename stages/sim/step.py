@@ -23,7 +23,10 @@ Cloth-side argument tuples (built once by simulate.py, unpacked for free inside 
     cols  = (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
              tq, tq0, fq, cw, grid_start, grid_items, grid_runs, grid_box, grid_dims, face_edges, src_range, cws)
             cws (C, 5): the swept spheres of a frame's broad phase (collider_grid.swept_spheres)
-    prm   = (h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method, aero_every, pinch)
+    prm   = (h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method, aero_every, pinch,
+             speed_h, entry)
+            entry: SimParams.entry_side (body_collide.collide's `entry`).
+            speed_h: the speed limit times h (m per step; 0: no limit, see integrate.limit_speed).
             aero_every: steps per aerodynamic force computation (SimParams.aero_steps): the forces of
             step k with k % aero_every == 0 are held over the next aero_every steps, summed per vertex
             into vertex_force (N + 1, 4) once (integrate then reads it through vt_eye, (N, 1)).
@@ -49,7 +52,7 @@ from stages.sim.cloth_contact_kernels import PUSH_OVER, SWEEPS, collide_cloth, c
 from stages.maps.kernels import METHOD_NEAREST_PLANE
 from stages.sim.collider_grid import build_grid, collider_frames, swept_spheres
 from stages.sim.forces import aero_forces
-from stages.sim.integrate import gather_forces, integrate
+from stages.sim.integrate import LIMITED, gather_forces, integrate, limit_speed
 from stages.sim.simd import cycles
 from stages.sim.springs import correct_springs
 
@@ -87,7 +90,7 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
      tri_force, vt_table, x4, vertex_force, vt_eye) = cloth
     (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
      tq, tq0, fq, cw, grid_start, grid_items, grid_runs, grid_box, grid_dims, face_edges, src_range, cws) = cols
-    h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method, aero_every, pinch = prm
+    h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method, aero_every, pinch, speed_h, entry = prm
     corrected, inside, speed2, contact = flags
     for k in range(k0, k1):
         if cc is not None:
@@ -119,11 +122,13 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
                        grid_runs, grid_box, grid_dims)
         collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
                 grid_start, grid_items, grid_box, grid_dims, face_edges, src_range, friction, passes, corrected, inside,
-                speed2, contact, h, col_joint, pinch)
+                speed2, contact, h, col_joint, pinch, entry)
         t3 = cycles()
         if cc is not None:
             cloth_phase(x, xp, k, cc)
             timers[T_CLOTH] += cycles() - t3
+        if speed_h > 0.0:
+            limit_speed(x, xp, inv_mass, speed_h, speed2, h, corrected)
         timers[T_INTEGRATE] += t1 - t0
         timers[T_CONSTRAINTS] += t2 - t1
         timers[T_COLLISIONS] += t3 - t2
@@ -145,13 +150,13 @@ def cloth_phase(x, xp, k, cc):
     turned into Verlet velocity (contact_velocity: only the approach along it is dropped), and every
     step first projects the contacts the last call found (kept: a layer resting on another is held
     in the steps between calls instead of falling through the gap and being caught by the next),
-    no particle farther than its contact's depth (respond's `bounded`: a stale held contact whose
+    no particle farther than its contact's depth (respond's `bound` 1: a stale held contact whose
     only movable particle had a small weight diverged against a collider pushing it back)."""
     x_start, x_before, cinv, topo, tree, work, cprm, counters, every, keep = cc
     if every > 1 and keep[7][0] > 0:
         target = PUSH_OVER * cprm[0]
         for _ in range(SWEEPS):
-            respond(x, cinv, keep[:7], keep[7][0], target, True)
+            respond(x, cinv, keep[:7], keep[7][0], target, 1.0)
     if (k + 1) % every != 0:
         return
     if every == 1:
@@ -162,13 +167,14 @@ def cloth_phase(x, xp, k, cc):
         contact_velocity(x_before, x, xp, work[1])
 
 
-N_COUNTS = 3    # record_frame's counts per frame: corrected particles, max speed^2, pinched particles
+N_COUNTS = 4    # record_frame's counts per frame: corrected particles, max speed^2, pinched, speed-limited particles
 
 
 @njit(cache=True, _nrt=False)
 def record_frame(x, flags, max_speed2, goff, pos, pen, counts):
     """Store one frame: pos (N, 3) float32 <- x; pen (G,) particles inside a collider per garment
-    (garment g = goff[g]..goff[g+1]); counts = (corrected particles, max speed^2, pinched particles).
+    (garment g = goff[g]..goff[g+1]); counts = (particles a collider pushed, max speed^2, pinched
+    particles, particles whose speed was limited in the frame).
     Returns False (storing nothing) if a particle is non-finite or faster than sqrt(max_speed2)."""
     corrected, inside, speed2, _ = flags
     vmax = 0.0
@@ -179,6 +185,7 @@ def record_frame(x, flags, max_speed2, goff, pos, pen, counts):
         vmax = max(vmax, v)
     nc = 0
     n_pinched = 0
+    n_limited = 0
     for g in range(goff.size - 1):
         n_in = 0
         for i in range(goff[g], goff[g + 1]):
@@ -187,11 +194,13 @@ def record_frame(x, flags, max_speed2, goff, pos, pen, counts):
             pos[i, 2] = x[i, 2]
             n_in += inside[i] == 1
             n_pinched += inside[i] == PINCHED
-            nc += corrected[i]
+            nc += corrected[i] & 1
+            n_limited += (corrected[i] & LIMITED) != 0
         pen[g] = n_in
     counts[0] = nc
     counts[1] = vmax
     counts[2] = n_pinched
+    counts[3] = n_limited
     return True
 
 

@@ -74,7 +74,15 @@ class SimParams:
         6's rule, kept by the paper preset (its figures unchanged). Escaping a pinch drags the cloth
         around the arm (BVH walk, T-shirt tucked in the shorts, cloth collision on: p99 strain
         61.8 / 104.8 % at the last frame, 34,879 contacts reverted; 'midpoint': 33.1 / 30.6 %, 531).
+    entry_side: a particle that a collider's map would push out through the far side from where it
+        came (a thin limb pressing cloth onto the body takes it past the limb's middle in one step)
+        leaves by the side it came in instead (stages.sim.body_collide._entry_side). Off by default
+        (the paper's map response everywhere): measured on the shipped scenes it did not lower the
+        strain (BVH walk T-shirt mean p99 after the blend 43 -> 50 %, CesiumMan 25 -> 25 %).
     max_speed: m/s; a particle faster than this (or NaN / inf) stops the run as diverged.
+    speed_limit: m/s (relative frame), 0 = none: at the end of every step a free particle's Verlet
+        velocity is capped at this (stages.sim.integrate.limit_speed; counted per frame in
+        SimResult.speed_limited). The pipeline sets it from the clip (pipeline.run.motion_speed_limit).
     body_audit: count particles inside the true skinned mesh per frame (generalised winding number).
     cloth_collision: the cloth x cloth phase (garment-garment and self collision, stages.sim.cloth_contact)
         last in every step; garments keep the order of their layers (simulate's `layers`: sorted
@@ -117,7 +125,9 @@ class SimParams:
     hull_response: str = "ray"
     collision_passes: int = 4
     pinch: str = "midpoint"
+    entry_side: bool = False
     max_speed: float = 100.0
+    speed_limit: float = 0.0
     body_audit: bool = True
     cloth_collision: bool = False
     cloth_thickness: float = 0.003
@@ -154,6 +164,7 @@ class SimParams:
         rng("bend_stiffness", 0.0, 1.0)
         rng("thickness", 0.0, 1.0)
         rng("max_speed", 0.0, 1e6, lo_open=True)
+        rng("speed_limit", 0.0, 1e6)
         rng("cloth_thickness", 0.0, 0.1, lo_open=True)
         rng("cloth_layer_depth0", self.cloth_thickness, 1.0)
         if not (isinstance(self.settle_frames, (int, np.integer)) and not isinstance(self.settle_frames, (bool, np.bool_))
@@ -166,6 +177,8 @@ class SimParams:
             raise ContractError(f"{o}.pinch: expected one of {', '.join(PINCH_RULES)}, got {self.pinch!r}")
         if not isinstance(self.cloth_collision, (bool, np.bool_)):
             raise ContractError(f"{o}.cloth_collision: expected a bool, got {self.cloth_collision!r}")
+        if not isinstance(self.entry_side, (bool, np.bool_)):
+            raise ContractError(f"{o}.entry_side: expected a bool, got {self.entry_side!r}")
         if not isinstance(self.tethers, (bool, np.bool_)):
             raise ContractError(f"{o}.tethers: expected a bool, got {self.tethers!r}")
         if self.hull_response not in HULL_METHODS:
@@ -265,6 +278,7 @@ class SimResult:
     penetrations_body: (F,) int32, particles inside the true skinned character mesh at the frame
         (generalised winding number >= 0.5); -1 when the audit is off.
     corrected: (F,) int32, particles the collision response moved at least once during the frame.
+    speed_limited: (F,) int32, particles whose speed SimParams.speed_limit capped during the frame.
     pinched: (F,) int32, particles left in the middle of two joints' colliders pressing on them at
         the frame's last step (SimParams.pinch 'midpoint'; not in penetrations_colliders).
     max_speed: (F,) float64, m/s, the fastest particle at the end of the frame (relative frame).
@@ -299,6 +313,7 @@ class SimResult:
     contact_points: tuple = ()
     cloth_contact: dict = field(default_factory=dict)
     pinched: np.ndarray | None = None
+    speed_limited: np.ndarray | None = None
 
     def __post_init__(self):
         o = "SimResult"
@@ -308,11 +323,14 @@ class SimResult:
             object.__setattr__(self, "contacts_obstacles", np.zeros(f, np.int32))
         if self.pinched is None:
             object.__setattr__(self, "pinched", np.zeros(f, np.int32))
+        if self.speed_limited is None:
+            object.__setattr__(self, "speed_limited", np.zeros(f, np.int32))
         if not self.contact_points:
             object.__setattr__(self, "contact_points", tuple(np.zeros((0, 3), np.float32) for _ in range(f)))
         if len(self.contact_points) != f:
             raise ContractError(f"{o}.contact_points: {len(self.contact_points)} frames, expected {f}")
-        for name in ("penetrations_colliders", "penetrations_body", "corrected", "contacts_obstacles", "pinched"):
+        for name in ("penetrations_colliders", "penetrations_body", "corrected", "contacts_obstacles", "pinched",
+                     "speed_limited"):
             check_array(o, name, getattr(self, name), (f,), np.int32)
         check_array(o, "max_speed", self.max_speed, (f,), np.float64)
         check_array(o, "step_ms", self.step_ms, (f,), np.float64)
