@@ -69,6 +69,9 @@ def bone_mapping(character) -> dict:
         parts[part] = {"joints": None if j < 0 else [names[j]],
                        "found": "missing" if j < 0 else h.found.get(part, "shape") if part == "neck" else "shape",
                        "why": h.why.get(part, "")}
+    # a skirt's anchor: both legs, of any number of joints
+    parts["hips"] = {"joints": None if h.hips < 0 else [names[h.hips]],
+                     "found": "missing" if h.hips < 0 else "shape", "why": h._why("hips")}
     missing = {p for p, v in parts.items() if v["found"] == "missing"}
     needs = {kind: sorted(set(anchors) & missing) for kind, anchors in ANCHORS.items() if set(anchors) & missing}
     return {"parts": parts, "missing": sorted(missing), "garments_blocked": needs,

@@ -48,3 +48,16 @@ def test_hems_stay_off_the_floor(chibi, kind):
     top = m["shoulder_y"] + 0.03 * m["height"] if kind == "cape" else waistband_y(m)
     v = np.concatenate([np.asarray(e.points, float).reshape(-1, 2)[:, 1] for panel in p.panels for e in panel.edges])
     assert np.ptp(v) < 0.85 * (top - m["floor_y"])
+
+
+def test_skirts_need_legs_of_any_joint_count(chibi, assets_dir):
+    from stages.errors import InputError
+    from stages.garments.library import ANCHORS
+    from stages.rig.gltf import load_gltf
+    from stages.rig.humanoid import humanoid_joints
+    humanoid_joints(chibi).require(ANCHORS["short_skirt"], "garment 'skirt'")     # one-joint legs: hips found
+    cylinder = load_gltf(assets_dir / "RiggedSimple.glb")
+    with pytest.raises(InputError) as err:
+        humanoid_joints(cylinder).require(ANCHORS["long_skirt"], "garment 'skirt'")
+    msg = str(err.value)
+    assert "hips" in msg and "leg_l" in msg and "type: mesh" in msg and "\n" not in msg

@@ -393,13 +393,26 @@ class HumanoidJoints:
     def limb(self, kind: str, side: str):
         return getattr(self, f"{kind}_{side}")
 
+    @property
+    def hips(self) -> int:
+        """The root where both legs are found (chains or legs of fewer joints: a skirt hangs from
+        the hips over the legs, whatever their joints), else -1."""
+        legs = all(self.limb("leg", s) or self.short.get(f"leg_{s}") for s in ("l", "r"))
+        return self.root if legs else -1
+
+    def _why(self, part: str) -> str:
+        if part != "hips":
+            return self.why.get(part, "")
+        return "; ".join(f"leg_{s}: {self.why[f'leg_{s}']}" for s in ("l", "r")
+                         if not (self.limb("leg", s) or self.short.get(f"leg_{s}")) and self.why.get(f"leg_{s}"))
+
     def require(self, parts, what: str) -> None:
         """Raise one InputError naming `what` (e.g. "garment 'tshirt'") when a part is missing."""
         missing = [p for p in parts if (getattr(self, p) is None or getattr(self, p) == -1)]
         if not missing:
             return
         # what was looked for, for the parts not found at all (a short limb was found: its reason says it)
-        kinds = sorted({p.split("_")[0] for p in missing if p not in self.short})
+        kinds = sorted({"leg" if p == "hips" else p.split("_")[0] for p in missing if p not in self.short})
         looked = []
         for kind in kinds:
             if kind in ("arm", "leg"):
@@ -411,12 +424,13 @@ class HumanoidJoints:
         # one reason per distinct text: "arm_l, arm_r: ..." (the line stays short enough to print whole)
         whys: dict = {}
         for p in missing:
-            if self.why.get(p):
-                whys.setdefault(self.why[p], []).append(p)
+            if self._why(p):
+                whys.setdefault(self._why(p), []).append(p)
         why = "; ".join(f"{', '.join(ps)}: {w}" for w, ps in whys.items())
         raise InputError(what, f"cannot find the humanoid's {', '.join(missing)}" + (f" ({why})" if why else "")
                                + f"; the rig's joints: {', '.join(self.names)}"
-                               + (f"; looked for {'; '.join(looked)}" if looked else ""))
+                               + (f"; looked for {'; '.join(looked)}" if looked else "")
+                               + "; a character without them can wear mesh garments (type: mesh)")
 
 
 def humanoid_joints(character) -> HumanoidJoints:
