@@ -133,9 +133,14 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
     # distances, against the seam springs (a waistband placed a little stretched never closes).
     # Bend springs as stiff as the edges (not the simulation's 0.2): the panels wrap round the body
     # as stiff sheets; softer, CesiumMan's trousers were sewn with 5 edges through themselves.
+    # A garment without seams (a cape: its top pulled onto the neck) is sewn with self collision: its
+    # top gathering at the neck folded it through itself (CesiumMan 19, BVH 28 edges through the cape
+    # at frame 0, kept to the end, since the simulation keeps the crossings it starts with). With
+    # seams, the contacts would hold the two sides of every seam a thickness apart.
     sp = SimParams(dt=params.dt, substeps=params.substeps, iterations=params.iterations,
                    gravity=(0.0, -9.81 * params.gravity_scale, 0.0), damping=params.damping, drag=0.0, lift=0.0,
-                   friction=params.friction, body_audit=False, tethers=False, bend_stiffness=1.0)
+                   friction=params.friction, body_audit=False, tethers=False, bend_stiffness=1.0,
+                   cloth_collision=len(pairs) == 0)
     hold = hold_motion(motion, params.frames_per_iteration, params.dt)
     gaps = seam_gaps(x, pairs)
     gmax, gmean = [float(gaps.max(initial=0.0))], [float(gaps.mean()) if gaps.size else 0.0]
