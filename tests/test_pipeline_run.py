@@ -262,3 +262,27 @@ def test_swept_hulls_run_hold_the_cloth_and_are_logged(tmp_path):
     for h in hulls:
         assert f"/colliders/hulls/{h}/simplified" in paths
     assert "_flex" in str(rows(out, "colliders/report", "TextDocument:text")[0][1])
+
+
+def test_the_speed_limit_comes_from_the_clip_and_is_reported_where_it_acted():
+    from types import SimpleNamespace
+
+    from pipeline.run import motion_speed_limit, sim_params, speed_limit_note
+    scene = parse_scene_text("name: s\ncharacter: {source: procedural}\n")
+    times = np.arange(4) / 30.0
+    skinned = np.zeros((4, 2, 3))
+    skinned[:, 1, 0] = [0.0, 0.1, 0.2, 0.3]                 # a vertex moving 3 m/s relative to the root
+    root = np.zeros((4, 3))
+    root[:, 2] = np.arange(4) * 0.5                           # root motion (15 m/s) does not count
+    skinned += root[:, None, :]
+    p = motion_speed_limit(scene, sim_params(scene), skinned, root, times, 1.8)
+    assert p.speed_limit == pytest.approx(3 * 3.0 + 2 * np.sqrt(2 * 9.81 * 1.8))
+    paper = parse_scene_text("name: s\ncharacter: {source: procedural}\nsimulation: {preset: paper}\n")
+    assert motion_speed_limit(paper, sim_params(paper), skinned, root, times, 1.8).speed_limit == 0.0
+    given = parse_scene_text("name: s\ncharacter: {source: procedural}\nsimulation: {speed_limit: 4}\n")
+    assert motion_speed_limit(given, sim_params(given), skinned, root, times, 1.8).speed_limit == 4.0
+    quiet = SimpleNamespace(speed_limited=np.array([0, 0, 0], np.int32), params=p)
+    assert speed_limit_note(quiet) is None
+    hit = SimpleNamespace(speed_limited=np.array([5, 0, 3, 7, 0], np.int32), params=p)
+    note = speed_limit_note(hit)      # frame 0 (the initial state) is not counted
+    assert "2 frame(s)" in note and "frame 3 (7 particles)" in note
