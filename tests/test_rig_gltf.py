@@ -5,6 +5,7 @@ from __future__ import annotations
 import base64
 import json
 import struct
+from dataclasses import replace
 
 import numpy as np
 import pygltflib
@@ -287,7 +288,10 @@ def test_made_structure(made):
     assert c.triangles[10:].min() >= 12  # the second primitive's indices are offset
     assert not np.any(c.skin_joints == 3) or np.all(c.skin_weights[c.skin_joints == 3] == 0)  # helper unweighted
     (clip,) = c.clips
-    assert clip.name == "wave" and clip.interpolation == "linear" and clip.loop
+    # its last pose is not its first: played once and held (loop auto), said in the notes
+    assert clip.name == "wave" and clip.interpolation == "linear" and not clip.loop
+    assert any("played once" in n and "wave" in n for n in c.notes)
+    assert load_gltf(made / "made.glb", loop=True).clips[0].loop
     assert clip.times[0] == 0.0 and abs(clip.duration - 1.0) < 1e-6
     # STEP keys at 0.4 and 1.0 get a hold key 1 us before them; CUBICSPLINE adds dense samples
     assert np.any(np.abs(clip.times - (float(np.float32(0.4)) - 1e-6)) < 1e-12)
@@ -296,7 +300,7 @@ def test_made_structure(made):
 
 @pytest.mark.parametrize("name", ["made.glb", "made_embedded.gltf", "made_external.gltf"])
 def test_made_skinning_matches_independent_evaluator(made, name):
-    c = load_gltf(made / name)
+    c = load_gltf(made / name, loop=True)
     # the STEP key 0.4 is stored as float32; within 1 us before it the baked clip ramps (module doc)
     times = np.array([0.0, 0.1, 0.25, 0.39, float(np.float32(0.4)), 0.55, 0.7, 0.85, 0.999, 1.0, 1.3])  # 1.3: loop wraps
     m = sample_motion(c, "wave", times)
@@ -576,3 +580,18 @@ def test_skeleton_root_variants(tmp_path, variant, names):
     world = skin(c, m) + m.root_translation[:, None, :]
     for f, t in enumerate(times):
         np.testing.assert_allclose(world[f], ref_world_vertices(t, variant=variant), atol=2e-3, err_msg=f"t = {t}")
+
+
+@pytest.mark.assets
+def test_a_clip_loops_when_its_last_pose_meets_its_first(assets_dir):
+    # Kenney's 'die' ends lying down (72 % of the height from its first pose): looped, it jumped
+    # back up every third of a second and threw the cloth off; its walk and CesiumMan's are cycles
+    from stages.rig.gltf import cycles
+    k = load_gltf(assets_dir / "kenney_mini_male_a.glb")
+    loops = {c.name: c.loop for c in k.clips}
+    assert loops["walk"] and loops["idle"] and loops["sprint"] and not loops["die"]
+    assert load_gltf(assets_dir / "CesiumMan.glb").clips[0].loop
+    die = next(c for c in k.clips if c.name == "die")
+    assert cycles(k.parents, replace(die, translations=die.translations[:1].repeat(die.times.size, 0),
+                                     rotations=die.rotations[:1].repeat(die.times.size, 0),
+                                     scales=die.scales[:1].repeat(die.times.size, 0)), 0.67)   # a held pose loops

@@ -49,11 +49,15 @@ Animation baking (the `Clip` contract has one interpolation mode per clip):
   samples is within `cubic_tol` of the exact Hermite curve at the piece midpoints.
 Every baked key is the exact sampler value (`sample_gltf_channel`). Joints without a channel keep
 their rest TRS. Channels on nodes outside the skeleton and 'weights' (morph) channels are ignored.
-Clip times keep the file's times (usually starting at 0); `loop` sets every clip's loop flag.
+Clip times keep the file's times (usually starting at 0); `loop` sets every clip's loop flag, or
+None (auto, `cycles`): a clip loops when its last pose meets its first (a walk cycle), else it is
+played once and its last pose held (a fall, a 'die': looped, it jumped back up every third of a
+second and threw the cloth off).
 """
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -251,7 +255,7 @@ def _skin_rest(skin_m: np.ndarray, verts: np.ndarray, sj: np.ndarray, sw: np.nda
     return out
 
 
-def load_gltf(path, *, scale: float | None = None, up_axis: str = "auto", loop: bool = True,
+def load_gltf(path, *, scale: float | None = None, up_axis: str = "auto", loop: bool | None = None,
               cubic_rate: float = 60.0, cubic_tol: float = 1e-4) -> Character:
     """Load a skinned glTF 2.0 (.glb, or .gltf with external .bin / data URIs) as a Character.
 
@@ -268,7 +272,7 @@ def load_gltf(path, *, scale: float | None = None, up_axis: str = "auto", loop: 
     up_axis: which file axis is up: 'auto' (`gltf_nodes.detect_up`: the direction along which two
     limbs of the skinned rest pose hang side by side to the floor; +Y when no such pair), 'y' (the
     glTF convention, no rotation) or 'z' ((x, y, z) -> (x, z, -y)).
-    loop: the loop flag of every clip. cubic_rate (Hz) / cubic_tol: CUBICSPLINE baking (module doc).
+    loop: the loop flag of every clip; None: each clip's from `cycles`. cubic_rate (Hz) / cubic_tol: CUBICSPLINE baking (module doc).
     Every skinned mesh node (mesh + skin) contributes its triangle primitives; `primitive_ids`
     numbers them in file order. Skin weights keep the 8 strongest influences (K = 8 when any
     primitive has JOINTS_1, else K = 4), renormalised. `notes`: the up axis (first), the units
@@ -397,7 +401,14 @@ def load_gltf(path, *, scale: float | None = None, up_axis: str = "auto", loop: 
 
     root_joint = min(index_of[n] for n in skin_joint_nodes)
     try:
-        clips = _bake_clips(path, doc, rd, order, index_of, rest_trs, fold.convert_trs, loop, cubic_rate, cubic_tol)
+        clips = _bake_clips(path, doc, rd, order, index_of, rest_trs, fold.convert_trs, bool(loop), cubic_rate,
+                            cubic_tol)
+        if loop is None:
+            height = float(np.ptp(verts @ u[1, :3] + u[1, 3]))
+            clips = [replace(c, loop=cycles(parents, c, height)) for c in clips]
+            held = [c.name for c in clips if not c.loop]
+            if held:
+                notes.append(f"clips played once, their last pose held (it does not meet the first): {', '.join(held)}")
         return Character(
             name=path.stem,
             vertices=verts @ u[:3, :3].T + u[:3, 3],
@@ -416,6 +427,29 @@ def load_gltf(path, *, scale: float | None = None, up_axis: str = "auto", loop: 
         )
     except ValueError as e:  # a ContractError here means the file holds something we mis-read
         raise InputError(path, f"inconsistent content: {e}") from None
+
+
+# a clip is a cycle when its last pose is this close to its first (joint positions relative to the
+# root), as a share of the height or of the clip's largest step between keys, whichever is larger:
+# CesiumMan's walk ends 1.3 % of its height from its start (largest step 5.8 %); Kenney's 'die' 72 %
+# (21 %), its wheelchair look 3.9 % (0.8 %: a turn of the head that stays)
+CYCLE_GAP = 0.01
+CYCLE_STEPS = 1.5
+
+
+def cycles(parents, clip, height: float) -> bool:
+    """Whether the clip's last pose meets its first (a cycle that loops without a jump); height: the
+    character's, metres (the clip's units)."""
+    from stages.rig.transforms import forward_kinematics
+    if clip.times.size < 2 or not height > 0:
+        return True
+    keys = np.concatenate([np.arange(clip.times.size), [0]])
+    local = trs_to_matrix(clip.translations[keys], clip.rotations[keys], clip.scales[keys])
+    pos = np.stack([forward_kinematics(parents, m)[:, :3, 3] for m in local])
+    root = int(np.flatnonzero(np.asarray(parents) < 0)[0])
+    rel = pos - pos[:, root:root + 1]
+    steps = np.linalg.norm(np.diff(rel, axis=0), axis=2).max(axis=1)     # key to key, the last: back to the first
+    return bool(steps[-1] <= max(CYCLE_GAP * height, CYCLE_STEPS * steps[:-1].max(initial=0.0)))
 
 
 def _bake_clips(path, doc, rd, order, index_of, rest_trs, convert_trs, loop, cubic_rate, cubic_tol):
