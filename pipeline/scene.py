@@ -158,6 +158,8 @@ SCENE_SPEC = {
                        lo=0.0, lo_open=True, nullable=True),
         "up_axis": Field("str", "auto", "up axis of a glTF asset: auto (where two limbs of the skinned rest "
                          "pose hang down to the floor), y or z", choices=("auto", "y", "z")),
+        "loop": Field("bool", None, "glTF clips past their end: on (loop), off (hold the last pose), or null "
+                      "(default: loop when the clip's last pose meets its first, else hold)", nullable=True),
         "bind_pose": Field("str", None, "bvh: pose the skin is built and bound in (default neutral)",
                            choices=("neutral", "frame0", "rest")),
         "body": Field("section", {}, "built-in character / generated BVH skin sizes", fields={
