@@ -97,6 +97,13 @@ GARMENT.variants["pattern"] = {
         "iterations": Field("int", 16, "spring correction rounds while sewing", lo=1, hi=1000),
     }),
 }
+GARMENT.variants["garmentcode"] = {   # issue 39: a GarmentCode sewing pattern
+    **{k: _GARMENT_COMMON[k] for k in ("name", "density", "layer", "ignore_colliders")},
+    "path": Field("path", REQUIRED, "GarmentCode *_specification.json, relative to the scene file; the body it was "
+                  "made for: body_measurements.yaml beside it, else GarmentCode's default body (mean_all)"),
+    "edge_length": Field("float", 0.025, "target mean edge length of the flat panels, m", lo=0.005, hi=0.2),
+    "sewing": GARMENT.variants["pattern"]["sewing"],
+}
 GARMENT.variants["mesh"] = {
     **_GARMENT_COMMON,
     "path": Field("path", REQUIRED, "OBJ / PLY / GLB garment mesh, relative to the scene file"),
