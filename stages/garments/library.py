@@ -198,7 +198,9 @@ def skirt(meas: dict, *, length: float, flare: float, ease: float = 0.2, hip_eas
         hh = max(body + (0.06 if hip_ease is None else hip_ease), meas["clear_skirt"]) / 4
     else:
         hh = (body + (0.32 if hip_ease is None else hip_ease)) / 4
-    hem = max(hh * flare, hh)
+    # the flare, at most half the length wider than the hips on each half panel (a chibi's 16 cm
+    # long skirt flared from its 1.4 m hips was a disc 1.1 m across; adults' skirts stay below it)
+    hem = min(max(hh * flare, hh), hh + 0.5 * length)
     L = length
     below = L - dh
     hip_at = hh + (hem - hh) * 0.0
