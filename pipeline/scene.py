@@ -102,7 +102,11 @@ GARMENT.variants["garmentcode"] = {   # issue 39: a GarmentCode sewing pattern
     "path": Field("path", REQUIRED, "GarmentCode *_specification.json, relative to the scene file; the body it was "
                   "made for: body_measurements.yaml beside it, else GarmentCode's default body (mean_all)"),
     "edge_length": Field("float", 0.025, "target mean edge length of the flat panels, m", lo=0.005, hi=0.2),
-    "sewing": GARMENT.variants["pattern"]["sewing"],
+    "sewing": Field("section", {}, "sewing under micro-gravity", fields={
+        **GARMENT.variants["pattern"]["sewing"].fields,
+        # gathered seams of unequal sides need more rounds than the built-in patterns' (16: 5-12 mm left open)
+        "iterations": Field("int", 64, "spring correction rounds while sewing", lo=1, hi=1000),
+    }),
 }
 GARMENT.variants["mesh"] = {
     **_GARMENT_COMMON,
