@@ -197,6 +197,43 @@ class SewingError(SceneError):
         self.partial = partial
 
 
+def build_garmentcode_garment(scene: Scene, index: int, character, motion, colliders, maps, progress=None):
+    """A sewn garment from a GarmentCode pattern file (issue 39): (Garment, SewingLog, GarmentBuild);
+    a pattern made for another body warns how far its body is from the character's."""
+    import warnings
+
+    from stages.checks import ContractError
+    from stages.errors import InputError
+    from stages.garments.garmentcode import read_pattern
+    from stages.garments.garmentcode_place import body_of, make_gc_garment
+    from stages.garments.sewing import SewParams
+    g = scene["garments"][index]
+    where = f"{scene.path or '<scene>'}: garments[{index}] ({g['name']!r}, GarmentCode {g['path']}) on {character.name!r}"
+    try:
+        gc = read_pattern(g["path"])
+        body = body_of(g["path"])
+    except InputError as err:
+        raise SceneError(f"{scene.path or '<scene>'}: garments[{index}].path: {err}") from None
+    sw = g["sewing"]
+    sew = SewParams(tolerance=sw["tolerance"], max_iterations=sw["max_iterations"],
+                    gravity_scale=sw["gravity_scale"], iterations=sw["iterations"])
+    try:
+        garment, log, build, warn = make_gc_garment(gc, body, character, motion, colliders, maps,
+                                                    edge_length=g["edge_length"], name=g["name"], density=g["density"],
+                                                    sew_params=sew, ignore_joints=ignored_joints(g, character),
+                                                    progress=progress)
+    except (ContractError, InputError) as err:
+        raise SceneError(f"{where}: cannot place and sew the pattern: {err}") from None
+    if warn:
+        warnings.warn(warn, stacklevel=1)
+    if not log.converged:
+        seam, gap = build.worst_seam()
+        raise SewingError(f"{where}: sewing did not close seam {seam}: {gap * 1000:.1f} mm open after "
+                          f"{log.iterations} iterations (garments[{index}].sewing.tolerance {sw['tolerance'] * 1000:.1f} mm, "
+                          f"max_iterations {sw['max_iterations']})", partial=(garment, log, build))
+    return garment, log, build
+
+
 def placement_matrix(item: dict) -> np.ndarray:
     """(4, 4) transform of a mesh item's `rotate_deg` (XYZ Euler, degrees) then `translate`."""
     from scipy.spatial.transform import Rotation
@@ -293,6 +330,9 @@ def _build_scene_garment(scene: Scene, i: int, character, motion, colliders, map
     g = scene["garments"][i]
     if g["type"] == "pattern":
         garment, log, build = build_pattern_garment(scene, i, character, motion, colliders, maps, progress, under)
+        return garment, (log, build)
+    if g["type"] == "garmentcode":
+        garment, log, build = build_garmentcode_garment(scene, i, character, motion, colliders, maps, progress)
         return garment, (log, build)
     bind = bind_pose(character, motion, colliders)
     if g["type"] == "mesh":

@@ -1,0 +1,490 @@
+"""GarmentCode patterns on any character: the flat panels as this pipeline's `Pattern` (meshed with
+Triangle), their 3D placement on the pattern's body (GarmentCode's translation / rotation) mapped
+onto the character's bind pose from the two bodies' measurements, then sewn.
+
+The map (`BodyMap`): heights piecewise linear through matching landmarks (floor, hips, waist, bust,
+shoulders, top of the head); horizontal offsets from the body's vertical axis scaled by the ratio of
+the character's girth to the pattern body's at that height (hips, waist, bust); arm panels (label
+'arm') turned about the pattern body's shoulder point by the difference of the two arm angles and
+carried to the character's shoulder joint.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from stages.errors import InputError
+from stages.garments.garmentcode import GCPattern, edge_points
+from stages.garments.patterns import Edge, Panel, Pattern, PatternAttachment, Placement, Seam, SeamSide
+
+ASSETS_BODY = Path(__file__).resolve().parents[3] / "shared" / "assets" / "garmentcode" / "bodies" / "mean_all.yaml"
+BODY_KEYS = ("height", "head_l", "waist_line", "hips_line", "bust_line", "waist", "hips", "bust",
+             "shoulder_w", "arm_pose_angle")
+
+
+@dataclass(frozen=True)
+class GCBody:
+    """A GarmentCode body (body_measurements.yaml, cm and degrees), as metres and radians.
+
+    height: m. waist_y, hips_y, bust_y, shoulder_y: levels above the floor, m (shoulder_y: height -
+    head_l, the base of the neck). waist, hips, bust: girths, m. shoulder_half: half of shoulder_w,
+    m. arm_angle: arm_pose_angle, rad below the horizontal. values: every key of the file (cm, deg).
+    source: the file."""
+
+    height: float
+    waist_y: float
+    hips_y: float
+    bust_y: float
+    shoulder_y: float
+    waist: float
+    hips: float
+    bust: float
+    shoulder_half: float
+    arm_angle: float
+    values: dict
+    source: str
+
+
+def read_body(path) -> GCBody:
+    """A GarmentCode body_measurements.yaml (top key `body`); errors name the file and the key."""
+    src = str(path)
+    try:
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as e:
+        raise InputError(src, f"cannot read the body measurements ({e.__class__.__name__}: {e})") from None
+    body = data.get("body") if isinstance(data, dict) else None
+    if not isinstance(body, dict):
+        raise InputError(src, "body: expected a mapping of GarmentCode body measurements (cm, degrees)")
+    for k in BODY_KEYS:
+        v = body.get(k)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            raise InputError(src, f"body.{k}: expected a positive number (cm or degrees), got {v!r}")
+    b = {k: float(v) for k, v in body.items() if isinstance(v, (int, float))}
+    top = b["height"] - b["head_l"]
+    waist = top - b["waist_line"]
+    return GCBody(b["height"] / 100, waist / 100, (waist - b["hips_line"]) / 100, (top - b["bust_line"]) / 100,
+                  top / 100, b["waist"] / 100, b["hips"] / 100, b["bust"] / 100, b["shoulder_w"] / 200,
+                  math.radians(b["arm_pose_angle"]), b, src)
+
+
+def grade(gc: GCPattern, k: float, sy: float) -> GCPattern:
+    """The pattern graded to another body: the garment as placed on its body scaled by k across
+    (x, z) and sy up (y), each panel's outline by R^T diag(k, sy, k) R in its own plane (exact for
+    upright panels; tilted ones keep their in-plane part), its translation by diag(k, sy, k). Circle
+    arcs become the circles through their graded ends and midpoint."""
+    from dataclasses import replace as dc_replace
+
+    from stages.garments.garmentcode import arc_center
+    S = np.diag([k, sy, k])
+    panels = []
+    for p in gc.panels:
+        R = p.rotation
+        M = (R.T @ S @ R)[:2, :2]
+        f = lambda q: np.asarray(q, np.float64) @ M.T
+        verts = f(p.vertices)
+        edges = []
+        for e in p.edges:
+            if e.kind == "circle":
+                mid = f(edge_points(p, e, [0.5])[0])
+                a, b = verts[e.start], verts[e.end]
+                r = _circumradius(a, mid, b)
+                best = None
+                for large in (False, True):
+                    c, rr, sweep = arc_center(a, b, r, large, e.right)
+                    th = math.atan2(a[1] - c[1], a[0] - c[0]) + 0.5 * sweep
+                    d = np.linalg.norm(c + rr * np.array([math.cos(th), math.sin(th)]) - mid)
+                    if best is None or d < best[0]:
+                        best = (d, large)
+                edges.append(dc_replace(e, radius=r, large_arc=best[1]))
+            else:
+                edges.append(dc_replace(e, control=tuple(tuple(f(c)) for c in e.control)))
+        panels.append(dc_replace(p, vertices=verts, edges=tuple(edges), translation=S @ p.translation))
+    return dc_replace(gc, panels=tuple(panels))
+
+
+def _circumradius(a, b, c) -> float:
+    la, lb, lc = np.linalg.norm(b - c), np.linalg.norm(a - c), np.linalg.norm(a - b)
+    area2 = abs((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]))
+    return float(la * lb * lc / max(2 * area2, 1e-15)) if area2 > 1e-12 else 1e6
+
+
+def graded_body(body: GCBody, k: float, sy: float) -> GCBody:
+    from dataclasses import replace as dc_replace
+    return dc_replace(body, height=body.height * sy, waist_y=body.waist_y * sy, hips_y=body.hips_y * sy,
+                      bust_y=body.bust_y * sy, shoulder_y=body.shoulder_y * sy, waist=body.waist * k,
+                      hips=body.hips * k, bust=body.bust * k, shoulder_half=body.shoulder_half * k)
+
+
+def grading(gc: GCPattern, body: GCBody, meas: dict) -> tuple[float, float]:
+    """(k, sy): across, the largest ratio of the character's clearance girth (body and colliders,
+    measurements.clearance_measurements) to the pattern body's girth at the levels (hips, waist,
+    bust) its upright panels cover, so that a garment snug on its body closes over the character's
+    colliders; up, the ratio of the heights."""
+    ys = np.concatenate([p.to_3d(p.vertices)[:, 1] for p in gc.panels if panel_part(p) != "arm"] or [np.zeros(0)])
+    ratios = []
+    for y, key, girth in ((body.hips_y, "clear_hips", body.hips), (body.waist_y, "clear_waist", body.waist),
+                          (body.bust_y, "clear_chest", body.bust)):
+        if ys.size and ys.min() - 0.05 <= y <= ys.max() + 0.05 and key in meas:
+            ratios.append(meas[key] / girth)
+    k = max(ratios) if ratios else meas.get("clear_waist", body.waist) / body.waist
+    return float(k), float(meas["height"] / body.height)
+
+
+def body_of(spec_path) -> GCBody:
+    """The body a pattern was made for: body_measurements.yaml beside the spec, else GarmentCode's
+    default body (mean_all)."""
+    beside = Path(spec_path).parent / "body_measurements.yaml"
+    if beside.is_file():
+        return read_body(beside)
+    if not ASSETS_BODY.is_file():
+        raise InputError(str(spec_path), f"no body_measurements.yaml beside the pattern and no default body at {ASSETS_BODY}")
+    return read_body(ASSETS_BODY)
+
+
+def to_pattern(gc: GCPattern, edge_length: float, name: str, density: float = 0.2) -> tuple[Pattern, dict]:
+    """(Pattern, {panel: u sign}) of a GarmentCode pattern: panels as outlines of edges 'e0', 'e1', ...
+    (circle arcs through their midpoint), clockwise loops mirrored (u -> -u, the sign -1) so every
+    outline is counter-clockwise; stitches as seams (reversed unless right_wrong); edges labelled
+    lower_interface / collars held while sewing (attachments with sewing=True, pinned to their
+    nearest bone)."""
+    from stages.checks import ContractError
+    panels, signs = [], {}
+    for p in gc.panels:
+        s = 1.0 if p.ccw else -1.0
+        signs[p.name] = s
+        m = np.array([s, 1.0])
+        edges = []
+        for k, e in enumerate(p.edges):
+            end = tuple(p.vertices[e.end] * m)
+            if e.kind == "straight":
+                edges.append(Edge(f"e{k}", "line", (end,)))
+            elif e.kind == "circle":
+                mid = edge_points(p, e, [0.5])[0] * m
+                edges.append(Edge(f"e{k}", "arc", (tuple(mid), end)))
+            else:
+                kind = "quad" if e.kind == "quadratic" else "cubic"
+                edges.append(Edge(f"e{k}", kind, tuple(tuple(np.asarray(c) * m) for c in e.control) + (end,)))
+        try:   # patterns.Panel: edge k starts where edge k-1 ends (edge 0 where the last ends), as here
+            panels.append(Panel(p.name, tuple(edges), Placement("plane")))
+        except ContractError as err:
+            raise InputError(gc.source, f"pattern.panels.{p.name}: cannot be meshed: {err}") from None
+    seams = tuple(Seam(SeamSide(st.a[0], f"e{st.a[1]}"), SeamSide(st.b[0], f"e{st.b[1]}"), reverse=not st.right_wrong)
+                  for st in gc.stitches)
+    held = tuple(PatternAttachment(p.name, f"e{k}", sewing=True)
+                 for p in gc.panels for k, e in enumerate(p.edges) if e.label in ("lower_interface",))
+    try:
+        return Pattern(name, tuple(panels), seams, edge_length, held, density=density), signs
+    except ContractError as err:
+        raise InputError(gc.source, f"cannot be sewn: {err}") from None
+
+
+def stitch_lengths(gc: GCPattern) -> list[tuple[float, float]]:
+    """(length of side A, length of side B), m, of every stitch."""
+    from stages.garments.garmentcode import edge_length
+    return [tuple(edge_length(gc.panel(pn), gc.panel(pn).edges[k]) for pn, k in (st.a, st.b)) for st in gc.stitches]
+
+
+def panel_part(p) -> str:
+    """'arm', 'leg' or 'body': the panel's label, else guessed from its name (unlabelled files)."""
+    if p.label in ("arm", "leg", "body"):
+        return p.label
+    n = p.name.lower()
+    if any(w in n for w in ("sleeve", "cuff", "arm")):
+        return "arm"
+    if any(w in n for w in ("pant", "leg", "skirt")):
+        return "leg"
+    return "body"
+
+
+@dataclass(frozen=True)
+class BodyMap:
+    """From the pattern body's frame (m, GarmentCode) to the character's relative frame at frame 0.
+
+    src_y, dst_y: (K,) matching levels (ascending). src_girth_y, ratio: (3,) levels (pattern body)
+    and the character / pattern girth ratio there (hips, waist, bust). axis: (3,) the character's
+    vertical axis point (root x, z). arm_turn: rad, the character's arm angle minus the pattern
+    body's (positive: lower). shoulder_src: (2,) pattern body shoulder point (|x|, y), m;
+    shoulders_dst: {+1: (3,), -1: (3,)} the character's upper-arm joints (left +x, right -x)."""
+
+    src_y: np.ndarray
+    dst_y: np.ndarray
+    src_girth_y: np.ndarray
+    ratio: np.ndarray
+    axis: np.ndarray
+    arm_turn: float
+    shoulder_src: np.ndarray
+    shoulders_dst: dict
+
+    def y(self, y):
+        return np.interp(y, self.src_y, self.dst_y, left=None, right=None) + np.where(
+            y > self.src_y[-1], (y - self.src_y[-1]) * (self.dst_y[-1] - self.dst_y[-2]) / (self.src_y[-1] - self.src_y[-2]), 0.0)
+
+    def torso(self, p: np.ndarray) -> np.ndarray:
+        k = np.interp(p[:, 1], self.src_girth_y, self.ratio)
+        return np.c_[self.axis[0] + p[:, 0] * k, self.y(p[:, 1]), self.axis[2] + p[:, 2] * k]
+
+    def arm(self, p: np.ndarray, side: float) -> np.ndarray:
+        """Turn about the pattern shoulder (in the x-y plane) by arm_turn, then carry to the joint."""
+        c = np.array([side * self.shoulder_src[0], self.shoulder_src[1], 0.0])
+        a = -side * self.arm_turn
+        rot = np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
+        return (p - c) @ rot.T + self.shoulders_dst[side]
+
+
+def body_map(body: GCBody, meas: dict, character, origins: np.ndarray) -> BodyMap:
+    """The BodyMap from `body` to the character measured in `meas` (garment_measurements)."""
+    from stages.rig.humanoid import limb_chain
+    floor = meas.get("floor_y", 0.0)
+    top = floor + meas["height"]
+    sh = meas.get("shoulder_top", meas["shoulder_y"] + 0.03 * meas["height"])
+    src = [0.0, body.hips_y, body.waist_y, body.bust_y, body.shoulder_y, body.height]
+    dst = [floor, meas["hips_y"], meas["waist_y"], meas["chest_y"], sh, top]
+    keep = [0] + [i for i in range(1, 6) if dst[i] > dst[i - 1] + 1e-3 and src[i] > src[i - 1]]
+    src, dst = np.array(src)[keep], np.array(dst)[keep]
+    ratio = np.array([meas.get("clear_hips", meas["hips"]) / body.hips, meas.get("clear_waist", meas["waist"]) / body.waist,
+                      meas.get("clear_chest", meas["chest"]) / body.bust])
+    ratio = np.where(np.isfinite(ratio) & (ratio > 0), ratio, 1.0)
+    root = origins[character.root_joint]
+    shoulders = {}
+    for side, s in ((1.0, "l"), (-1.0, "r")):
+        chain = limb_chain(character, "arm", s)
+        shoulders[side] = (origins[chain[0]].copy() if chain else
+                           np.array([root[0] + side * meas["shoulder_half"], meas["shoulder_y"], root[2]]))
+    turn = meas.get("arm_angle", body.arm_angle) - body.arm_angle
+    return BodyMap(src, dst, np.array([body.hips_y, body.waist_y, body.bust_y]), ratio,
+                   np.array([root[0], 0.0, root[2]]), float(turn),
+                   np.array([body.shoulder_half + 0.02, body.shoulder_y - 0.04]), shoulders)
+
+
+def mismatch(body: GCBody, meas: dict) -> dict:
+    """{measure: (character, pattern body), m}: height and the girths, for the warning."""
+    return {"height": (meas["height"], body.height), "bust": (meas["chest"], body.bust),
+            "waist": (meas["waist"], body.waist), "hips": (meas["hips"], body.hips)}
+
+
+def mismatch_warning(body: GCBody, meas: dict, name: str, k: float = 1.0, sy: float = 1.0,
+                     tolerance: float = 0.05) -> str | None:
+    """One line when a measure differs by more than `tolerance` (share), else None."""
+    far = {m: (c, b) for m, (c, b) in mismatch(body, meas).items() if abs(c / b - 1.0) > tolerance}
+    if not far:
+        return None
+    parts = ", ".join(f"{m} {c * 100:.0f} cm vs {b * 100:.0f} cm ({(c / b - 1) * 100:+.0f} %)" for m, (c, b) in far.items())
+    return (f"garment {name!r}: the pattern was made for the body in {body.source}; this character differs: {parts} "
+            f"(character vs pattern body); dressed graded x{k:.3f} across and x{sy:.3f} up")
+
+
+WRAP_BIN = 0.02   # m: height bins of the wrap's ring widths
+
+
+MAX_APEX = 1.0   # m: a top arc of a larger radius (a waistband's slight curve) is wrapped as a cylinder
+MIN_SPAN = math.radians(45)   # a sector narrower than this (a curved waistband piece) too
+RING_DY = 0.03   # m: cone panels whose top edges are this close in height hang as one cone
+
+
+def cone_apex(p) -> tuple | None:
+    """(apex (2,) panel uv, angle the panel spans about it (rad), the top edge's height in the body
+    frame (m)) when the panel's top edge (the one
+    whose ends are highest in the body frame) is a circle arc whose centre lies above it (a circle or flare skirt's waist:
+    the panel is a sector of an annulus, made to hang as a cone), else None."""
+    from stages.garments.garmentcode import arc_center
+    top = max(range(len(p.edges)),   # the edge whose ends are highest
+              key=lambda k: float(p.to_3d(p.vertices[[p.edges[k].start, p.edges[k].end]])[:, 1].mean()))
+    e = p.edges[top]
+    if e.kind != "circle":
+        return None
+    c, r, _ = arc_center(p.vertices[e.start], p.vertices[e.end], e.radius, e.large_arc, e.right)
+    mid = edge_points(p, e, [0.5])[0]
+    if p.to_3d(c[None])[0, 1] <= p.to_3d(mid[None])[0, 1] + 1e-3:
+        return None
+    q = p.vertices - c
+    span = float(np.ptp(np.unwrap(np.arctan2(q[:, 1], q[:, 0]))))
+    if r > MAX_APEX or span < MIN_SPAN:
+        return None
+    return c, span, float(p.to_3d(p.vertices[[e.start, e.end]])[:, 1].mean())
+
+
+def _cone(p, uv: np.ndarray, apex: np.ndarray, full: float, top: float) -> np.ndarray:
+    """(N, 3) a sector panel's points hung as part of a cone round the body's axis: slant distance
+    from the apex kept, the sectors of all cone panels (`full` rad in all) closing the circle; the
+    waist edge stays at its placed height."""
+    R = p.rotation
+    down = (R.T @ np.array([0.0, -1.0, 0.0]))[:2]
+    down /= np.linalg.norm(down)
+    n = p.normal * np.array([1.0, 0.0, 1.0])
+    n /= np.linalg.norm(n)
+    t2 = (R.T @ np.array([n[2], 0.0, -n[0]]))[:2]
+    sign = 1.0 if down[0] * t2[1] - down[1] * t2[0] > 0 else -1.0
+    q = uv - apex
+    rho = np.linalg.norm(q, axis=1)
+    theta = np.arctan2(down[0] * q[:, 1] - down[1] * q[:, 0], q @ down)
+    share = min(full / (2 * np.pi), 0.95)
+    apex_y = top + rho.min() * math.sqrt(1 - share * share)
+    phi = math.atan2(n[0], n[2]) + sign * theta * (2 * np.pi / full)
+    r = rho * share
+    return np.c_[r * np.sin(phi), apex_y - rho * math.sqrt(1 - share * share), r * np.cos(phi)]
+
+
+def wrap_ring(gc: GCPattern, points: list, body: GCBody, uvs: list) -> list:
+    """The pattern-frame positions `points` (one (N, 3) array per panel) with every panel that stands
+    upright (horizontal normal, not an arm) bent round the body's vertical axis: at each height the
+    upright panels together make a ring whose circumference is the sum of their widths there (at
+    least the pattern body's girth + 6 cm), each panel keeping its lateral arc length and the side it
+    faces; heights are re-spaced from the waist up and down so that distances down a flaring panel
+    stay those of the flat panel (a flat circle-skirt panel held in a plane would have its waist seam
+    a deep arc away from the waistband's). GarmentCode's own placement leaves the panels flat in
+    front of and behind the body."""
+    up = []
+    for p, x in zip(gc.panels, points):
+        n = p.normal
+        up.append(panel_part(p) != "arm" and abs(n[1]) < 0.5 and len(x) > 0)
+    cones = {i: c for i, c in ((i, cone_apex(p)) for i, p in enumerate(gc.panels) if up[i]) if c is not None}
+    points = list(points)
+    if cones:
+        for i, (apex, _, top) in cones.items():
+            full = sum(c[1] for c in cones.values() if abs(c[2] - top) <= RING_DY)
+            points[i] = _cone(gc.panels[i], uvs[i], apex, full, top)
+            up[i] = False
+    if not any(up):
+        return points
+    ys = np.concatenate([x[:, 1] for x, u in zip(points, up) if u])
+    edges = np.arange(ys.min() - WRAP_BIN, ys.max() + 2 * WRAP_BIN, WRAP_BIN)
+    mid = 0.5 * (edges[:-1] + edges[1:])
+    width = np.zeros(mid.size)
+    lateral = []
+    for p, x, u in zip(gc.panels, points, up):
+        if not u:
+            lateral.append(None)
+            continue
+        n = p.normal * np.array([1.0, 0.0, 1.0])
+        n /= np.linalg.norm(n)
+        t = np.array([n[2], 0.0, -n[0]])          # the direction of growing angle round the axis
+        s = x @ t
+        lateral.append((n, t, s))
+        b = np.clip(np.digitize(x[:, 1], edges) - 1, 0, mid.size - 1)
+        w = np.zeros(mid.size)
+        lo, hi = np.full(mid.size, np.inf), np.full(mid.size, -np.inf)
+        np.minimum.at(lo, b, s)
+        np.maximum.at(hi, b, s)
+        have = np.isfinite(lo)
+        w[have] = hi[have] - lo[have]
+        if have.sum() >= 2:                          # fill bins between the panel's rows
+            k = np.flatnonzero(have)
+            inside = (np.arange(mid.size) > k[0]) & (np.arange(mid.size) < k[-1])
+            w[inside & ~have] = np.interp(mid[inside & ~have], mid[have], w[have])
+        width += w
+    girth = np.interp(mid, [body.hips_y, body.waist_y, body.bust_y], [body.hips, body.waist, body.bust])
+    rho = np.maximum(width, girth + 0.06) / (2 * np.pi)
+    # heights: the flat distance between bins kept along the ring's slant, from the waist out
+    Y = mid.copy()
+    w0 = int(np.clip(np.searchsorted(mid, body.waist_y), 0, mid.size - 1))
+    for k in range(w0 + 1, mid.size):
+        Y[k] = Y[k - 1] + math.sqrt(max(WRAP_BIN ** 2 - (rho[k] - rho[k - 1]) ** 2, 0.25 * WRAP_BIN ** 2))
+    for k in range(w0 - 1, -1, -1):
+        Y[k] = Y[k + 1] - math.sqrt(max(WRAP_BIN ** 2 - (rho[k] - rho[k + 1]) ** 2, 0.25 * WRAP_BIN ** 2))
+    out = []
+    for p, x, lat in zip(gc.panels, points, lateral):
+        if lat is None:
+            out.append(x)
+            continue
+        n, t, s = lat
+        r = np.interp(x[:, 1], mid, rho)
+        phi = math.atan2(n[0], n[2]) + s / r
+        out.append(np.c_[r * np.sin(phi), np.interp(x[:, 1], mid, Y), r * np.cos(phi)])
+    return out
+
+
+def place_gc(gc: GCPattern, flat, signs: dict, bmap: BodyMap, body: GCBody | None = None) -> np.ndarray:
+    """(N, 3) positions of the meshed panels (flat: FlatPattern of to_pattern's Pattern, same panel
+    order) in the character's relative frame at frame 0; with `body`, upright panels wrapped round
+    the body first (wrap_ring)."""
+    uvs = [fp.uv * np.array([signs[p.name], 1.0]) for p, fp in zip(gc.panels, flat.panels)]
+    pts = [p.to_3d(uv) for p, uv in zip(gc.panels, uvs)]
+    if body is not None:
+        pts = wrap_ring(gc, pts, body, uvs)
+    out = []
+    for p, x in zip(gc.panels, pts):
+        part = panel_part(p)
+        if part == "arm":
+            side = 1.0 if float(np.mean(x[:, 0])) >= 0 else -1.0
+            out.append(bmap.arm(x, side))
+        else:
+            out.append(bmap.torso(x))
+    return np.concatenate(out)
+
+
+HOLD_LABELS = {"lower_interface": "axis", "left_collar": "neck", "right_collar": "neck"}
+CLEARANCE = 0.01   # m: vertices placed inside the body are pushed this far out of the skin
+
+
+def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, maps, *, edge_length: float = 0.025,
+                    name: str | None = None, density: float = 0.2, sew_params=None, ignore_joints=(), progress=None):
+    """GarmentCode pattern -> sewn Garment on the character in the bind pose (frame 0 of `motion`).
+
+    Returns (Garment, SewingLog, GarmentBuild, warning or None). The panels are placed by the
+    pattern's own translation / rotation mapped onto the character (body_map); vertices inside the
+    body are pushed out; the edges GarmentCode attaches while simulating (lower_interface, the
+    collars) are brought onto the body (placement.hug: the waist seam to the body's axis, collars
+    to the neck) and held there while sewing (the middle half, seam vertices free); after sewing the
+    lower_interface edges stay pinned to their nearest bone (the waist holds a skirt up)."""
+    from stages.garments.library import GarmentBuild, hug_targets, seam_label
+    from stages.garments.measurements import garment_measurements
+    from stages.garments.placement import bind_geometry, hug, inside_body, push_out, respace
+    from stages.garments.sewing import SewParams, merged_mesh, seam_gaps, sew
+    from stages.garments.triangulate import run_vertices, triangulate_pattern
+    from stages.garments.types import attach_indices, bind_pose, build_garment
+
+    name = name or gc.name
+    meas = garment_measurements(character, colliders, motion)
+    k, sy = grading(gc, body, meas)
+    gc, body0, body = grade(gc, k, sy), body, graded_body(body, k, sy)
+    pattern, signs = to_pattern(gc, edge_length, name, density)
+    flat = triangulate_pattern(pattern)
+    tri, uv = flat.triangles, flat.uv
+    tri_rest = np.linalg.norm(uv[tri[:, [1, 2, 0]]] - uv[tri], axis=2)
+    skinned0, origins, _ = bind_geometry(character, motion)
+    pose = bind_pose(character, motion, colliders)
+    placed = place_gc(gc, flat, signs, body_map(body, meas, character, origins), body)
+    bad = inside_body(character, skinned0, placed)
+    if bad.any():
+        placed[bad] = push_out(placed[bad], character, skinned0, CLEARANCE)
+    held, waist = [], []
+    for p in gc.panels:
+        for k, e in enumerate(p.edges):
+            mode = HOLD_LABELS.get(e.label)
+            if mode is None:
+                continue
+            idx = run_vertices(pattern, flat, SeamSide(p.name, (f"e{k}",)))
+            placed[idx] = hug(placed[idx], hug_targets(character, origins, placed[idx], mode), character, skinned0, pose)
+            placed[idx] = respace(placed[idx], uv[idx])
+            held.append(idx)
+            if e.label == "lower_interface":
+                waist.append(idx)
+    seam_v = flat.seam_pairs.ravel()
+
+    def middle_half(idx):
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(uv[idx], axis=0), axis=1))])
+        f = s / max(s[-1], 1e-12)
+        return np.setdiff1d(idx[(f >= 0.25) & (f <= 0.75)], seam_v)
+
+    pins = [attach_indices(m, None) for m in (middle_half(i) for i in held) if m.size]
+    shift = np.concatenate([[0.0], np.cumsum([np.ptp(p.uv[:, 0]) + 0.1 for p in flat.panels])])[:-1]
+    flat3 = np.concatenate([np.c_[p.uv[:, 0] - p.uv[:, 0].min() + s, p.uv[:, 1], np.zeros(len(p.uv))]
+                            for p, s in zip(flat.panels, shift)])
+    sp = sew_params if sew_params is not None else SewParams()
+    sewn, log = sew(name, placed, tri, tri_rest, flat.seam_pairs, character, motion, colliders, maps, sp,
+                    density=density, flat_positions=flat3, pair_stage=None, pins=pins, bind=pose if pins else None,
+                    progress=progress)
+    pos, mtri, remap = merged_mesh(sewn, tri, flat.seam_pairs)
+    atts = [attach_indices(np.unique(remap[i]), None) for i in waist]
+    g = build_garment(name, pos, mtri, density=density, triangle_rest=tri_rest, attachments=atts,
+                      bind=pose if atts else None, ignore_joints=ignore_joints)
+    gaps = seam_gaps(sewn, flat.seam_pairs)
+    by_seam = {seam_label(s): float(gaps[flat.seam_index == k].max())
+               for k, s in enumerate(pattern.seams) if (flat.seam_index == k).any()}
+    fit = np.unique(remap[np.concatenate(held)]).astype(np.int64) if held else np.zeros(0, np.int64)
+    build = GarmentBuild(flat3, placed, tri, flat.seam_pairs, log, {}, fit, by_seam)
+    return g, log, build, mismatch_warning(body0, meas, name, k, sy)
