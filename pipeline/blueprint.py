@@ -196,7 +196,8 @@ def strain_contents(garments) -> list[str]:
 def scene_view(c: Contents, aspect: float) -> rrb.Spatial3DView:
     contents = ["+ /rig/mesh"]
     for g in c.garments:
-        contents += [f"+ /sim/{g}/mesh", f"+ /sim/{g}/attached"]
+        # body_cuts: where the body passes through the cloth (pipeline.body_report)
+        contents += [f"+ /sim/{g}/mesh", f"+ /sim/{g}/attached", f"+ /sim/{g}/body_cuts"]
     contents += [f"+ /obstacles/{o}/mesh" for o in c.obstacles]
     return rrb.Spatial3DView(name="scene", origin="/", contents=contents,
                              eye_controls=front_three_quarter(c.scene_box, c.forward, aspect=aspect).controls())

@@ -610,6 +610,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                     warnings.warn(w, stacklevel=1)
             summary.penetrations = logs.log_sim(rec, motion, garments, result, audit, held)
             summary.speeds = {k: summary.penetrations.pop(k) for k in list(summary.penetrations) if k.startswith("steps/s")}
+            from pipeline.body_report import audit_and_log   # issue 38: body edges through the cloth
+            audit_and_log(rec, scene, state, announce=say)
             step_ms = result.step_ms
             state["fits"] = garment_fits(character, motion, skinned, garments, builds, result,
                                          layers=dressing_layers(scene))
