@@ -10,7 +10,8 @@ built once, then each garment is built, sewn and simulated alone for `frames` fr
 A pair passes when: sewing converged (max seam gap <= the sewing tolerance), no particle inside a
 collider after frame 0, <= 0.5 % of the particles inside the true body at every frame after frame 0,
 the waistband / collar within 2 cm of the skin (median) after sewing, and every particle above the
-floor at every frame.
+floor at every frame. The body-mesh edges through the cloth (most in a frame after the blend-in,
+pipeline.body_report) are reported, not judged: the corpus check (`--corpus`) judges them.
 """
 from __future__ import annotations
 
@@ -102,7 +103,13 @@ def run_pair(prepared: Prepared, scene) -> dict:
     log, build = builds[g.name]
     fit = garment_fits(p.character, p.motion, p.skinned, garments, builds, result)[0]
     tol = scene["garments"][0]["sewing"]["tolerance"]
+    crossings = None
+    if params.body_audit:
+        from pipeline.body_report import blend_frames, body_audit, body_edges_max
+        audit = body_audit(p.character, p.motion, p.skinned, result, max(blend_frames(scene, p.character), 1))
+        crossings = body_edges_max(audit)
     r = {"status": "ok", "seam_gap_mm": float(log.gap_max[-1] * 1000), "sewn": bool(log.gap_max[-1] <= tol),
+         "body_edges": crossings,
          "in_colliders": int(result.penetrations_colliders[1:].max(initial=0)),
          "in_body_pct": float(np.nanmax(fit.body_share[1:], initial=0.0) * 100),
          "fit_gap_cm": fit.fit_gap_median * 100, "floor_cm": float(fit.floor_clearance.min() * 100),
@@ -154,17 +161,23 @@ def row_figures(r: dict) -> str:
     if "seam_gap_mm" not in r:
         return r["status"]
     return (f"{r['status']:<8} seam {r['seam_gap_mm']:.1f} mm, colliders {r['in_colliders']}, body {r['in_body_pct']:.2f} %, "
+            f"body edges through cloth {_count(r.get('body_edges'))}, "
             f"fit {r['fit_gap_cm']:.1f} cm, floor {r['floor_cm']:.0f} cm, {r['seconds']:.1f} s")
 
 
+def _count(v) -> str:
+    return "-" if v is None else str(v)
+
+
 def table(results: dict) -> str:
-    rows = ["| character | garment | status | seam gap (mm) | in colliders | in body (%) | fit gap (cm) | above floor (cm) | time (s) |",
-            "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    rows = ["| character | garment | status | seam gap (mm) | in colliders | in body (%) | body edges through cloth | "
+            "fit gap (cm) | above floor (cm) | time (s) |",
+            "| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for name, per in results.items():
         for kind, r in per.items():
             if "seam_gap_mm" not in r:
-                rows.append(f"| {name} | {kind} | {r['status']} | | | | | | |")
+                rows.append(f"| {name} | {kind} | {r['status']} | | | | | | | |")
                 continue
             rows.append(f"| {name} | {kind} | {r['status']} | {r['seam_gap_mm']:.1f} | {r['in_colliders']} | "
-                        f"{r['in_body_pct']:.2f} | {r['fit_gap_cm']:.1f} | {r['floor_cm']:.0f} | {r['seconds']:.1f} |")
+                        f"{r['in_body_pct']:.2f} | {_count(r.get('body_edges'))} | {r['fit_gap_cm']:.1f} | {r['floor_cm']:.0f} | {r['seconds']:.1f} |")
     return "\n".join(rows)

@@ -478,7 +478,7 @@ def summary_text(sw: Sweep, rows: list[dict]) -> str:
     """The table as a user reads it (markdown), then where the files are."""
     keys = [k for k in sw.keys if k not in COLUMNS]
     head = (["job"] + keys + ["status", "wall (s)", "frames/s", "in body", "in colliders", "strain mean / p99 (%)",
-                              "crossings self / between", "seam gap (mm)"])
+                              "crossings self / between", "body edges through cloth", "seam gap (mm)"])
     out = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
     for r in rows:
         status = "ok" if r["status"] == "ok" else f"{r['failure']}: {_one_line(r['message'] or '', 120)}"
@@ -488,7 +488,8 @@ def summary_text(sw: Sweep, rows: list[dict]) -> str:
                  if r["crossings_self_max"] is not None else "")
         cells = ([r["job"]] + [_fmt(r.get(k)) for k in keys]
                  + [status, _fmt(r["wall_s"], ".1f"), _fmt(r["frames_per_s"], ".1f"), _fmt(r["in_body_max"]),
-                    _fmt(r["in_colliders_max"]), strain, cross, _fmt(r["seam_gap_mm"], ".1f")])
+                    _fmt(r["in_colliders_max"]), strain, cross, _fmt(r.get("body_edges_max")),
+                    _fmt(r["seam_gap_mm"], ".1f")])
         out.append("| " + " | ".join(cells) + " |")
     ok = sum(r["status"] == "ok" for r in rows)
     failed = {}

@@ -233,3 +233,28 @@ def test_recorded_frames_equal_the_brute_force(recorded):
             assert got == brute_counts(c, ct, bs, bt)
             if any(shift):
                 assert got[0] > 0
+
+
+def test_tables_report_the_body_edges_and_only_the_corpus_judges_them():
+    """The sweep row's body_edges_max comes from the run's BodyCrossings (after the blend-in); the
+    corpus fails a pair on it, the dressing matrix shows it in a column without failing."""
+    from pipeline import corpus, matrix
+    from pipeline.sweep_job import COLUMNS, INT_COLUMNS, _metrics
+    cloth, ct = _sheet()
+    body, bt = _box([0.013, 0.55, 0.021], [0.047, 0.9, 0.066])
+    bodies = np.stack([body - [0.0, 0.1 * f, 0.0] for f in range(3)]).astype(np.float32)
+    track = GarmentTrack("sheet", ct, np.repeat(cloth[None], 3, axis=0), np.zeros(3, np.int32), np.zeros(3, np.int32))
+    audit = audit_body_crossings(_result([track], 3), BodyFrames(bodies, bt, np.zeros(8, np.int32), ("j",)),
+                                 first_frame=2)
+    assert "body_edges_max" in COLUMNS and "body_edges_max" in INT_COLUMNS
+    assert _metrics({"body_crossings": audit}, None)["body_edges_max"] == 8
+    ok = {"status": "ok", "particles": 1000, "in_body_max": 0, "crossings_self_max": 0, "crossings_between_max": 0,
+          "strain_p99_pct": 4.0, "body_edges_max": 0}
+    assert corpus.verdict(ok) == []
+    assert "8 body edges through the cloth" in corpus.verdict({**ok, "body_edges_max": 8})[0]
+    row = {**ok, "body_edges_max": 8, "character": "c", "pair": "p", "verdict": corpus.verdict({**ok, "body_edges_max": 8})}
+    assert "body edges through cloth" in corpus.table([row]).splitlines()[0]
+    r = {"status": "ok", "seam_gap_mm": 1.0, "in_colliders": 0, "in_body_pct": 0.1, "body_edges": 8, "fit_gap_cm": 0.5,
+         "floor_cm": 3.0, "seconds": 1.0}
+    text = matrix.table({"c": {"tshirt": r}})
+    assert "body edges through cloth" in text.splitlines()[0] and "| 0.10 | 8 |" in text
