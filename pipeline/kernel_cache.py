@@ -31,16 +31,20 @@ STAGE_PACKAGES = {
     "collider coverage": ("coverage",),
     "obstacles": ("obstacles",),
     # sewing runs the simulation, without the cloth audit or cloth collision
-    "garments": ("sim", "-sim/audit_kernels", "-sim/cloth_contact_kernels", "-sim/cloth_contact_ccd",
-                 "-sim/cloth_contact_pairs", "-sim/cloth_contact_cull", "-sim/cloth_contact_bench"),
-    "simulation": ("sim", "-sim/audit_kernels", "-sim/cloth_contact_kernels", "-sim/cloth_contact_ccd",
-                   "-sim/cloth_contact_pairs", "-sim/cloth_contact_cull", "-sim/cloth_contact_bench"),
+    "garments": ("sim", "-sim/audit_kernels", "-sim/body_audit_kernels", "-sim/cloth_contact_kernels",
+                 "-sim/cloth_contact_ccd", "-sim/cloth_contact_pairs", "-sim/cloth_contact_cull",
+                 "-sim/cloth_contact_bench"),
+    "simulation": ("sim", "-sim/audit_kernels", "-sim/body_audit_kernels", "-sim/cloth_contact_kernels",
+                   "-sim/cloth_contact_ccd", "-sim/cloth_contact_pairs", "-sim/cloth_contact_cull",
+                   "-sim/cloth_contact_bench"),
     "cloth collision": ("sim/cloth_contact_kernels", "sim/cloth_contact_ccd", "sim/cloth_contact_pairs",
                         "sim/cloth_contact_cull"),   # only scenes that turn it on
     "cloth audit": ("sim/audit_kernels",),
+    "body audit": ("sim/body_audit_kernels",),
 }
+# body audit: its one kernel on an empty cache, 2.6 s (1 thread) / 3.5 s (2), 2026-11-28 (issue 38)
 ESTIMATE_S = {"rig": 1, "colliders": 12, "collider coverage": 3, "obstacles": 5, "garments": 16,
-              "simulation": 5, "cloth audit": 4, "cloth collision": 29}
+              "simulation": 5, "cloth audit": 4, "cloth collision": 29, "body audit": 3}
 # the second process compiling sewing, simulation and cloth audit kernels (pipeline.kernel_warmup):
 # the coverage and simulation kernels, 22 s of CPU on a cold cache (the audit's 3 s more, compiled
 # while the run sews and simulates), 2026-11-23 (issue 19)

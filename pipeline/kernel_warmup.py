@@ -71,6 +71,12 @@ def warm_simulation(params, threads: int = 1, cloth_audit: bool = True, vertex_s
         if cloth_audit:
             from stages.sim.audit import audit_cloth
             audit_cloth(result, cloths, vertex_strain=vertex_strain)
+        if params.body_audit:   # the run's body audit (pipeline.body_report): a sheet stood through the cloth
+            from stages.sim.body_audit import BodyFrames, audit_body_crossings
+            x = result.garments[0].positions
+            body = (x[..., [0, 2, 1]] - x[..., [0, 2, 1]].mean(axis=1, keepdims=True) + x.mean(axis=1, keepdims=True))
+            audit_body_crossings(result, BodyFrames(body.astype(np.float32), result.garments[0].triangles,
+                                                    np.zeros(x.shape[1], np.int32), ("root",)))
 
 
 def warm_coverage(threads: int = 1) -> None:
