@@ -26,14 +26,14 @@ def test_every_stage_is_logged(default_run):
     scene, out, summary = default_run
     assert summary.output == out and out.is_file()
     assert [s.name for s in summary.stages] == ["rig", "colliders", "coverage", "maps", "garments", "simulation",
-                                                "cloth audit"]
+                                                "cloth audit", "body audit"]
     assert "converged" in summary.stages[4].sizes["skirt sewing"]
     paths = entity_paths(out)
     for p in ["/rig/mesh", "/rig/skeleton", "/rig/joints", "/rig/regions", "/colliders/report", "/maps/report",
               "/sim/skirt/mesh", "/sim/penetrations/colliders", "/sim/penetrations/body", "/sim/penetrations/pinched",
               "/timings/step_ms",
               "/timings/stages", "/meta/scene", "/meta/provenance", "/meta/summary", "/sim/params", "/sim/skirt/strain",
-              "/sim/intersections/skirt"]:
+              "/sim/intersections/skirt", "/sim/penetrations/body_edges/skirt", "/sim/skirt/body_cuts"]:
         assert p in paths, p
     hulls = {p.split("/")[3] for p in paths if p.startswith("/colliders/hulls/")}
     sizes = summary.stages[1].sizes
