@@ -453,11 +453,11 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
         placed[bad] = push_out(placed[bad], character, skinned0, CLEARANCE)
     held, waist = [], []
     for p in gc.panels:
-        for k, e in enumerate(p.edges):
+        for j, e in enumerate(p.edges):
             mode = HOLD_LABELS.get(e.label)
             if mode is None:
                 continue
-            idx = run_vertices(pattern, flat, SeamSide(p.name, (f"e{k}",)))
+            idx = run_vertices(pattern, flat, SeamSide(p.name, (f"e{j}",)))
             placed[idx] = hug(placed[idx], hug_targets(character, origins, placed[idx], mode), character, skinned0, pose)
             placed[idx] = respace(placed[idx], uv[idx])
             held.append(idx)
@@ -483,8 +483,8 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
     g = build_garment(name, pos, mtri, density=density, triangle_rest=tri_rest, attachments=atts,
                       bind=pose if atts else None, ignore_joints=ignore_joints)
     gaps = seam_gaps(sewn, flat.seam_pairs)
-    by_seam = {seam_label(s): float(gaps[flat.seam_index == k].max())
-               for k, s in enumerate(pattern.seams) if (flat.seam_index == k).any()}
+    by_seam = {seam_label(s): float(gaps[flat.seam_index == j].max())
+               for j, s in enumerate(pattern.seams) if (flat.seam_index == j).any()}
     fit = np.unique(remap[np.concatenate(held)]).astype(np.int64) if held else np.zeros(0, np.int64)
     build = GarmentBuild(flat3, placed, tri, flat.seam_pairs, log, {}, fit, by_seam)
     return g, log, build, mismatch_warning(body0, meas, name, k, sy)
