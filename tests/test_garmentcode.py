@@ -1,0 +1,213 @@
+"""GarmentCode patterns (issue 39): parsing, curve sampling, stitch pairing, the rotation convention,
+grading, the wrap round the body and the errors on bad files."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.integrate import quad
+
+from stages.errors import InputError
+from stages.garments.garmentcode import (GCEdge, GCPanel, arc_center, edge_length, edge_points, euler_xyz_to_R,
+                                         parse_pattern, read_pattern)
+from stages.garments.garmentcode_place import (ASSETS_BODY, cone_apex, grade, mismatch_warning, read_body,
+                                               stitch_lengths, to_pattern, wrap_ring)
+from stages.garments.triangulate import triangulate_pattern
+
+ASSETS = Path(__file__).resolve().parents[2] / "shared" / "assets" / "garmentcode"
+SPECS = sorted(ASSETS.glob("examples/*_specification.json")) + sorted(ASSETS.glob("sampled/*/*_specification.json"))
+needs_assets = pytest.mark.skipif(not SPECS, reason="GarmentCode assets not present")
+
+
+def _panel(verts, curvature=None, rotation=(0, 0, 0)):
+    """A GarmentCode panel JSON: a loop through `verts` (cm) whose first edge has `curvature`."""
+    n = len(verts)
+    edges = [{"endpoints": [i, (i + 1) % n]} for i in range(n)]
+    if curvature is not None:
+        edges[0]["curvature"] = curvature
+    return {"translation": [0, 100, 20], "rotation": list(rotation), "vertices": verts, "edges": edges}
+
+
+def _spec(panels, stitches=()):
+    return {"pattern": {"panels": panels, "stitches": list(stitches)},
+            "properties": {"curvature_coords": "relative", "units_in_meter": 100}}
+
+
+@needs_assets
+def test_every_shipped_pattern_parses_meshes_and_pairs_its_stitches():
+    assert len(SPECS) == 16
+    for f in SPECS:
+        gc = read_pattern(f)
+        pattern, signs = to_pattern(gc, 0.025, gc.name)
+        flat = triangulate_pattern(pattern)
+        assert len(flat.panels) == len(gc.panels) > 0
+        assert len(set(flat.seam_index.tolist())) == len(gc.stitches), f.name
+        uv = flat.uv
+        for k, st in enumerate(gc.stitches):
+            pairs = flat.seam_pairs[flat.seam_index == k]
+            # the two sides' vertices sit at the same share of each side's arc length (both sampled
+            # at equal arc length; measured here along the chords, within 1 % on curves)
+            fa, fb = (_arc_share(uv[pairs[:, m]]) for m in (0, 1))
+            assert np.allclose(fa, fb, atol=0.01), (f.name, k)
+            # default stitches pair A's start with B's end, right_wrong ones A's start with B's start
+            pa, pb = gc.panel(st.a[0]), gc.panel(st.b[0])
+            ea, eb = pa.edges[st.a[1]], pb.edges[st.b[1]]
+            a0 = pa.vertices[ea.start] * [signs[pa.name], 1]
+            b_end = pb.vertices[eb.start if st.right_wrong else eb.end] * [signs[pb.name], 1]
+            if st.a[0] == st.b[0] and ea.start == (eb.start if st.right_wrong else eb.end):
+                continue      # a dart: its tip is one vertex, no pair
+            ia, ib = _first_pair(flat, k)
+            assert np.allclose(uv[ia], a0, atol=1e-9) and np.allclose(uv[ib], b_end, atol=1e-9), (f.name, k)
+
+
+def _arc_share(p):
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    return s / s[-1]
+
+
+def _first_pair(flat, k):
+    """The global vertex indices of seam k's first pair (pairs of a seam are in side A's order)."""
+    i = int(np.flatnonzero(flat.seam_index == k)[0])
+    return flat.seam_pairs[i]
+
+
+@needs_assets
+def test_stitched_edges_of_plain_seams_have_equal_arc_length():
+    gc = read_pattern(ASSETS / "examples" / "flare_skirt_specification.json")
+    lengths = stitch_lengths(gc)
+    sides = [abs(a - b) for st, (a, b) in zip(gc.stitches, lengths) if st.a[0].startswith("skirt") and st.b[0].startswith("skirt")]
+    assert len(sides) == 2 and max(sides) < 1e-6        # the skirt's side seams: straight, equal
+    # the waist seam is gathered: the skirt's circle arc (r 17.9 cm through 32.5 cm of chord) is longer
+    wb, skirt = next(ls for st, ls in zip(gc.stitches, lengths) if st.a == ("wb_front", 1))
+    assert skirt == pytest.approx(0.17896188 * 2 * math.asin(0.33067 / (2 * 0.17896188)), rel=1e-3)
+    assert wb > skirt
+
+
+def test_circle_arc_against_the_circle():
+    # chord 2 m, radius 2 m: the small arc spans 60 degrees
+    for large, right in ((0, 1), (0, 0), (1, 1), (1, 0)):
+        gc = parse_pattern(_spec({"p": _panel([[0, 0], [200, 0], [200, -300], [0, -300]],
+                                              {"type": "circle", "params": [200, large, right]})}))
+        p = gc.panels[0]
+        e = p.edges[0]
+        angle = math.pi / 3 if not large else 2 * math.pi - math.pi / 3
+        assert edge_length(p, e, 4096) == pytest.approx(2.0 * angle, rel=1e-5)
+        pts = edge_points(p, e, np.linspace(0, 1, 101))
+        c, r, sweep = arc_center(p.vertices[0], p.vertices[1], 2.0, bool(large), bool(right))
+        assert np.allclose(np.linalg.norm(pts - c, axis=1), 2.0)
+        # right = 1: the arc bulges to the right of start -> end (here: below the chord, v < 0)
+        mid = pts[50]
+        sag = 2.0 - math.sqrt(3.0) if not large else 2.0 + math.sqrt(3.0)
+        assert mid[0] == pytest.approx(1.0) and mid[1] == pytest.approx(-sag if right else sag)
+
+
+def test_bezier_edges_against_their_polynomials():
+    # relative control points: x along start -> end, y along it turned +90 degrees
+    gc = parse_pattern(_spec({
+        "q": _panel([[0, 0], [200, 0], [200, -100], [0, -100]], {"type": "quadratic", "params": [[0.25, -0.5]]}),
+        "c": _panel([[0, 0], [200, 0], [200, -100], [0, -100]], {"type": "cubic", "params": [[0.2, 0.3], [0.7, -0.4]]}),
+    }))
+    q, c = gc.panel("q"), gc.panel("c")
+    assert np.allclose(q.edges[0].control[0], [0.5, -1.0])
+    assert np.allclose(c.edges[0].control, [[0.4, 0.6], [1.4, -0.8]])
+    a, b = np.array([0.0, 0.0]), np.array([2.0, 0.0])
+    k = np.array([0.5, -1.0])
+    dq = lambda t: np.linalg.norm(2 * (1 - t) * (k - a) + 2 * t * (b - k))
+    assert edge_length(q, q.edges[0], 4096) == pytest.approx(quad(dq, 0, 1)[0], rel=1e-5)
+    k1, k2 = np.array([0.4, 0.6]), np.array([1.4, -0.8])
+    dc = lambda t: np.linalg.norm(3 * (1 - t) ** 2 * (k1 - a) + 6 * (1 - t) * t * (k2 - k1) + 3 * t ** 2 * (b - k2))
+    assert edge_length(c, c.edges[0], 4096) == pytest.approx(quad(dc, 0, 1)[0], rel=1e-5)
+    assert np.allclose(edge_points(q, q.edges[0], [0.5])[0], 0.25 * a + 0.5 * k + 0.25 * b)
+
+
+def test_rotation_convention_on_a_panel_turned_about_each_axis():
+    u, v = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+    assert np.allclose(euler_xyz_to_R([90, 0, 0]) @ v, [0, 0, 1])
+    assert np.allclose(euler_xyz_to_R([0, 90, 0]) @ u, [0, 0, -1])
+    assert np.allclose(euler_xyz_to_R([0, 0, 90]) @ u, [0, 1, 0])
+    # R = Rz Ry Rx: x first, then y, then z (extrinsic), not scipy's intrinsic 'XYZ'
+    r = euler_xyz_to_R([90, 45, 0])
+    assert np.allclose(r, euler_xyz_to_R([0, 45, 0]) @ euler_xyz_to_R([90, 0, 0]))
+    gc = parse_pattern(_spec({"p": _panel([[0, 0], [100, 0], [100, 100], [0, 100]], rotation=[0, 180, 0])}))
+    p = gc.panels[0]
+    x = p.to_3d(np.array([[1.0, 0.0]]))[0]
+    assert np.allclose(x, [-1.0, 1.0, 0.2])             # a back panel: its u runs to the wearer's right
+    assert p.ccw and np.allclose(p.normal, [0, 0, -1])  # counter-clockwise: R (0, 0, 1), facing back
+
+
+def test_clockwise_panels_are_mirrored_for_meshing_and_keep_their_outside():
+    gc = parse_pattern(_spec({"p": _panel([[0, 0], [0, 100], [100, 100], [100, 0]])}))
+    p = gc.panels[0]
+    assert not p.ccw and np.allclose(p.normal, [0, 0, -1])
+    pattern, signs = to_pattern(gc, 0.1, "x")
+    assert signs["p"] == -1.0 and pattern.panels[0].area == pytest.approx(1.0, rel=1e-3)
+
+
+@needs_assets
+def test_grading_scales_across_and_up():
+    gc = read_pattern(ASSETS / "examples" / "flare_skirt_specification.json")
+    g = grade(gc, 1.2, 0.9)
+    for a, b in zip(gc.panels, g.panels):        # rotation [0, 0, 0]: u across, v up
+        assert np.allclose(b.vertices, a.vertices * [1.2, 0.9])
+        assert np.allclose(b.translation, a.translation * [1.2, 0.9, 1.2])
+    body = read_body(ASSETS_BODY)
+    meas = {"height": body.height * 0.88, "chest": body.bust * 0.8, "waist": body.waist, "hips": body.hips}
+    w = mismatch_warning(body, meas, "skirt", 1.1, 0.88)
+    assert "height 151 cm vs 172 cm (-12 %)" in w and "bust" in w and "waist" not in w and "x1.100" in w
+    assert mismatch_warning(body, {**meas, "height": body.height, "chest": body.bust}, "skirt") is None
+
+
+@needs_assets
+def test_wrap_closes_a_circle_skirt_round_the_body():
+    """The flare skirt's sectors hang as one cone: the side seams' two sides meet (GarmentCode's
+    flat placement leaves them 30 cm apart) and the wrap keeps the flat panels' edge lengths."""
+    gc = read_pattern(ASSETS / "examples" / "flare_skirt_specification.json")
+    body = read_body(ASSETS_BODY)
+    assert cone_apex(gc.panel("skirt_front")) is not None and cone_apex(gc.panel("wb_front")) is None
+    pattern, signs = to_pattern(gc, 0.02, "x")
+    flat = triangulate_pattern(pattern)
+    uvs = [fp.uv * [signs[p.name], 1.0] for p, fp in zip(gc.panels, flat.panels)]
+    flat3 = [p.to_3d(uv) for p, uv in zip(gc.panels, uvs)]
+    x = np.concatenate(wrap_ring(gc, flat3, body, uvs))
+    x0 = np.concatenate(flat3)
+    sides = [k for k, st in enumerate(gc.stitches) if st.a[0].startswith("skirt") and st.b[0].startswith("skirt")]
+    m = np.isin(flat.seam_index, sides)
+    gap = lambda p: np.linalg.norm(p[flat.seam_pairs[m, 0]] - p[flat.seam_pairs[m, 1]], axis=1)
+    assert gap(x0).max() > 0.2 and gap(x).max() < 0.03
+    tri = flat.triangles
+    skirt = np.isin(flat.panel_of_triangle, [i for i, p in enumerate(gc.panels) if p.name.startswith("skirt")])
+    e = lambda p: np.linalg.norm(p[tri[skirt][:, [1, 2, 0]]] - p[tri[skirt]], axis=2)
+    strain = e(x) / e(np.c_[flat.uv, np.zeros(len(flat.uv))]) - 1
+    assert np.percentile(np.abs(strain), 95) < 0.1
+
+
+@pytest.mark.parametrize("spec, where", [
+    (_spec({"p": _panel([[0, 0], [100, 0], [0, 100]])}, [[{"panel": "p", "edge": 0}, {"panel": "p", "edge": 7}]]),
+     "pattern.stitches[0][1].edge"),
+    (_spec({"p": _panel([[0, 0], [100, 0], [0, 100]], {"type": "spline", "params": []})}),
+     "pattern.panels.p.edges[0].curvature.type"),
+    (_spec({"p": {**_panel([[0, 0], [100, 0], [0, 100]]), "rotation": [0, "x", 0]}}), "pattern.panels.p.rotation[1]"),
+    ({"pattern": {"panels": {}}}, "pattern.panels"),
+])
+def test_bad_json_is_one_error_naming_the_file_and_the_json_path(tmp_path, spec, where):
+    f = tmp_path / "bad_specification.json"
+    f.write_text(json.dumps(spec))
+    with pytest.raises(InputError) as err:
+        read_pattern(f)
+    msg = str(err.value)
+    assert msg.startswith(str(f)) and where in msg and "\n" not in msg
+
+
+def test_a_broken_loop_and_a_non_json_file_are_refused(tmp_path):
+    spec = _spec({"p": _panel([[0, 0], [100, 0], [0, 100]])})
+    spec["pattern"]["panels"]["p"]["edges"][1]["endpoints"] = [2, 0]
+    f = tmp_path / "loop_specification.json"
+    f.write_text(json.dumps(spec))
+    with pytest.raises(InputError, match=r"pattern\.panels\.p\.edges\[1\]\.endpoints: edge starts at vertex 2"):
+        read_pattern(f)
+    f.write_text("{not json")
+    with pytest.raises(InputError, match="not JSON"):
+        read_pattern(f)
