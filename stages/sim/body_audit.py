@@ -14,7 +14,7 @@ nearest the crossing point (of the body edge, or of the body triangle).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -102,6 +102,14 @@ class BodyCrossings:
     exact_pairs: int
     warnings: tuple
 
+    def __post_init__(self):
+        for g in self.garments:
+            if g.joint_counts.shape[1] != len(self.joint_names):
+                raise ContractError(f"BodyCrossings.garments[{g.name!r}].joint_counts: {g.joint_counts.shape[1]} "
+                                    f"joints, expected {len(self.joint_names)}")
+        if self.first_frame < 1:
+            raise ContractError(f"BodyCrossings.first_frame: expected >= 1 (frame 0 is as dressed), got {self.first_frame}")
+
     def garment(self, name: str) -> GarmentCrossings:
         for g in self.garments:
             if g.name == name:
@@ -136,7 +144,7 @@ class BodyCrossings:
             cloth = int(g.cloth_edges[self.first_frame:].max(initial=0))
             where = f" at frame {f} ({self.joints_at(g, f)})" if n else ""
             out[f"{g.name}: body edges through the cloth / cloth edges through the body "
-                f"(max per frame from frame {self.first_frame}, after the blend-in)"] = f"{n}{where} / {cloth}"
+                f"(max per frame {blend_in_note(self.first_frame)})"] = f"{n}{where} / {cloth}"
         return out
 
 
@@ -224,6 +232,7 @@ def frame_crossings(cloth: np.ndarray, cloth_tris: np.ndarray, cloth_edges: np.n
 
 
 def blend_in_note(first_frame: int) -> str:
+    """Which frames a figure covers, for the summary and the warnings."""
     return f"from frame {first_frame}, after the blend-in" if first_frame > 1 else "after frame 0"
 
 
@@ -234,7 +243,7 @@ def audit_body_crossings(result, body: BodyFrames, *, first_frame: int = 1) -> B
     nf = result.n_frames
     if body.positions.shape[0] != nf:
         raise ContractError(f"audit_body_crossings: the body has {body.positions.shape[0]} frames, the result {nf}")
-    first = min(max(int(first_frame), 1), max(nf - 1, 0))
+    first = max(int(first_frame), 1)
     nj = len(body.joint_names)
     b_edges = mesh_edges(body.triangles) if body.triangles.size else np.zeros((0, 2), np.int32)
     out, warnings, n_exact = [], [], 0
@@ -250,8 +259,7 @@ def audit_body_crossings(result, body: BodyFrames, *, first_frame: int = 1) -> B
             nb[f], nc[f], n_exact = len(hb), len(hc), n_exact + k
             per_joint[f] = np.bincount(joints, minlength=nj)
             points.append(pts)
-        g = GarmentCrossings(track.name, nb, nc, per_joint, tuple(points))
-        out.append(g)
+        out.append(GarmentCrossings(track.name, nb, nc, per_joint, tuple(points)))
     audit = BodyCrossings(tuple(out), tuple(body.joint_names), first, int(n_exact), ())
     for g in out:
         f, n = audit.worst(g)
@@ -260,4 +268,4 @@ def audit_body_crossings(result, body: BodyFrames, *, first_frame: int = 1) -> B
             warnings.append(f"garment {g.name!r}: {n} body edges through the cloth at frame {f} "
                             f"({audit.joints_at(g, f)}); body edges through it in {frames} frames "
                             f"{blend_in_note(first)}")
-    return BodyCrossings(audit.garments, audit.joint_names, first, audit.exact_pairs, tuple(warnings))
+    return replace(audit, warnings=tuple(warnings))
