@@ -13,8 +13,9 @@ from scipy.integrate import quad
 from stages.errors import InputError
 from stages.garments.garmentcode import (GCEdge, GCPanel, arc_center, edge_length, edge_points, euler_xyz_to_R,
                                          parse_pattern, read_pattern)
-from stages.garments.garmentcode_place import (ASSETS_BODY, cone_apex, grade, mismatch_warning, read_body,
-                                               stitch_lengths, to_pattern, wrap_ring)
+from stages.garments.garmentcode_place import (ASSETS_BODY, grade, mismatch_warning, read_body, stitch_lengths,
+                                               to_pattern)
+from stages.garments.garmentcode_wrap import cone_apex, wrap_ring
 from stages.garments.triangulate import triangulate_pattern
 
 ASSETS = Path(__file__).resolve().parents[2] / "shared" / "assets" / "garmentcode"

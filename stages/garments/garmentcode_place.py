@@ -19,6 +19,7 @@ import yaml
 
 from stages.errors import InputError
 from stages.garments.garmentcode import GCPattern, edge_points
+from stages.garments.garmentcode_wrap import wrap_ring, wrap_sleeves
 from stages.garments.patterns import Edge, Panel, Pattern, PatternAttachment, Placement, Seam, SeamSide
 
 ASSETS_BODY = Path(__file__).resolve().parents[3] / "shared" / "assets" / "garmentcode" / "bodies" / "mean_all.yaml"
@@ -277,126 +278,6 @@ def mismatch_warning(body: GCBody, meas: dict, name: str, k: float = 1.0, sy: fl
             f"(character vs pattern body); dressed graded x{k:.3f} across and x{sy:.3f} up")
 
 
-WRAP_BIN = 0.02   # m: height bins of the wrap's ring widths
-
-
-MAX_APEX = 1.0   # m: a top arc of a larger radius (a waistband's slight curve) is wrapped as a cylinder
-MIN_SPAN = math.radians(45)   # a sector narrower than this (a curved waistband piece) too
-RING_DY = 0.03   # m: cone panels whose top edges are this close in height hang as one cone
-
-
-def cone_apex(p) -> tuple | None:
-    """(apex (2,) panel uv, angle the panel spans about it (rad), the top edge's height in the body
-    frame (m)) when the panel's top edge (the one
-    whose ends are highest in the body frame) is a circle arc whose centre lies above it (a circle or flare skirt's waist:
-    the panel is a sector of an annulus, made to hang as a cone), else None."""
-    from stages.garments.garmentcode import arc_center
-    top = max(range(len(p.edges)),   # the edge whose ends are highest
-              key=lambda k: float(p.to_3d(p.vertices[[p.edges[k].start, p.edges[k].end]])[:, 1].mean()))
-    e = p.edges[top]
-    if e.kind != "circle":
-        return None
-    c, r, _ = arc_center(p.vertices[e.start], p.vertices[e.end], e.radius, e.large_arc, e.right)
-    mid = edge_points(p, e, [0.5])[0]
-    if p.to_3d(c[None])[0, 1] <= p.to_3d(mid[None])[0, 1] + 1e-3:
-        return None
-    q = p.vertices - c
-    span = float(np.ptp(np.unwrap(np.arctan2(q[:, 1], q[:, 0]))))
-    if r > MAX_APEX or span < MIN_SPAN:
-        return None
-    return c, span, float(p.to_3d(p.vertices[[e.start, e.end]])[:, 1].mean())
-
-
-def _cone(p, uv: np.ndarray, apex: np.ndarray, full: float, top: float) -> np.ndarray:
-    """(N, 3) a sector panel's points hung as part of a cone round the body's axis: slant distance
-    from the apex kept, the sectors of all cone panels (`full` rad in all) closing the circle; the
-    waist edge stays at its placed height."""
-    R = p.rotation
-    down = (R.T @ np.array([0.0, -1.0, 0.0]))[:2]
-    down /= np.linalg.norm(down)
-    n = p.normal * np.array([1.0, 0.0, 1.0])
-    n /= np.linalg.norm(n)
-    t2 = (R.T @ np.array([n[2], 0.0, -n[0]]))[:2]
-    sign = 1.0 if down[0] * t2[1] - down[1] * t2[0] > 0 else -1.0
-    q = uv - apex
-    rho = np.linalg.norm(q, axis=1)
-    theta = np.arctan2(down[0] * q[:, 1] - down[1] * q[:, 0], q @ down)
-    share = min(full / (2 * np.pi), 0.95)
-    apex_y = top + rho.min() * math.sqrt(1 - share * share)
-    phi = math.atan2(n[0], n[2]) + sign * theta * (2 * np.pi / full)
-    r = rho * share
-    return np.c_[r * np.sin(phi), apex_y - rho * math.sqrt(1 - share * share), r * np.cos(phi)]
-
-
-def wrap_ring(gc: GCPattern, points: list, body: GCBody, uvs: list) -> list:
-    """The pattern-frame positions `points` (one (N, 3) array per panel) with every panel that stands
-    upright (horizontal normal, not an arm) bent round the body's vertical axis: at each height the
-    upright panels together make a ring whose circumference is the sum of their widths there (at
-    least the pattern body's girth + 6 cm), each panel keeping its lateral arc length and the side it
-    faces; heights are re-spaced from the waist up and down so that distances down a flaring panel
-    stay those of the flat panel (a flat circle-skirt panel held in a plane would have its waist seam
-    a deep arc away from the waistband's). GarmentCode's own placement leaves the panels flat in
-    front of and behind the body."""
-    up = []
-    for p, x in zip(gc.panels, points):
-        n = p.normal
-        up.append(panel_part(p) != "arm" and abs(n[1]) < 0.5 and len(x) > 0)
-    cones = {i: c for i, c in ((i, cone_apex(p)) for i, p in enumerate(gc.panels) if up[i]) if c is not None}
-    points = list(points)
-    if cones:
-        for i, (apex, _, top) in cones.items():
-            full = sum(c[1] for c in cones.values() if abs(c[2] - top) <= RING_DY)
-            points[i] = _cone(gc.panels[i], uvs[i], apex, full, top)
-            up[i] = False
-    if not any(up):
-        return points
-    ys = np.concatenate([x[:, 1] for x, u in zip(points, up) if u])
-    edges = np.arange(ys.min() - WRAP_BIN, ys.max() + 2 * WRAP_BIN, WRAP_BIN)
-    mid = 0.5 * (edges[:-1] + edges[1:])
-    width = np.zeros(mid.size)
-    lateral = []
-    for p, x, u in zip(gc.panels, points, up):
-        if not u:
-            lateral.append(None)
-            continue
-        n = p.normal * np.array([1.0, 0.0, 1.0])
-        n /= np.linalg.norm(n)
-        t = np.array([n[2], 0.0, -n[0]])          # the direction of growing angle round the axis
-        s = x @ t
-        lateral.append((n, t, s))
-        b = np.clip(np.digitize(x[:, 1], edges) - 1, 0, mid.size - 1)
-        w = np.zeros(mid.size)
-        lo, hi = np.full(mid.size, np.inf), np.full(mid.size, -np.inf)
-        np.minimum.at(lo, b, s)
-        np.maximum.at(hi, b, s)
-        have = np.isfinite(lo)
-        w[have] = hi[have] - lo[have]
-        if have.sum() >= 2:                          # fill bins between the panel's rows
-            k = np.flatnonzero(have)
-            inside = (np.arange(mid.size) > k[0]) & (np.arange(mid.size) < k[-1])
-            w[inside & ~have] = np.interp(mid[inside & ~have], mid[have], w[have])
-        width += w
-    girth = np.interp(mid, [body.hips_y, body.waist_y, body.bust_y], [body.hips, body.waist, body.bust])
-    rho = np.maximum(width, girth + 0.06) / (2 * np.pi)
-    # heights: the flat distance between bins kept along the ring's slant, from the waist out
-    Y = mid.copy()
-    w0 = int(np.clip(np.searchsorted(mid, body.waist_y), 0, mid.size - 1))
-    for k in range(w0 + 1, mid.size):
-        Y[k] = Y[k - 1] + math.sqrt(max(WRAP_BIN ** 2 - (rho[k] - rho[k - 1]) ** 2, 0.25 * WRAP_BIN ** 2))
-    for k in range(w0 - 1, -1, -1):
-        Y[k] = Y[k + 1] - math.sqrt(max(WRAP_BIN ** 2 - (rho[k] - rho[k + 1]) ** 2, 0.25 * WRAP_BIN ** 2))
-    out = []
-    for p, x, lat in zip(gc.panels, points, lateral):
-        if lat is None:
-            out.append(x)
-            continue
-        n, t, s = lat
-        r = np.interp(x[:, 1], mid, rho)
-        phi = math.atan2(n[0], n[2]) + s / r
-        out.append(np.c_[r * np.sin(phi), np.interp(x[:, 1], mid, Y), r * np.cos(phi)])
-    return out
-
-
 def place_gc(gc: GCPattern, flat, signs: dict, bmap: BodyMap, body: GCBody | None = None) -> np.ndarray:
     """(N, 3) positions of the meshed panels (flat: FlatPattern of to_pattern's Pattern, same panel
     order) in the character's relative frame at frame 0; with `body`, upright panels wrapped round
@@ -404,7 +285,7 @@ def place_gc(gc: GCPattern, flat, signs: dict, bmap: BodyMap, body: GCBody | Non
     uvs = [fp.uv * np.array([signs[p.name], 1.0]) for p, fp in zip(gc.panels, flat.panels)]
     pts = [p.to_3d(uv) for p, uv in zip(gc.panels, uvs)]
     if body is not None:
-        pts = wrap_ring(gc, pts, body, uvs)
+        pts = wrap_sleeves(gc, wrap_ring(gc, pts, body, uvs), body)
     out = []
     for p, x in zip(gc.panels, pts):
         part = panel_part(p)
