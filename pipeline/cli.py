@@ -173,6 +173,27 @@ def cmd_inspect(args) -> int:
     return 0
 
 
+def cmd_measure(args) -> int:
+    """A character's measurements as a GarmentCode body file (issue 39)."""
+    from pathlib import Path
+
+    from pipeline import where
+    from pipeline.inspect import load_asset
+    from stages.garments.garmentcode_body import body_yaml, gc_body
+    from stages.garments.garmentcode_place import ASSETS_BODY, read_body
+    from stages.garments.measurements import garment_measurements
+    where.stage(f"measure {args.character}")
+    character, _ = load_asset(args.character)
+    values, estimated = gc_body(garment_measurements(character), read_body(ASSETS_BODY).values)
+    text = body_yaml(values, estimated, args.character)
+    if args.out:
+        Path(args.out).write_text(text, encoding="utf-8")
+        print(f"wrote {args.out}")
+    else:
+        print(text, end="")
+    return 0
+
+
 def cmd_snapshot(args) -> int:
     from pipeline.snapshot import main
     return main(args)
@@ -243,6 +264,11 @@ def build_parser() -> argparse.ArgumentParser:
     ins.add_argument("asset", help="a .glb / .gltf / .bvh file, or 'builtin' (the procedural character)")
     ins.add_argument("--json", action="store_true", help="print the facts as JSON")
     ins.set_defaults(func=cmd_inspect)
+    me = sub.add_parser("measure", parents=[common], help="a character's measurements as a GarmentCode body file "
+                                                         "(body_measurements.yaml: cm, degrees)")
+    me.add_argument("character", help="a .glb / .gltf / .bvh file, or 'builtin' (the procedural character)")
+    me.add_argument("-o", "--out", help="write the body file here (default: print it)")
+    me.set_defaults(func=cmd_measure)
     sn = sub.add_parser("snapshot", help="PNGs of a recording's scene view at chosen frames, through the Rerun "
                                          "viewer (headless; software Vulkan without a GPU)")
     sn.add_argument("recording", help="the .rrd file")
