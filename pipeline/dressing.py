@@ -197,15 +197,17 @@ class SewingError(SceneError):
         self.partial = partial
 
 
-def build_garmentcode_garment(scene: Scene, index: int, character, motion, colliders, maps, progress=None):
+def build_garmentcode_garment(scene: Scene, index: int, character, motion, colliders, maps, progress=None,
+                              place_only: bool = False):
     """A sewn garment from a GarmentCode pattern file (issue 39): (Garment, SewingLog, GarmentBuild);
-    a pattern made for another body warns how far its body is from the character's."""
+    a pattern made for another body warns how far its body is from the character's. place_only:
+    graded, meshed and placed but not sewn (what `validate` checks); returns None."""
     import warnings
 
     from stages.checks import ContractError
     from stages.errors import InputError
     from stages.garments.garmentcode import read_pattern
-    from stages.garments.garmentcode_place import body_of, make_gc_garment
+    from stages.garments.garmentcode_place import body_of, make_gc_garment, place_gc_garment
     from stages.garments.sewing import SewParams
     g = scene["garments"][index]
     where = f"{scene.path or '<scene>'}: garments[{index}] ({g['name']!r}, GarmentCode {g['path']}) on {character.name!r}"
@@ -214,6 +216,12 @@ def build_garmentcode_garment(scene: Scene, index: int, character, motion, colli
         body = body_of(g["path"])
     except InputError as err:
         raise SceneError(f"{scene.path or '<scene>'}: garments[{index}].path: {err}") from None
+    if place_only:
+        try:
+            place_gc_garment(gc, body, character, motion, colliders, edge_length=g["edge_length"], name=g["name"])
+        except (ContractError, InputError) as err:
+            raise SceneError(f"{where}: cannot place the pattern: {err}") from None
+        return None
     sw = g["sewing"]
     sew = SewParams(tolerance=sw["tolerance"], max_iterations=sw["max_iterations"],
                     gravity_scale=sw["gravity_scale"], iterations=sw["iterations"])
@@ -311,6 +319,10 @@ def check_scene_garments(scene: Scene, character, motion, colliders, meshes: dic
         with where.item(f"{_item(scene, 'garments', i)}, type {g['type']}"):
             if g["type"] == "pattern":
                 place_scene_pattern(scene, i, character, motion, colliders)
+                patterns += 1
+                continue
+            if g["type"] == "garmentcode":
+                build_garmentcode_garment(scene, i, character, motion, colliders, None, place_only=True)
                 patterns += 1
                 continue
             try:
