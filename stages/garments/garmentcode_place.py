@@ -301,6 +301,27 @@ HOLD_LABELS = {"lower_interface": "axis", "left_collar": "neck", "right_collar":
 CLEARANCE = 0.01   # m: vertices placed inside the body are pushed this far out of the skin
 
 
+def place_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, *, edge_length: float = 0.025,
+                     name: str | None = None, density: float = 0.2):
+    """The pattern graded to the character, meshed and placed on its bind pose, unsewn: (graded
+    GCPattern, Pattern, FlatPattern, placed (N, 3) positions, mismatch warning or None). What
+    `validate` checks and make_gc_garment sews."""
+    from stages.garments.measurements import garment_measurements
+    from stages.garments.placement import bind_geometry, inside_body, push_out
+    from stages.garments.triangulate import triangulate_pattern
+    meas = garment_measurements(character, colliders, motion)
+    k, sy = grading(gc, body, meas)
+    graded, gbody = grade(gc, k, sy), graded_body(body, k, sy)
+    pattern, signs = to_pattern(graded, edge_length, name or gc.name, density)
+    flat = triangulate_pattern(pattern)
+    skinned0, origins, _ = bind_geometry(character, motion)
+    placed = place_gc(graded, flat, signs, body_map(gbody, meas, character, origins), gbody)
+    bad = inside_body(character, skinned0, placed)
+    if bad.any():
+        placed[bad] = push_out(placed[bad], character, skinned0, CLEARANCE)
+    return graded, pattern, flat, placed, mismatch_warning(body, meas, name or gc.name, k, sy)
+
+
 def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, maps, *, edge_length: float = 0.025,
                     name: str | None = None, density: float = 0.2, sew_params=None, ignore_joints=(), progress=None):
     """GarmentCode pattern -> sewn Garment on the character in the bind pose (frame 0 of `motion`).
@@ -312,26 +333,18 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
     to the neck) and held there while sewing (the middle half, seam vertices free); after sewing the
     lower_interface edges stay pinned to their nearest bone (the waist holds a skirt up)."""
     from stages.garments.library import GarmentBuild, hug_targets, seam_label
-    from stages.garments.measurements import garment_measurements
-    from stages.garments.placement import bind_geometry, hug, inside_body, push_out, respace
+    from stages.garments.placement import bind_geometry, hug, respace
     from stages.garments.sewing import SewParams, merged_mesh, seam_gaps, sew
-    from stages.garments.triangulate import run_vertices, triangulate_pattern
+    from stages.garments.triangulate import run_vertices
     from stages.garments.types import attach_indices, bind_pose, build_garment
 
     name = name or gc.name
-    meas = garment_measurements(character, colliders, motion)
-    k, sy = grading(gc, body, meas)
-    gc, body0, body = grade(gc, k, sy), body, graded_body(body, k, sy)
-    pattern, signs = to_pattern(gc, edge_length, name, density)
-    flat = triangulate_pattern(pattern)
+    gc, pattern, flat, placed, warning = place_gc_garment(gc, body, character, motion, colliders,
+                                                          edge_length=edge_length, name=name, density=density)
     tri, uv = flat.triangles, flat.uv
     tri_rest = np.linalg.norm(uv[tri[:, [1, 2, 0]]] - uv[tri], axis=2)
     skinned0, origins, _ = bind_geometry(character, motion)
     pose = bind_pose(character, motion, colliders)
-    placed = place_gc(gc, flat, signs, body_map(body, meas, character, origins), body)
-    bad = inside_body(character, skinned0, placed)
-    if bad.any():
-        placed[bad] = push_out(placed[bad], character, skinned0, CLEARANCE)
     held, waist = [], []
     for p in gc.panels:
         for j, e in enumerate(p.edges):
@@ -368,4 +381,4 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
                for j, s in enumerate(pattern.seams) if (flat.seam_index == j).any()}
     fit = np.unique(remap[np.concatenate(held)]).astype(np.int64) if held else np.zeros(0, np.int64)
     build = GarmentBuild(flat3, placed, tri, flat.seam_pairs, log, {}, fit, by_seam)
-    return g, log, build, mismatch_warning(body0, meas, name, k, sy)
+    return g, log, build, warning
