@@ -71,7 +71,7 @@ def audit_and_log(rec: rr.RecordingStream, scene, state: dict, announce=lambda n
     stage time and the warnings; state['body_crossings'] = the BodyCrossings."""
     from pipeline.run import StageReport
     result, summary = state.get("result"), state["summary"]
-    if result is None or not result.garments or not scene["simulation"]["body_audit"]:
+    if result is None or not result.garments or not result.n_frames or not scene["simulation"]["body_audit"]:
         return
     character = state["character"]
     announce("body audit")
