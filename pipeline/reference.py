@@ -33,8 +33,7 @@ def _type(f: Field) -> str:
     if f.kind == "list" and f.item is not None:
         inner = "garment" if f.item.kind == "union" and "pattern" in f.item.variants else \
                 "obstacle" if f.item.kind == "union" else _type(f.item)
-        n = f" of {f.length}" if f.length else ""
-        return f"list{n} of {inner}"
+        return f"list of {f.length} {inner}" if f.length else f"list of {inner}"
     if f.kind == "vec3":
         return "[x, y, z]"
     if f.kind == "path":
@@ -125,10 +124,11 @@ def scene_reference() -> str:
             ("garments", "Garments", "`garments:` is a list; each item has a `type` that picks its keys."),
             ("obstacles", "Obstacles", "`obstacles:` is a list; each item has a `type` that picks its keys.")):
         f = SCENE_SPEC[key]
-        out += ["", f"## {title}", "", f"{text} {f.doc[:1].upper() + f.doc[1:]}.", ""] + _HEAD
+        out += ["", f"## {title}", "", text, ""] + _HEAD
         _rows({key: f}, "", out)
         out.append("")
-        for t, sub in f.item.variants.items():
+        order = ("pattern", "garmentcode", "mesh", "tube", "rectangle") if key == "garments" else ()
+        for t, sub in sorted(f.item.variants.items(), key=lambda kv: order.index(kv[0]) if kv[0] in order else 99):
             out += [f"### `{key}[]` with `type: {t}`", ""] + _HEAD
             _rows({"type": Field("str", REQUIRED, f"`{t}`")}, f"{key}[].", out)
             _rows(sub, f"{key}[].", out)
