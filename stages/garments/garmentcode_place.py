@@ -297,7 +297,12 @@ def place_gc(gc: GCPattern, flat, signs: dict, bmap: BodyMap, body: GCBody | Non
     return np.concatenate(out)
 
 
-HOLD_LABELS = {"lower_interface": "axis", "left_collar": "neck", "right_collar": "neck"}
+# GarmentCode's simulator holds the waist seam at the waist level and the collars at the neck's width;
+# here the waist seam is brought onto the body (hug to the axis) and held while sewing; the collars
+# are left free (None): hugged to the neck joint they pulled the neckline narrower than the neck (the
+# sleeveless top's shoulder seams dragged 7 cm towards the neck, 14 mm open), held where the wrap put
+# them the shoulder seams could not close over the shoulders (15 cm open)
+HOLD_LABELS = {"lower_interface": "axis", "left_collar": None, "right_collar": None}
 CLEARANCE = 0.01   # m: vertices placed inside the body are pushed this far out of the skin
 
 
@@ -331,7 +336,8 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
     body are pushed out; the edges GarmentCode attaches while simulating (lower_interface, the
     collars) are brought onto the body (placement.hug: the waist seam to the body's axis, collars
     to the neck) and held there while sewing (the middle half, seam vertices free); after sewing the
-    lower_interface edges stay pinned to their nearest bone (the waist holds a skirt up)."""
+    lower_interface edges stay pinned to their nearest bone (the waist holds a skirt up); collars free
+    (HOLD_LABELS)."""
     from stages.garments.library import GarmentBuild, hug_targets, seam_label
     from stages.garments.placement import bind_geometry, hug, respace
     from stages.garments.sewing import SewParams, merged_mesh, seam_gaps, sew
@@ -348,12 +354,14 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
     held, waist = [], []
     for p in gc.panels:
         for j, e in enumerate(p.edges):
-            mode = HOLD_LABELS.get(e.label)
-            if mode is None:
+            if HOLD_LABELS.get(e.label) is None:
                 continue
+            mode = HOLD_LABELS[e.label]
             idx = run_vertices(pattern, flat, SeamSide(p.name, (f"e{j}",)))
-            placed[idx] = hug(placed[idx], hug_targets(character, origins, placed[idx], mode), character, skinned0, pose)
-            placed[idx] = respace(placed[idx], uv[idx])
+            if mode is not None:
+                placed[idx] = hug(placed[idx], hug_targets(character, origins, placed[idx], mode), character,
+                                  skinned0, pose)
+                placed[idx] = respace(placed[idx], uv[idx])
             held.append(idx)
             if e.label == "lower_interface":
                 waist.append(idx)
