@@ -333,11 +333,10 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
 
     Returns (Garment, SewingLog, GarmentBuild, warning or None). The panels are placed by the
     pattern's own translation / rotation mapped onto the character (body_map); vertices inside the
-    body are pushed out; the edges GarmentCode attaches while simulating (lower_interface, the
-    collars) are brought onto the body (placement.hug: the waist seam to the body's axis, collars
-    to the neck) and held there while sewing (the middle half, seam vertices free); after sewing the
-    lower_interface edges stay pinned to their nearest bone (the waist holds a skirt up); collars free
-    (HOLD_LABELS)."""
+    body are pushed out; the waist seam GarmentCode attaches while simulating (lower_interface) is
+    brought onto the body (placement.hug, to the body's axis) and held there while sewing (the
+    middle half, seam vertices free), and after sewing stays pinned to its nearest bone (the waist
+    holds a skirt up); collars are left free (HOLD_LABELS)."""
     from stages.garments.library import GarmentBuild, hug_targets, seam_label
     from stages.garments.placement import bind_geometry, hug, respace
     from stages.garments.sewing import SewParams, merged_mesh, seam_gaps, sew
