@@ -2,7 +2,7 @@
 full results dict (`--json FILE` writes that dict; `--json -` prints it instead of the table).
 
 A figure a bench did not produce (skipped, asset missing, an older bench) is left out; targets are
-the issues' and the papers' (README "Measured"), '-' where there is none.
+the issues' and the papers' (docs/benchmarks.md), '-' where there is none.
 """
 from __future__ import annotations
 

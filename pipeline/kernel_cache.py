@@ -8,7 +8,7 @@ half compiled (a kernel a scene did not use before) is not seen; nor is a cache 
 (an edited source), which it recompiles.
 
 ESTIMATE_S: seconds each stage spent compiling on the 2-core development machine (cold run of
-scenes/default.yaml minus the warm one, README "Start-up time"; colliders: the hull chain and the
+scenes/default.yaml minus the warm one, docs/decisions.md "Start-up"; colliders: the hull chain and the
 winding kernels, 12 s CPU; cloth collision: its kernels' first call on an empty cache, 29 s CPU,
 2026-11-23); the message scales it by the share of the stage's modules that are not compiled.
 `run` compiles the garments / simulation / cloth audit kernels in a second process while the

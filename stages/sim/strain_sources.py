@@ -1,7 +1,7 @@
 """What holds a garment's most strained edges: the joints whose colliders they touch at a frame.
 
 On a real character the strain a run warns about is mostly set by the colliders, not the solver
-(README, "What holds the real characters' strain"): a limb the animation swings within a centimetre
+(docs/decisions.md, "Limbs, strain and the body"): a limb the animation swings within a centimetre
 of the body traps the cloth between the two (CesiumMan's hands at the hips). This names them, so a
 user can tell a trapped garment from a badly cut one, and choose (garments[].ignore_colliders).
 

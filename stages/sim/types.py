@@ -38,7 +38,7 @@ class SimParams:
         them (their explicit-drag cap over the span); stated in time, so that the forces are sampled
         alike at any sub-step count. Default 1/30 s: once per frame at the defaults, as the paper's
         one step a frame does (the paper preset is unchanged: its step is the span). They were a
-        quarter of the drape's sub-step (see the README, issue 15).
+        quarter of the drape's sub-step (docs/decisions.md, "Simulation step").
     friction: Coulomb coefficient, [0, 10]: at a contact the tangential travel relative to the
         collider over the step is reduced by up to friction x the push's normal depth (all of it when
         shorter: static friction). Consistent with stages.obstacles.
@@ -52,7 +52,7 @@ class SimParams:
         stretches the mesh edges; at 1 it is as stiff as they are. A sewn tube of 5 cm radius (2.5 cm
         edges) left 1 s without gravity sheared into a slanting tube, the edges round it strained
         1.3 % (0.2: 0.06 %, tests/test_sim_bending.py); on the real characters the mean strain over
-        the frames fell from 3.9-5.4 % to 1.9-3.3 % (README, "Bend springs").
+        the frames fell from 3.9-5.4 % to 1.9-3.3 % (docs/decisions.md, "Simulation step").
     tethers: long-range attachments (not in the paper): a free particle of a garment with attached or
         pinned particles is kept within its rest distance along the mesh of the nearest one. Without
         them 3 correction rounds let hanging cloth stretch by up to several times its length.
