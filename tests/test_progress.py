@@ -111,7 +111,7 @@ def test_run_shows_a_line_per_stage_and_the_sewing_and_simulation_progress(tmp_p
     err = r.stderr.splitlines()
     # on a first run a line says the simulation kernels compile in a second process
     starts = [l.split(" ")[0] for l in err if l.endswith(" ...") and not l.startswith("simulation kernels ")]
-    assert starts == ["rig", "colliders", "collider", "maps", "garments", "simulation", "cloth"], err
+    assert starts == ["rig", "colliders", "collider", "maps", "garments", "simulation", "cloth", "body"], err
     assert any(l.startswith("colliders: ") and " hulls " in l for l in err), err
     assert any(l.startswith("collider coverage: ") and " frames " in l for l in err), err
     assert any(l.startswith("sewing skirt (stops when the seams close): ") and " iterations " in l for l in err), err
