@@ -267,6 +267,15 @@ def check_references(scene: Scene, character) -> None:
     for i, g in enumerate(scene["garments"]):
         if g["type"] == "pattern":
             check_pattern(scene, i)
+        if g["type"] == "garmentcode":      # read now: a bad pattern file stops the run before the colliders
+            from stages.errors import InputError
+            from stages.garments.garmentcode import read_pattern
+            from stages.garments.garmentcode_place import body_of
+            try:
+                read_pattern(g["path"])
+                body_of(g["path"])
+            except InputError as err:
+                raise SceneError(f"{src}: garments[{i}].path: {err}") from None
         refs = [("at_joint", g.get("at_joint"))]
         if g.get("pin") is not None:
             refs.append(("pin.collider", g["pin"]["collider"]))

@@ -238,3 +238,16 @@ def test_measure_round_trips_through_a_garmentcode_body_file(tmp_path):
     assert body.arm_angle == pytest.approx(meas["arm_angle"], abs=1e-5)
     assert mismatch_warning(body, meas, "g") is None
     assert mismatch_warning(default, meas, "g") is not None     # the built-in's bust is 11 % under mean_all's
+
+
+def test_a_bad_pattern_file_stops_the_run_before_the_colliders(tmp_path):
+    # read with the scene's other references, right after the rig (it was found at the garments stage)
+    from pipeline.run import check_references, load_character
+    from pipeline.scene import load_scene
+    from pipeline.schema import SceneError
+    (tmp_path / "x_specification.json").write_text('{"pattern": {"panels": {}}}')
+    (tmp_path / "s.yaml").write_text("name: s\ngarments:\n  - {type: garmentcode, name: g, path: x_specification.json}\n")
+    scene = load_scene(tmp_path / "s.yaml")
+    with pytest.raises(SceneError) as err:
+        check_references(scene, load_character(scene))
+    assert "garments[0].path" in str(err.value) and "x_specification.json" in str(err.value)
