@@ -1,5 +1,5 @@
 """Particles pinched between overlapping colliders (issue 6): when collide's pass budget is spent,
-stages.sim.body_collide.escape_union moves the particle out of the union instead of leaving it inside."""
+stages.sim.body_escape.escape_union moves the particle out of the union instead of leaving it inside."""
 import math
 
 import numpy as np
@@ -200,7 +200,7 @@ def _entry_reference(inside, q, o, n=20001):
 
 
 def test_entry_side_leaves_a_box_by_the_face_it_came_in_by():
-    from stages.sim.body_collide import _entry_side
+    from stages.sim.body_escape import _entry_side
     planes, fs = _cube_planes()
     rng = np.random.default_rng(5)
     inside = lambda p: bool(np.all(np.abs(p) <= 1.0))     # noqa: E731
@@ -223,7 +223,7 @@ def test_entry_side_leaves_a_box_by_the_face_it_came_in_by():
 
 
 def test_entry_side_on_a_sphere():
-    from stages.sim.body_collide import _entry_side
+    from stages.sim.body_escape import _entry_side
     planes, fs = _cube_planes()
     rng = np.random.default_rng(6)
     inside = lambda p: bool(p @ p <= 1.0)     # noqa: E731

@@ -57,7 +57,8 @@ from stages.sim.simd import cycles
 from stages.sim.springs import correct_springs
 
 # the phases are compiled into the step loop: an edit of any of them must invalidate its cache
-NUMBA_CACHE_DEPENDS = ("stages.sim.body_collide", "stages.sim.collider_grid", "stages.sim.forces",
+NUMBA_CACHE_DEPENDS = ("stages.sim.body_collide", "stages.sim.body_escape", "stages.sim.collider_query",
+                       "stages.sim.collider_grid", "stages.sim.forces",
                        "stages.sim.integrate", "stages.sim.simd", "stages.sim.springs", "stages.maps.kernels",
                        "stages.maps.types", "stages.affine", "stages.fastmath", "stages.sim.cloth_contact_kernels",
                        "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_cull",
