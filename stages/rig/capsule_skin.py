@@ -23,7 +23,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from stages.checks import ContractError, check_array
-from stages.rig.procedural import INFLUENCES, BodyParams
+from stages.rig.body_params import INFLUENCES, BodyParams
 # ---------------------------------------------------------------------------------------------
 # Implicit body: tapered elliptic capsules, smooth union
 
