@@ -332,8 +332,8 @@ def parse_scene_text(text: str, *, source: str = "<scene>", base_dir: Path | Non
                      default_name: str = "scene") -> Scene:
     """Parse and validate scene YAML text."""
     try:
-        data = yaml.load(text, Loader=_UniqueKeyLoader)
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        from pipeline.safe_yaml import load_checked
+        data, node = load_checked(text, source, SceneError, loader=_UniqueKeyLoader)
     except yaml.MarkedYAMLError as e:
         m = e.problem_mark or e.context_mark
         at = f"{source}:{m.line + 1}:{m.column + 1}" if m else source
@@ -384,14 +384,9 @@ def scene_from_data(data, *, text: str, source: str = "<scene>", base_dir: Path 
 
 def load_scene(path: str | os.PathLike) -> Scene:
     """Read, parse and validate a scene file; every problem is a `SceneError` naming the file."""
+    from pipeline.safe_yaml import read_text_file
     p = Path(path)
-    if not p.exists():
-        raise SceneError(f"{p}: scene file not found")
-    if p.is_dir():
-        raise SceneError(f"{p}: is a folder, expected a .yaml scene file")
-    try:
-        text = p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise SceneError(f"{p}: cannot read scene file ({e.__class__.__name__}: {e})") from None
+    # a regular file of bounded size, checked by stat before it is opened (a FIFO would block, /dev/zero never end)
+    text = read_text_file(p, "scene file", SceneError)
     scene = parse_scene_text(text, source=str(p), base_dir=p.resolve().parent, default_name=p.stem)
     return Scene(path=p, name=scene.name, text=text, settings=scene.settings, export=scene.export)

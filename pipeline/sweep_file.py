@@ -156,10 +156,9 @@ class Sweep:
     jobs: list          # Job, in expansion order
 
 
-def _marks_of(text: str) -> dict:
+def _marks_of(node) -> dict:
     from pipeline.scene import _marks
     marks: dict = {}
-    node = yaml.compose(text, Loader=yaml.SafeLoader)
     if node is not None:
         _marks(node, "", marks)
     return marks
@@ -174,13 +173,12 @@ def load_sweep(path: str | os.PathLike, output: str | os.PathLike | None = None)
     """Read a sweep file and expand it into jobs; every problem is a SweepError (one line, file, key,
     value, what was expected). Does not validate the jobs' scenes (`validate_jobs`)."""
     from pipeline.scene import _UniqueKeyLoader
+    from pipeline.safe_yaml import load_checked, read_text_file
     p = Path(path)
-    if not p.is_file():
-        raise SweepError(f"{p}: sweep file not found" if not p.exists() else f"{p}: is a folder, expected a .yaml sweep file")
+    text = read_text_file(p, "sweep file", SweepError)   # stat first: a FIFO or device is refused unopened
     try:
-        text = p.read_text(encoding="utf-8")
-        data = yaml.load(text, Loader=_UniqueKeyLoader)
-        marks = _marks_of(text)
+        data, node = load_checked(text, str(p), SweepError, loader=_UniqueKeyLoader)
+        marks = _marks_of(node)
     except yaml.MarkedYAMLError as e:
         m = e.problem_mark or e.context_mark
         raise SweepError(f"{p}:{m.line + 1}:{m.column + 1}: YAML syntax error: {e.problem or e}" if m
