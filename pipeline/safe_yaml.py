@@ -23,7 +23,7 @@ def check_regular_file(path: Path, what: str, exc, *, max_bytes: int | None = No
     except FileNotFoundError:
         raise exc(f"{path}: {what} not found") from None
     except OSError as e:
-        raise exc(f"{path}: cannot read the {what} ({e.strerror or e})") from None
+        raise exc(f"{path}: cannot read {what} ({e.strerror or e})") from None
     if stat.S_ISDIR(st.st_mode):
         raise exc(f"{path}: is a folder, expected a {what}")
     if not stat.S_ISREG(st.st_mode):
@@ -47,9 +47,9 @@ def read_text_file(path: Path, what: str, exc, *, max_bytes: int = MAX_BYTES) ->
             raise exc(f"{path}: the {what} is more than {max_bytes:,} bytes (expected a small text file)")
         return raw.decode("utf-8")
     except UnicodeDecodeError as e:
-        raise exc(f"{path}: cannot read the {what}: not UTF-8 text (byte {e.start})") from None
+        raise exc(f"{path}: cannot read {what}: not UTF-8 text (byte {e.start})") from None
     except OSError as e:
-        raise exc(f"{path}: cannot read the {what} ({e.strerror or e})") from None
+        raise exc(f"{path}: cannot read {what} ({e.strerror or e})") from None
 
 
 def _at(source: str, node) -> str:
