@@ -178,13 +178,19 @@ def cmd_measure(args) -> int:
     from pathlib import Path
 
     from pipeline import where
+    from pipeline.assets import assets_dir
     from pipeline.inspect import load_asset
+    from stages.errors import InputError
     from stages.garments.garmentcode_body import body_yaml, gc_body
-    from stages.garments.garmentcode_place import ASSETS_BODY, read_body
+    from stages.garments.garmentcode_place import DEFAULT_BODY, read_body
     from stages.garments.measurements import garment_measurements
     where.stage(f"measure {args.character}")
     character, _ = load_asset(args.character)
-    values, estimated = gc_body(garment_measurements(character), read_body(ASSETS_BODY).values)
+    default = assets_dir() / DEFAULT_BODY       # the keys a mesh cannot give are scaled from it
+    if not default.is_file():
+        raise InputError(str(default), "GarmentCode's default body (mean_all.yaml) is not there; set GARMENT_ASSETS "
+                                       "to the folder holding garmentcode/bodies/")
+    values, estimated = gc_body(garment_measurements(character), read_body(default).values)
     text = body_yaml(values, estimated, args.character)
     if args.out:
         Path(args.out).write_text(text, encoding="utf-8")

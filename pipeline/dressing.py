@@ -207,13 +207,14 @@ def build_garmentcode_garment(scene: Scene, index: int, character, motion, colli
     from stages.checks import ContractError
     from stages.errors import InputError
     from stages.garments.garmentcode import read_pattern
-    from stages.garments.garmentcode_place import body_of, make_gc_garment, place_gc_garment
+    from pipeline.assets import assets_dir
+    from stages.garments.garmentcode_place import DEFAULT_BODY, body_of, make_gc_garment, place_gc_garment
     from stages.garments.sewing import SewParams
     g = scene["garments"][index]
     where = f"{scene.path or '<scene>'}: garments[{index}] ({g['name']!r}, GarmentCode {g['path']}) on {character.name!r}"
     try:
         gc = read_pattern(g["path"])
-        body = body_of(g["path"])
+        body = body_of(g["path"], assets_dir() / DEFAULT_BODY)
     except InputError as err:
         raise SceneError(f"{scene.path or '<scene>'}: garments[{index}].path: {err}") from None
     if place_only:

@@ -270,10 +270,11 @@ def check_references(scene: Scene, character) -> None:
         if g["type"] == "garmentcode":      # read now: a bad pattern file stops the run before the colliders
             from stages.errors import InputError
             from stages.garments.garmentcode import read_pattern
-            from stages.garments.garmentcode_place import body_of
+            from pipeline.assets import assets_dir
+            from stages.garments.garmentcode_place import DEFAULT_BODY, body_of
             try:
                 read_pattern(g["path"])
-                body_of(g["path"])
+                body_of(g["path"], assets_dir() / DEFAULT_BODY)
             except InputError as err:
                 raise SceneError(f"{src}: garments[{i}].path: {err}") from None
         refs = [("at_joint", g.get("at_joint"))]

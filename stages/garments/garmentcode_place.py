@@ -22,7 +22,8 @@ from stages.garments.garmentcode import GCPattern, edge_points
 from stages.garments.garmentcode_wrap import wrap_ring, wrap_sleeves
 from stages.garments.patterns import Edge, Panel, Pattern, PatternAttachment, Placement, Seam, SeamSide
 
-ASSETS_BODY = Path(__file__).resolve().parents[3] / "shared" / "assets" / "garmentcode" / "bodies" / "mean_all.yaml"
+# GarmentCode's default body, under the real assets folder (pipeline.assets.assets_dir)
+DEFAULT_BODY = Path("garmentcode") / "bodies" / "mean_all.yaml"
 BODY_KEYS = ("height", "head_l", "waist_line", "hips_line", "bust_line", "waist", "hips", "bust",
              "shoulder_w", "arm_pose_angle")
 
@@ -135,15 +136,16 @@ def grading(gc: GCPattern, body: GCBody, meas: dict) -> tuple[float, float]:
     return float(k), float(meas["height"] / body.height)
 
 
-def body_of(spec_path) -> GCBody:
+def body_of(spec_path, default_body: Path) -> GCBody:
     """The body a pattern was made for: body_measurements.yaml beside the spec, else GarmentCode's
-    default body (mean_all)."""
+    default body (mean_all) at `default_body` (the caller's assets folder / DEFAULT_BODY)."""
     beside = Path(spec_path).parent / "body_measurements.yaml"
     if beside.is_file():
         return read_body(beside)
-    if not ASSETS_BODY.is_file():
-        raise InputError(str(spec_path), f"no body_measurements.yaml beside the pattern and no default body at {ASSETS_BODY}")
-    return read_body(ASSETS_BODY)
+    if not Path(default_body).is_file():
+        raise InputError(str(spec_path), f"no body_measurements.yaml beside the pattern and no default body at "
+                                         f"{default_body} (GarmentCode's mean_all.yaml; GARMENT_ASSETS sets the folder)")
+    return read_body(Path(default_body))
 
 
 def to_pattern(gc: GCPattern, edge_length: float, name: str, density: float = 0.2) -> tuple[Pattern, dict]:
