@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
+from pipeline.assets import assets_dir
 from stages.errors import InputError
 from stages.garments.garmentcode import (arc_center, edge_length, edge_points, euler_xyz_to_R,
                                          parse_pattern, read_pattern)
-from pipeline.assets import assets_dir
 from stages.garments.garmentcode_place import (DEFAULT_BODY, grade, mismatch_warning, read_body, stitch_lengths,
                                                to_pattern)
 from stages.garments.garmentcode_wrap import cone_apex, wrap_ring
