@@ -180,11 +180,7 @@ def build_pattern_garment(scene: Scene, index: int, character, motion, colliders
                                            ignore_joints=ignored_joints(g, character))
     except (ContractError, InputError) as err:
         raise SceneError(f"{where}: cannot place and sew the pattern: {err}") from None
-    if not log.converged:
-        seam, gap = build.worst_seam()
-        raise SewingError(f"{where}: sewing did not close seam {seam}: {gap * 1000:.1f} mm open after "
-                          f"{log.iterations} iterations (garments[{index}].sewing.tolerance {sw['tolerance'] * 1000:.1f} mm, "
-                          f"max_iterations {sw['max_iterations']})", partial=(garment, log, build))
+    check_sewn(where, index, sw, garment, log, build)
     return garment, log, build
 
 
@@ -235,12 +231,17 @@ def build_garmentcode_garment(scene: Scene, index: int, character, motion, colli
         raise SceneError(f"{where}: cannot place and sew the pattern: {err}") from None
     if warn:
         warnings.warn(warn, stacklevel=1)
+    check_sewn(where, index, sw, garment, log, build)
+    return garment, log, build
+
+
+def check_sewn(where: str, index: int, sw: dict, garment, log, build) -> None:
+    """SewingError naming the worst open seam when the sewing did not converge (the built garment kept)."""
     if not log.converged:
         seam, gap = build.worst_seam()
         raise SewingError(f"{where}: sewing did not close seam {seam}: {gap * 1000:.1f} mm open after "
                           f"{log.iterations} iterations (garments[{index}].sewing.tolerance {sw['tolerance'] * 1000:.1f} mm, "
                           f"max_iterations {sw['max_iterations']})", partial=(garment, log, build))
-    return garment, log, build
 
 
 def placement_matrix(item: dict) -> np.ndarray:

@@ -116,10 +116,10 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
     parents = np.asarray(character.parents)
     torso = np.isin(owner, list(part_joints(character, "torso", origins)))
     hips = np.isin(owner, list(part_joints(character, "hips", origins)))
-    limbs = limb_joint_sets(character)
+    parts = humanoid_joints(character)
+    limbs = limb_joint_sets(character, parts)
     leg_joints = limbs["leg_l"] | limbs["leg_r"]
     arm_joints = limbs["arm_l"] | limbs["arm_r"]
-    parts = humanoid_joints(character)
     # each arm's upper joint, of a chain or of a shorter arm (a chibi's single joint)
     arm_upper = [(parts.limb("arm", s) or parts.short.get(f"arm_{s}"))[0] for s in ("l", "r")
                  if parts.limb("arm", s) or parts.short.get(f"arm_{s}")]

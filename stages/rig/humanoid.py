@@ -488,10 +488,15 @@ def humanoid_joints(character) -> HumanoidJoints:
                           tuple(character.joint_names), found, short, points, why)
 
 
-def limb_joint_sets(character) -> dict:
+def limb_joint_sets(character, parts: HumanoidJoints | None = None) -> dict:
     """part ('arm_l', 'arm_r', 'leg_l', 'leg_r') -> the set of joints whose skin is that limb: the
     subtree of its upper joint, for a chain and for a limb of fewer joints alike (a chibi's one-joint
-    arm is still an arm: its skin is not the torso's). Empty where none is found."""
-    b = rest_body(character)
-    return {part: subtree(b.parents, joints[0]) if joints else set()
-            for part, (joints, *_rest) in find_limbs(character, b).items()}
+    arm is still an arm: its skin is not the torso's). Empty where none is found. parts: the
+    character's humanoid_joints when the caller has them (not found again)."""
+    parts = parts or humanoid_joints(character)
+    parents = np.asarray(character.parents)
+    out = {}
+    for part in ("arm_l", "arm_r", "leg_l", "leg_r"):
+        joints = getattr(parts, part) or parts.short.get(part)
+        out[part] = subtree(parents, joints[0]) if joints else set()
+    return out
