@@ -2,10 +2,11 @@
 its particles, measured after the simulation, logged and summarised.
 
 Recording: per garment the series `sim/penetrations/body_edges/<garment>` (body-mesh edges through
-the garment's triangles) and `sim/penetrations/cloth_edges/<garment>` (the garment's edges through
+the garment's triangles), `sim/penetrations/body_edges_self_overlap/<garment>` (of them, those where
+the body meets itself) and `sim/penetrations/cloth_edges/<garment>` (the garment's edges through
 body triangles), beside the particle count `sim/penetrations/body`; the markers
-`sim/<garment>/body_cuts` (a point where each crossing edge meets the triangle, per frame) shown in
-the scene view; `sim/body_audit` (the figures and the joints named). Summary: one line per garment
+`sim/<garment>/body_cuts` (a point where each crossing edge meets the triangle, per frame; magenta,
+orange where the body meets itself) shown in the scene view; `sim/body_audit` (the figures and the joints named). Summary: one line per garment
 (worst frame after the blend-in, the joints nearest the crossings) beside the particles inside the
 body, and a warning per garment with a body edge through it after the blend-in. Runs when
 `simulation.body_audit` is on (the default), like the particle count.
@@ -19,6 +20,8 @@ import numpy as np
 import rerun as rr
 
 CUT_COLOR = (255, 30, 200, 255)     # magenta: reads on the skin and on every fabric colour
+OVERLAP_CUT_COLOR = (255, 150, 0, 255)  # orange: a cut where the body meets itself (no room for cloth)
+OVERLAP_COLOR = (255, 150, 0)
 CUT_RADIUS = 0.008
 BODY_EDGES_COLOR = (220, 30, 160)
 CLOTH_EDGES_COLOR = (120, 30, 200)
@@ -50,11 +53,16 @@ def log_body_crossings(rec: rr.RecordingStream, audit, times: np.ndarray) -> Non
                           name=f"{g.name}: body edges through the cloth", color=BODY_EDGES_COLOR)
         log_scalar_series(rec, f"sim/penetrations/cloth_edges/{g.name}", g.cloth_edges, times,
                           name=f"{g.name}: cloth edges through the body", color=CLOTH_EDGES_COLOR)
+        log_scalar_series(rec, f"sim/penetrations/body_edges_self_overlap/{g.name}", g.body_edges_in_overlap(), times,
+                          name=f"{g.name}: of them where the body meets itself", color=OVERLAP_COLOR)
         path = f"sim/{g.name}/body_cuts"
-        rec.log(path, rr.Points3D.from_fields(colors=[CUT_COLOR], radii=[CUT_RADIUS]), static=True)
+        rec.log(path, rr.Points3D.from_fields(radii=[CUT_RADIUS]), static=True)
         pts = np.concatenate(g.points).reshape(-1, 3).astype(np.float32)
-        rec.send_columns(path, indexes=time_columns(times), columns=rr.Points3D.columns(positions=pts).partition(
-            np.array([len(p) for p in g.points])))
+        meets = np.concatenate([np.asarray(k, bool) for k in g.self_overlap]) if pts.size else np.zeros(0, bool)
+        colors = np.where(meets[:, None], np.array(OVERLAP_CUT_COLOR, np.uint8), np.array(CUT_COLOR, np.uint8))
+        rec.send_columns(path, indexes=time_columns(times),
+                         columns=rr.Points3D.columns(positions=pts, colors=colors.astype(np.uint8)).partition(
+                             np.array([len(p) for p in g.points])))
     lines = [f"- {k}: {v}" for k, v in audit.summary().items()]
     for g in audit.garments:
         total = g.joint_counts[audit.first_frame:].sum(axis=0)
@@ -94,6 +102,7 @@ def audit_and_log(rec: rr.RecordingStream, scene, state: dict, announce=lambda n
         warnings.warn(w, stacklevel=1)
 
 
-def body_edges_max(audit) -> int:
-    """The most body edges through the cloth (all garments) in a frame after the blend-in."""
-    return int(audit.body_edges_after().max(initial=0))
+def body_edges_max(audit, in_overlap: bool = False) -> int:
+    """The most body edges through the cloth (all garments) in a frame after the blend-in, away from
+    where the body meets itself (or, in_overlap, where it does)."""
+    return int(audit.body_edges_after(in_overlap).max(initial=0))

@@ -186,6 +186,7 @@ def run_corpus(folder: Path, *, frames: int = 30, characters: list[str] | None =
 def table(rows: list[dict]) -> str:
     """The corpus as a user reads it: one line per pair, pass or the reasons it fails."""
     head = ["character", "pair", "result", "in body (max %)", "crossings", "body edges through cloth",
+            "body edges where the body meets itself (not judged)",
             "strain p99 last (%)", "seam gap (mm)", "fit gap (cm)"]
     out = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
 
@@ -198,6 +199,7 @@ def table(rows: list[dict]) -> str:
         result = "pass" if not r["verdict"] else "FAIL: " + "; ".join(r["verdict"])
         out.append("| " + " | ".join([r["character"], r["pair"], result.replace("|", "/"), num(body, ".2f"),
                                       num(cross, "d"), num(r.get("body_edges_max"), "d"),
+                                      num(r.get("body_edges_overlap_max"), "d"),
                                       num(r.get("strain_p99_pct"), ".1f"),
                                       num(r.get("seam_gap_mm"), ".1f"), num(r.get("fit_gap_cm"), ".1f")]) + " |")
     passed = sum(not r["verdict"] for r in rows)

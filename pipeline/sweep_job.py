@@ -18,13 +18,13 @@ FAILURES = ("sewing", "timeout", "diverged", "bad-input", "crash")
 # the metrics row, in table order; the override columns (one per swept key) follow `job`
 COLUMNS = ("job", "status", "failure", "message", "frames", "frames_done", "particles",
            "in_body_max", "in_colliders_max", "strain_mean_pct", "strain_p99_pct", "strain_p99_worst_pct",
-           "crossings_self_max", "crossings_between_max", "body_edges_max", "seam_gap_mm", "fit_gap_cm", "floor_cm",
+           "crossings_self_max", "crossings_between_max", "body_edges_max", "body_edges_overlap_max", "seam_gap_mm", "fit_gap_cm", "floor_cm",
            "coverage_min_pct", "excess_p95_cm", "warnings",
            "wall_s", "frames_per_s", "sim_frames_per_s", "warm_up_s", "worker", "recording", "exports")
 # columns that depend on the machine and its load, not on the job: left out when comparing tables
 TIMING_COLUMNS = ("wall_s", "frames_per_s", "sim_frames_per_s", "warm_up_s", "worker")
 INT_COLUMNS = ("frames", "frames_done", "particles", "in_body_max", "in_colliders_max", "crossings_self_max",
-               "crossings_between_max", "body_edges_max", "warnings")
+               "crossings_between_max", "body_edges_max", "body_edges_overlap_max", "warnings")
 FLOAT_COLUMNS = ("strain_mean_pct", "strain_p99_pct", "strain_p99_worst_pct", "seam_gap_mm", "fit_gap_cm",
                  "floor_cm", "coverage_min_pct", "excess_p95_cm", "wall_s", "frames_per_s", "sim_frames_per_s",
                  "warm_up_s")
@@ -101,6 +101,7 @@ def _metrics(state: dict, err: BaseException | None) -> dict:
     if crossings is not None:   # body edges through the cloth (all garments), worst frame after the blend-in
         from pipeline.body_report import body_edges_max
         r["body_edges_max"] = body_edges_max(crossings)
+        r["body_edges_overlap_max"] = body_edges_max(crossings, in_overlap=True)
     builds = state.get("builds") or {}
     gaps = [float(log.gap_max[-1]) for log, _ in builds.values()]
     if err is not None and isinstance(getattr(err, "partial", None), tuple):   # a SewingError: its garment

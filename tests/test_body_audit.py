@@ -13,7 +13,7 @@ from hypothesis import given, settings, strategies as st
 
 from stages.garments.simple import rectangle_cloth
 from stages.sim.audit import mesh_edges
-from stages.sim.body_audit import BodyFrames, audit_body_crossings, frame_crossings
+from stages.sim.body_audit import BodyFrames, audit_body_crossings, frame_crossings, in_self_overlap
 from stages.sim.types import GarmentTrack, SimParams, SimResult
 
 REPO = Path(__file__).resolve().parent.parent
@@ -77,7 +77,7 @@ def brute_counts(cloth, cloth_tris, body, body_tris) -> tuple[int, int]:
 
 
 def audit_counts(cloth, cloth_tris, body, body_tris) -> tuple[int, int]:
-    hb, hc, pts, joints, _ = frame_crossings(cloth, cloth_tris, mesh_edges(cloth_tris), body, body_tris,
+    hb, hc, pts, joints, _, _ = frame_crossings(cloth, cloth_tris, mesh_edges(cloth_tris), body, body_tris,
                                              mesh_edges(body_tris), np.zeros(len(body), np.int32))
     assert len(pts) == len(joints) == len(hb) + len(hc)
     return len(hb), len(hc)
@@ -191,6 +191,40 @@ def test_stage_counts_per_frame_joints_points_and_warning():
     assert any(v.startswith(f"8 at frame 2 (hand {8 + g.cloth_edges[2]})") for v in s.values())
 
 
+def test_crossings_where_the_body_meets_itself_are_counted_apart():
+    """A rod sunk into a slab (two parts of one body passing through each other, as an animation sinks a
+    forearm into the hip) through a sheet lying inside the slab: the rod's edges cross the sheet inside
+    the slab (flagged), the slab's own edges cross it away from the rod (not flagged); the sheet's edges
+    through the rod's walls inside the slab are flagged, through the slab's walls not. Either winding
+    of the body. The audit counts the flagged body edges apart and judges the rest."""
+    cloth, ct = _sheet()
+    rod, rt = _box([0.013, 0.2, 0.021], [0.047, 0.8, 0.066])
+    slab, slt = _box([-0.2, 0.45, -0.2], [0.25, 0.55, 0.25])
+    body = np.concatenate([rod, slab]).astype(np.float32)
+    for bt in (np.concatenate([rt, slt + 8]), np.concatenate([rt, slt + 8])[:, ::-1].copy()):
+        be = mesh_edges(bt)
+        hb, hc, pts, _, normals, _ = frame_crossings(cloth, ct, mesh_edges(ct), body, bt, be, np.zeros(16, np.int32))
+        flags = in_self_overlap(body, bt, pts, normals)
+        rod_edge = (be[hb[:, 0]] < 8).all(axis=1)
+        assert rod_edge.sum() == 8 and (~rod_edge).sum() > 0
+        assert flags[:len(hb)].tolist() == rod_edge.tolist()
+        rod_wall = (bt[hc[:, 1]] < 8).all(axis=1)
+        assert rod_wall.any() and (~rod_wall).any()
+        assert flags[len(hb):].tolist() == rod_wall.tolist()
+        track = GarmentTrack("sheet", ct, np.repeat(cloth[None], 2, axis=0), np.zeros(2, np.int32), np.zeros(2, np.int32))
+        audit = audit_body_crossings(_result([track], 2), BodyFrames(np.stack([body, body]), bt, np.zeros(16, np.int32),
+                                                                     ("j",)))
+        g = audit.garment("sheet")
+        assert g.body_edges_in_overlap().tolist() == [8, 8] and g.body_edges_free().tolist() == [len(hb) - 8] * 2
+        assert audit.body_edges_after().tolist() == [len(hb) - 8]
+        assert audit.body_edges_after(in_overlap=True).tolist() == [8]
+        assert any("one part of the body into another" in w for w in audit.warnings)
+    # the rod alone: nothing where the body meets itself
+    hb, hc, pts, _, normals, _ = frame_crossings(cloth, ct, mesh_edges(ct), rod.astype(np.float32), rt, mesh_edges(rt),
+                                                 np.zeros(8, np.int32))
+    assert len(pts) and not in_self_overlap(rod.astype(np.float32), rt, pts, normals).any()
+
+
 # -- a real run, read back from its recording ------------------------------------------------------
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
@@ -207,7 +241,7 @@ def test_the_series_and_markers_are_logged_and_summarised(recorded):
     out, summary = recorded
     paths = entity_paths(out)
     assert "/sim/penetrations/body_edges/skirt" in paths and "/sim/penetrations/cloth_edges/skirt" in paths
-    assert "/sim/skirt/body_cuts" in paths
+    assert "/sim/skirt/body_cuts" in paths and "/sim/penetrations/body_edges_self_overlap/skirt" in paths
     series = rows(out, "sim/penetrations/body_edges/skirt", "Scalars:scalars")
     assert [f for f, _ in series] == list(range(summary.frames))
     assert all(v.size == 1 and v[0] >= 0 for _, v in series)

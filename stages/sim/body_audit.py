@@ -8,7 +8,9 @@ every particle outside. Per frame and garment this counts
 - body edges through the cloth: body-mesh edges crossing a triangle of the garment;
 - cloth edges through the body: garment edges crossing a body triangle;
 each edge once however many triangles it crosses, by the exact test of stages.sim.audit_kernels
-(touching and coplanar contacts do not count). Each crossing is located (where the edge meets the
+(touching and coplanar contacts do not count). Crossings where the body meets itself (an animation
+that sinks a forearm into the hip: two parts of the skin pass through each other, and cloth between
+them must cross one) are flagged and counted apart (`in_self_overlap`); the figure judged is the rest. Each crossing is located (where the edge meets the
 triangle) and named by the body's joint nearest it: the dominant skin joint of the body vertex
 nearest the crossing point (of the body edge, or of the body triangle).
 """
@@ -23,6 +25,7 @@ from stages.jit import threaded
 from stages.sim import audit_kernels as AK
 from stages.sim import body_audit_kernels as BK
 from stages.sim.audit import crosses_exact, mesh_edges
+from stages.sim.winding import winding_numbers_brute
 
 
 @dataclass(frozen=True)
@@ -68,6 +71,9 @@ class GarmentCrossings:
     joint_counts: (F, J) int32, both kinds of crossing per nearest joint (sums to body + cloth edges).
     points: per frame, (c, 3) float32 world metres: where each crossing edge meets the triangle
         (body edges first, then cloth edges), c = body_edges[f] + cloth_edges[f].
+    self_overlap: per frame, (c,) bool, aligned with points: the crossing is where the body meets
+        itself (in_self_overlap: two parts of the body pass through each other or touch there, and
+        no cloth between them can avoid one of them).
     """
 
     name: str
@@ -75,6 +81,7 @@ class GarmentCrossings:
     cloth_edges: np.ndarray
     joint_counts: np.ndarray
     points: tuple
+    self_overlap: tuple
 
     def __post_init__(self):
         o = f"GarmentCrossings[{self.name!r}]"
@@ -83,6 +90,17 @@ class GarmentCrossings:
         check_array(o, "joint_counts", self.joint_counts, (f, None), np.int32)
         if len(self.points) != f:
             raise ContractError(f"{o}.points: {len(self.points)} frames, expected {f}")
+        if [len(k) for k in self.self_overlap] != [len(p) for p in self.points]:
+            raise ContractError(f"{o}.self_overlap: expected one flag per crossing point of each frame")
+
+    def body_edges_free(self) -> np.ndarray:
+        """(F,) int32 body edges through the cloth away from where the body meets itself: the limb
+        through the cloth that collision handling should have prevented."""
+        return (self.body_edges - self.body_edges_in_overlap()).astype(np.int32)
+
+    def body_edges_in_overlap(self) -> np.ndarray:
+        """(F,) int32 body edges through the cloth where the body meets itself (the cloth pinched)."""
+        return np.array([int(np.count_nonzero(k[:n])) for k, n in zip(self.self_overlap, self.body_edges)], np.int32)
 
 
 @dataclass(frozen=True)
@@ -93,7 +111,8 @@ class BodyCrossings:
     joint_names: J names (GarmentCrossings.joint_counts' columns).
     first_frame: the first frame the warnings and `worst` look at (after the blend-in; >= 1).
     exact_pairs: edges the float64 filter left undecided, decided in rational arithmetic.
-    warnings: one line per garment with a body edge through it at or after first_frame.
+    warnings: per garment, one line if a body edge passes through it away from where the body meets
+        itself at or after first_frame, and one if it does where the body meets itself.
     """
 
     garments: tuple
@@ -116,19 +135,23 @@ class BodyCrossings:
                 return g
         raise KeyError(f"no garment {name!r}")
 
-    def body_edges_after(self) -> np.ndarray:
-        """(F - first_frame,) body edges through any garment per frame from first_frame on."""
+    def body_edges_after(self, in_overlap: bool = False) -> np.ndarray:
+        """(F - first_frame,) body edges through any garment per frame from first_frame on, away from
+        where the body meets itself (the figure judged), or (in_overlap) where it does."""
         if not self.garments:
             return np.zeros(0, np.int32)
-        return np.sum([g.body_edges[self.first_frame:] for g in self.garments], axis=0).astype(np.int32)
+        per = [g.body_edges_in_overlap() if in_overlap else g.body_edges_free() for g in self.garments]
+        return np.sum([p[self.first_frame:] for p in per], axis=0).astype(np.int32)
 
-    def worst(self, g: GarmentCrossings) -> tuple[int, int]:
-        """(frame, body edges) of the garment's worst frame from first_frame on ((first_frame, 0) when none)."""
-        tail = g.body_edges[self.first_frame:]
+    def worst(self, g: GarmentCrossings, in_overlap: bool = False) -> tuple[int, int]:
+        """(frame, body edges away from where the body meets itself, or in_overlap: where it does) of the
+        garment's worst frame from first_frame on ((first_frame, 0) when none)."""
+        counts = g.body_edges_in_overlap() if in_overlap else g.body_edges_free()
+        tail = counts[self.first_frame:]
         if not tail.size:
             return self.first_frame, 0
         f = self.first_frame + int(np.argmax(tail))
-        return f, int(g.body_edges[f])
+        return f, int(counts[f])
 
     def joints_at(self, g: GarmentCrossings, frame: int, top: int = 3) -> str:
         """'name n, name n' of the joints with the most crossings of the garment at `frame`."""
@@ -141,10 +164,12 @@ class BodyCrossings:
         out = {}
         for g in self.garments:
             f, n = self.worst(g)
+            fo, no = self.worst(g, in_overlap=True)
             cloth = int(g.cloth_edges[self.first_frame:].max(initial=0))
             where = f" at frame {f} ({self.joints_at(g, f)})" if n else ""
-            out[f"{g.name}: body edges through the cloth / cloth edges through the body "
-                f"(max per frame {blend_in_note(self.first_frame)})"] = f"{n}{where} / {cloth}"
+            out[f"{g.name}: body edges through the cloth (elsewhere / where the body meets itself) / cloth edges "
+                f"through the body (max per frame {blend_in_note(self.first_frame)})"] = (
+                f"{n}{where} / {no}{f' at frame {fo}' if no else ''} / {cloth}")
         return out
 
 
@@ -199,13 +224,17 @@ def _near_box(x: np.ndarray, items: np.ndarray, lo: np.ndarray, hi: np.ndarray) 
     return np.flatnonzero(np.all(pts.min(axis=1) <= hi, axis=1) & np.all(pts.max(axis=1) >= lo, axis=1))
 
 
+SELF_GAP = 0.002    # m: see in_self_overlap
+
+
 def frame_crossings(cloth: np.ndarray, cloth_tris: np.ndarray, cloth_edges: np.ndarray, body: np.ndarray,
                     body_tris: np.ndarray, body_edges: np.ndarray, vertex_joint: np.ndarray):
-    """One frame, one garment: (body hits, cloth hits, points (c, 3) float32, joints (c,), exact pairs).
+    """One frame, one garment: (body hits, cloth hits, points (c, 3) float32, joints (c,), normals, exact pairs).
 
     cloth (N, 3), body (V, 3) float positions; *_tris (T, 3), *_edges (E, 2) int32 into them. Body
     hits: (k, 2) int64 rows (index into body_edges, cloth triangle it crosses); cloth hits: (m, 2)
-    rows (index into cloth_edges, body triangle); points and joints: body hits first."""
+    rows (index into cloth_edges, body triangle); points, joints and normals (c, 3) float32 (the body's
+    outward unit normal at each point): body hits first."""
     nc = cloth.shape[0]
     x = np.concatenate([cloth, body]).astype(np.float64)   # cloth rows first (see _grid)
     lo, hi = x[:nc].min(axis=0), x[:nc].max(axis=0)
@@ -219,6 +248,11 @@ def frame_crossings(cloth: np.ndarray, cloth_tris: np.ndarray, cloth_edges: np.n
     kb, kc = np.flatnonzero(hb >= 0), np.flatnonzero(hc >= 0)
     pb, tb = _segment_points(x, be[kb], cloth_tris[hb[kb]])
     pc, _ = _segment_points(x, cloth_edges[kc], bt[hc[kc]])
+    # the body's outward normal there: along the body edge, its ends' normals; on a body triangle, its own
+    vn = vertex_normals(x[nc:], body_tris)
+    nb_ = (1.0 - tb)[:, None] * vn[be[kb, 0] - nc] + tb[:, None] * vn[be[kb, 1] - nc]
+    a, b, c = (x[bt[hc[kc], k]] for k in range(3))
+    normals = _unit(np.concatenate([nb_, np.cross(b - a, c - a)]))
     # the joint nearest: the body edge's nearer end; the body triangle's nearest corner
     ends = np.where(tb < 0.5, be[kb, 0], be[kb, 1]) - nc
     corners = bt[hc[kc]] - nc
@@ -228,7 +262,39 @@ def frame_crossings(cloth: np.ndarray, cloth_tris: np.ndarray, cloth_edges: np.n
     points = np.concatenate([pb, pc]).astype(np.float32)
     hits_b = np.column_stack([ib[kb], hb[kb]]).astype(np.int64)
     hits_c = np.column_stack([kc, it[hc[kc]]]).astype(np.int64)
-    return hits_b, hits_c, points, joints, nb + ncl
+    return hits_b, hits_c, points, joints, normals.astype(np.float32), nb + ncl
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=1, keepdims=True)
+    return v / np.where(n > 0.0, n, 1.0)
+
+
+def vertex_normals(x: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """(V, 3) unit area-weighted vertex normals of a mesh (zero for a vertex no triangle uses)."""
+    a, b, c = (x[tris[:, k]] for k in range(3))
+    fn = np.cross(b - a, c - a)
+    out = np.zeros_like(x, dtype=np.float64)
+    for k in range(3):
+        np.add.at(out, tris[:, k], fn)
+    return _unit(out)
+
+
+def in_self_overlap(body: np.ndarray, body_tris: np.ndarray, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(c,) bool: the crossing points where the body meets itself: the point SELF_GAP outside the body's
+    surface there (along its outward normal) is still inside the body, in another part of it (a forearm
+    sunk into the hip by the animation; surfaces closer than SELF_GAP). No cloth can lie between two
+    parts there without one of them passing through it. Inside: generalised winding number > 1/2
+    (stages.sim.winding, exact sum over every body triangle; only crossing points are evaluated)."""
+    if not len(points):
+        return np.zeros(0, bool)
+    x = np.asarray(body, np.float64)
+    a, b, c = (x[body_tris[:, k]] for k in range(3))
+    sign = 1.0 if np.einsum("ij,ij->", a, np.cross(b, c)) >= 0.0 else -1.0    # an inward-wound body: both flip
+    q = np.asarray(points, np.float64) + (sign * SELF_GAP) * np.asarray(normals, np.float64)
+    w = np.zeros(len(q))
+    threaded(winding_numbers_brute)(q, x, np.asarray(body_tris, np.int32), w)
+    return sign * w > 0.5
 
 
 def blend_in_note(first_frame: int) -> str:
@@ -252,20 +318,28 @@ def audit_body_crossings(result, body: BodyFrames, *, first_frame: int = 1) -> B
         nb = np.zeros(nf, np.int32)
         nc = np.zeros(nf, np.int32)
         per_joint = np.zeros((nf, nj), np.int32)
-        points = []
+        points, overlap = [], []
         for f in range(nf):
-            hb, hc, pts, joints, k = frame_crossings(track.positions[f], track.triangles, c_edges, body.positions[f],
-                                                     body.triangles, b_edges, body.vertex_joint)
+            hb, hc, pts, joints, normals, k = frame_crossings(track.positions[f], track.triangles, c_edges,
+                                                              body.positions[f], body.triangles, b_edges,
+                                                              body.vertex_joint)
             nb[f], nc[f], n_exact = len(hb), len(hc), n_exact + k
             per_joint[f] = np.bincount(joints, minlength=nj)
             points.append(pts)
-        out.append(GarmentCrossings(track.name, nb, nc, per_joint, tuple(points)))
+            overlap.append(in_self_overlap(body.positions[f], body.triangles, pts, normals))
+        out.append(GarmentCrossings(track.name, nb, nc, per_joint, tuple(points), tuple(overlap)))
     audit = BodyCrossings(tuple(out), tuple(body.joint_names), first, int(n_exact), ())
     for g in out:
         f, n = audit.worst(g)
         if n:
-            frames = int(np.count_nonzero(g.body_edges[first:]))
+            frames = int(np.count_nonzero(g.body_edges_free()[first:]))
             warnings.append(f"garment {g.name!r}: {n} body edges through the cloth at frame {f} "
                             f"({audit.joints_at(g, f)}); body edges through it in {frames} frames "
                             f"{blend_in_note(first)}")
+        f, n = audit.worst(g, in_overlap=True)
+        if n:
+            frames = int(np.count_nonzero(g.body_edges_in_overlap()[first:]))
+            warnings.append(f"garment {g.name!r}: the animation puts one part of the body into another where the "
+                            f"cloth is ({n} body edges through the cloth there at frame {f}, in {frames} frames "
+                            f"{blend_in_note(first)}): no cloth can lie between them there; counted apart")
     return replace(audit, warnings=tuple(warnings))
