@@ -321,7 +321,7 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=Non
                                  np.full(len(result.times), a.size)))
     log_scalar_series(rec, "sim/penetrations/colliders", result.penetrations_colliders, result.times,
                       name="inside a collider", color=(230, 80, 60))
-    if result.params.pinch == "midpoint":
+    if result.params.pinch != "escape":
         log_scalar_series(rec, "sim/penetrations/pinched", result.pinched, result.times,
                           name="held between two joints' colliders", color=(240, 170, 40))
     audited = bool(result.params.body_audit)
@@ -366,7 +366,7 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=Non
             f"{int(result.penetrations_colliders[1:].max(initial=0))} / {float(result.penetrations_colliders[1:].mean()) if len(body) > 1 else 0:.2f}",
         "pinched between two joints' colliders, held in their overlap (max / mean per frame, frame 0 excluded)":
             f"{int(result.pinched[1:].max(initial=0))} / {float(result.pinched[1:].mean()) if len(body) > 1 else 0:.2f}"
-            if p.pinch == "midpoint" else "off (simulation.pinch: escape)",
+            if p.pinch != "escape" else "off (simulation.pinch: escape)",
         "inside body (max / mean per frame)": (f"{int(body.max())} / {float(body.mean()):.2f} "
                                                f"({100 * int(body.max()) / max(n, 1):.2f} % of particles, worst frame {worst})")
                                               if audited else "not audited (simulation.body_audit: false)",

@@ -246,9 +246,12 @@ SCENE_SPEC = {
         "cloth_collision": Field("bool", None, "on | off (preset: on in default, off in paper) "
                                  "garment-garment and self collision (cloth x cloth, last phase of every "
                                  "step); garments keep their `layer` order"),
-        "pinch": Field("str", None, "midpoint | escape (preset; paper: escape): cloth pressed between the colliders of two "
-                       "joints (an arm lowered onto the torso) stays in the middle of their overlap, or leaves their union",
-                       choices=("midpoint", "escape")),
+        "pinch": Field("str", None, "midpoint | limb | escape (preset: midpoint; paper: escape): cloth pressed between the "
+                       "colliders of two joints (an arm lowered onto the torso, a hand on the hip) stays in the middle "
+                       "of their overlap; limb: the deeper limb's collider acts and the body's yields, the cloth held "
+                       "midway between them at once (less strain, more cloth inside the body); escape: it leaves "
+                       "their union",
+                       choices=("midpoint", "limb", "escape")),
         "entry_side": Field("bool", None, "on | off (preset: off): cloth a limb pushes past its middle in one "
                             "step leaves the limb by the side it came in, not the far side (the paper's map "
                             "response would wrap it round the limb)"),

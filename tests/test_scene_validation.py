@@ -46,6 +46,7 @@ def test_simulation_preset_and_overrides():
     assert "not one of default, paper" in error_of("simulation: {preset: fast}")
     # pinched cloth: held in the middle by default, the paper preset escapes (issue 6), a scene may choose
     assert (default.pinch, paper.pinch) == ("midpoint", "escape")
+    assert sim_params(parse_scene_text("simulation: {pinch: limb}", source="s.yaml")).pinch == "limb"
     assert sim_params(parse_scene_text("simulation: {pinch: escape}", source="s.yaml")).pinch == "escape"
     assert sim_params(parse_scene_text("simulation: {preset: paper, pinch: midpoint}", source="s.yaml")).pinch == "midpoint"
     msg = error_of("simulation: {pinch: squeeze}")

@@ -118,7 +118,7 @@ def _collide_with(col, grid, x, xp, contact, method, passes, friction=0.5, pinch
     corr, ins, sp = np.zeros(n, np.uint8), np.zeros(n, np.uint8), np.zeros(n)
     collide(out, xp, np.ones(n), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.tq0, col.fq,
               col.cw, *grid, col.face_edges, col.src_range, friction, passes, corr, ins, sp, contact, 1 / 30,
-              col.joint, pinch, False)
+              col.joint, int(pinch), False, col.family)
     return out, xp, corr, ins
 
 
@@ -247,7 +247,7 @@ def test_screened_collide_equals_the_visiting_loop(seed, method):
             corr, ins, speed2 = np.zeros(len(x), np.uint8), np.zeros(len(x), np.uint8), np.zeros(len(x))
             collide(o, p, np.ones(len(x)), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.tq0, col.fq,
                     col.cw, *grid, col.face_edges, col.src_range, 0.5, 4, corr, ins, speed2, face, 1 / 30,
-                    col.joint, True, False)
+                    col.joint, 1, False, col.family)
             out.append((o, p, corr, ins, speed2))
         for u, v in zip(*out):
             assert np.array_equal(u, v)

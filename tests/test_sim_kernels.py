@@ -188,7 +188,8 @@ def _collider_arrays(cs, maps, fwd, inv0=None):
     return col
 
 
-def _collide(col, x, xp, friction=0.0, method=0, passes=4, contact=None, pinch=False, entry=False):
+def _collide(col, x, xp, friction=0.0, method=0, passes=4, contact=None, pinch=False, entry=False, family=None):
+    """collide on the points; pinch: a body_collide.PINCH_* code (False: escape, True: midpoint)."""
     n = x.shape[0]
     out, xp = x.copy(), xp.copy()
     corr, ins, sp = np.zeros(n, np.uint8), np.zeros(n, np.uint8), np.zeros(n)
@@ -197,7 +198,8 @@ def _collide(col, x, xp, friction=0.0, method=0, passes=4, contact=None, pinch=F
                  col.grid_items, col.grid_runs, col.grid_box, col.grid_dims)
     collide(out, xp, np.ones(n), col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.tq0, col.fq,
               col.cw, col.grid_start, col.grid_items, col.grid_box, col.grid_dims, col.face_edges, col.src_range,
-              friction, passes, corr, ins, sp, contact, 1 / 30, col.joint, pinch, entry)
+              friction, passes, corr, ins, sp, contact, 1 / 30, col.joint, int(pinch), entry,
+              col.family if family is None else family)
     return out, xp, corr, ins
 
 

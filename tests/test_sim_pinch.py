@@ -8,7 +8,7 @@ from hypothesis import given, settings, strategies as st
 
 from stages.hulls.types import ColliderSet, SphereCollider
 from stages.maps.kernels import METHOD_BRUTE, METHOD_PAPER, collide_points
-from stages.sim.body_collide import PINCHED, PUSH_EPS
+from stages.sim.body_collide import PINCH_LIMB, PINCH_MIDPOINT, PINCHED, PUSH_EPS
 from tests.test_sim_kernels import _collide, _collider_arrays, _one_hull_maps
 
 
@@ -180,6 +180,56 @@ def test_pinch_on_the_axis_ends_in_the_middle_of_the_lens(r1, r2, overlap, where
                                  pinch=True)
     assert ins[0] == PINCHED and corr[0] == 1
     np.testing.assert_allclose(out[0], [(a + b) / 2, 0.0, 0.0], atol=1e-6 * max(1.0, d))
+
+
+# -- SimParams.pinch 'limb': the deeper limb's collider acts, the body's yields ---------------------------
+
+def _family(depths, parents):
+    """collider_family rows for colliders on joints 0..n-1 with these parents and depths."""
+    return np.array([[j, p, d] for j, (p, d) in enumerate(zip(parents, depths))], np.int32)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(0.3, 2.0), st.floats(0.3, 2.0), st.floats(0.05, 0.95), st.floats(0.0, 1.0),
+       st.integers(1, 6), st.booleans())
+def test_limb_rule_holds_cloth_in_the_middle_of_the_lens_in_one_pass(r1, r2, overlap, where, passes, swap):
+    """A 'torso' sphere (depth 0) and a 'hand' sphere (depth 2, not its child) overlapping, a particle on
+    the axis inside their lens: whichever is visited first, the particle goes to the middle of the two
+    exits (a + b) / 2 at once, marked PINCHED; the body's push is never made alone. Colliders listed
+    either way round give the same point."""
+    d = r1 + r2 - overlap * min(r1, r2)
+    a, b = d - r2, r1
+    x0 = a + (b - a) * (0.05 + 0.9 * where)
+    specs = [([0.0, 0.0, 0.0], r1), ([d, 0.0, 0.0], r2)]
+    fam = _family([0, 2], [-1, 1])
+    if swap:
+        specs, fam = specs[::-1], fam[::-1].copy()
+        fam[:, 0] = [0, 1]
+        fam[:, 1] = [1, -1]
+    col = _collider_arrays(_spheres(*specs), None, np.tile(np.eye(4), (2, 1, 1)))
+    p = np.array([[x0, 0.0, 0.0]])
+    out, xp, corr, ins = _collide(col, p, p, passes=passes, pinch=PINCH_LIMB, family=fam)
+    assert ins[0] == PINCHED and corr[0] == 1
+    np.testing.assert_allclose(out[0], [(a + b) / 2, 0.0, 0.0], atol=1e-6 * max(1.0, d))
+
+
+def test_limb_rule_leaves_the_body_alone_elsewhere_and_adjacent_joints_to_the_midpoint_rule():
+    """Away from the limb the body's collider pushes as always; a particle in the body's collider whose
+    push would land in the limb goes halfway (PINCHED); with the limb the body's child (a shoulder and
+    its upper arm) nothing outranks: the same result as the midpoint rule, bit for bit."""
+    centres = np.array([[0.0, 0.0, 0.0], [1.5, 0.0, 0.0]])
+    col = _collider_arrays(_spheres(*zip(centres, [1.0, 1.0])), None, np.tile(np.eye(4), (2, 1, 1)))
+    p0 = np.array([[-0.9, 0.1, 0.0], [0.45, 0.0, 0.0], [2.0, 3.0, 0.0]])
+    out, xp, corr, ins = _collide(col, p0, p0, passes=4, pinch=PINCH_LIMB, family=_family([0, 2], [-1, 1]))
+    np.testing.assert_allclose(np.linalg.norm(out[0]), 1.0, atol=1e-6)       # pushed out of the body
+    assert list(ins) == [0, PINCHED, 0] and list(corr) == [1, 1, 0]
+    np.testing.assert_allclose(out[1], [0.725, 0.0, 0.0], atol=1e-6)          # halfway to the body's surface
+    np.testing.assert_array_equal(out[2], p0[2])
+    pts = np.random.default_rng(3).uniform(-1.0, 2.5, (300, 3))
+    a = _collide(col, pts, pts, passes=2, pinch=PINCH_LIMB, family=_family([0, 1], [-1, 0]))
+    b = _collide(col, pts, pts, passes=2, pinch=PINCH_MIDPOINT, family=_family([0, 1], [-1, 0]))
+    for u, v in zip(a, b):
+        np.testing.assert_array_equal(u, v)
 
 
 def _cube_planes(half=1.0):

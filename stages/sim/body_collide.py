@@ -21,7 +21,7 @@ from stages.maps.kernels import (METHOD_NEAREST_PLANE, METHOD_PAPER, ZERO_DIR, _
 from stages.maps.types import KIND_CYLINDER as KIND_CYLINDER_MAP
 from stages.sim.body_escape import PUSH_EPS, _entry_side, _outward, _settle, escape_union
 from stages.sim.collider_grid import KIND_SPHERE, apply12, grid_cell, rotate12
-from stages.sim.collider_query import IGNORED, TOUCH_EPS, _inside_any, _sphere_hit
+from stages.sim.collider_query import IGNORED, TOUCH_EPS, _collider_hit, _inside_any, _penetrates, _sphere_hit
 
 # the hull query is inlined from stages.maps.kernels: its edits must invalidate this module's cache
 NUMBA_CACHE_DEPENDS = ("stages.maps.kernels", "stages.maps.types", "stages.affine", "stages.sim.collider_grid",
@@ -111,7 +111,52 @@ def _cached_face(mkind, half, planes, face_edges, src_range, h, f, q0, q1, q2):
     return True, True, r0, r1, r2
 
 
-PINCHED = 4         # collide's mark in inside[i]: left in the middle of two bones' colliders pressing on it
+PINCHED = 4         # collide's mark in inside[i]: held in the overlap of two bones' colliders pressing on it
+PINCH_ESCAPE = 0    # collide's `pinch` codes (SimParams.pinch, stages.sim.types.PINCH_RULES order)
+PINCH_MIDPOINT = 1
+PINCH_LIMB = 2
+
+
+@njit(cache=True, _nrt=False, forceinline=True)
+def _outranked(c, i, family, contact, col_kind, col_index, sph_radius, method, tq, fq, cw, grid_start, grid_items,
+               grid_box, grid_dims, half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes,
+               cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+               px, py, pz, wx, wy, wz):
+    """(rank, e): whether collider c must not push particle i from p to w (world) because a collider h
+    of a deeper joint, not c's parent or child (a forearm over the torso, a hand over the hip, a knee
+    over the other thigh), holds it: 1, h holds p too (e: where h would push it out, world); 2, h
+    holds w only (p is between them: c's push would put it into h); 0, neither (the 'limb' pinch
+    rule). h is looked for among the colliders of p's grid cell."""
+    bb = grid_cell(grid_box, grid_dims, px, py, pz)
+    if bb < 0:
+        return 0, px, py, pz
+    oc = family[c, 0]
+    found = 0
+    for j in range(grid_start[bb], grid_start[bb + 1]):
+        h = grid_items[j]
+        if family[h, 2] <= family[c, 2] or contact[i, h] == IGNORED:
+            continue
+        oh = family[h, 0]
+        if oh == oc or family[h, 1] == oc or family[c, 1] == oh:
+            continue
+        dx = px - cw[h, 0]
+        dy = py - cw[h, 1]
+        dz = pz - cw[h, 2]
+        if dx * dx + dy * dy + dz * dz < cw[h, 4]:
+            q0, q1, q2 = apply12(tq, h, px, py, pz)
+            hit, r0, r1, r2, n0, n1, n2 = _collider_hit(
+                h, col_kind, col_index, sph_radius, method, half, mkind, n_theta, n_second, second_lo, second_hi,
+                face_start, planes, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face,
+                q0, q1, q2)
+            if hit and (r0 - q0) ** 2 + (r1 - q1) ** 2 + (r2 - q2) ** 2 >= TOUCH_EPS * TOUCH_EPS:
+                ex, ey, ez = apply12(fq, h, r0, r1, r2)
+                return 1, ex, ey, ez
+        if found == 0 and _penetrates(h, col_kind, col_index, sph_radius, method, tq, cw, half, mkind, n_theta,
+                                      n_second, second_lo, second_hi, face_start, planes, cell_base, cell_start,
+                                      cell_tris, loc_base, loc_x, loc_start, loc_y, loc_face, wx, wy, wz):
+            found = 2
+    return found, px, py, pz
+
 OPEN = 2            # collide's screening mark in inside[i]: the particle may be inside a collider
 SCREEN_MAX = 4      # collide screens every particle against every collider up to this many colliders
 
@@ -119,7 +164,7 @@ SCREEN_MAX = 4      # collide screens every particle against every collider up t
 @serial_and_parallel(cache=True, _nrt=False)
 def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
             grid_start, grid_items, grid_box, grid_dims, face_edges, src_range, friction, passes, corrected, inside,
-            speed2, contact, h, col_joint, pinch, entry):
+            speed2, contact, h, col_joint, pinch, entry, family):
     """Collision detection and response of every free particle against every collider.
 
     Per particle: the colliders listed in its grid cell (build_grid) whose world bounding sphere
@@ -129,7 +174,12 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
     position are then visited cyclically after c (world sphere test first) until every one has been
     checked at the current position without a push, at most `passes` x (number of colliders) visits.
     A particle still inside one when the budget is spent is being pushed back and forth between
-    overlapping colliders. With `pinch` (bool), if collider c (holding it) and the collider of its
+    overlapping colliders. With `pinch` PINCH_LIMB, that rarely happens: a push by collider c is not
+    made when a collider of a deeper joint that is not c's parent or child (family (C, 3): joint,
+    parent, depth) holds the particle or would hold it after the push (_outranked): the limb pressing
+    the cloth onto the body wins, the cloth stays on the limb's side it was on, inside the body's
+    collider, and is marked PINCHED (counted apart from penetrations). With `pinch` PINCH_MIDPOINT (or
+    PINCH_LIMB, between colliders of equal depth), if collider c (holding it) and the collider of its
     last push belong to different joints (col_joint (C,) int) and c's push points into the last one
     (they press from opposite sides: an arm lowered onto the torso), it is pinched: it moves halfway
     along c's push, to the middle of their overlap (no friction, inelastic; inside[i] = PINCHED).
@@ -297,10 +347,34 @@ def collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0
                             n0 = planes[face, 0]
                             n1 = planes[face, 1]
                             n2 = planes[face, 2]
+                    if hit and pinch == PINCH_LIMB:
+                        wx, wy, wz = apply12(fq, c, r0, r1, r2)
+                        rank, ex, ey, ez = _outranked(
+                            c, i, family, contact, col_kind, col_index, sph_radius, method, tq, fq, cw, grid_start,
+                            grid_items, grid_box, grid_dims, half, mkind, n_theta, n_second, second_lo, second_hi,
+                            face_start, planes, cell_base, cell_start, cell_tris, loc_base, loc_x, loc_start, loc_y,
+                            loc_face, px, py, pz, wx, wy, wz)
+                        if rank != 0:
+                            # in both: midway between the two exits (the middle of their overlap, whichever
+                            # was visited first); between them: halfway out of c
+                            if rank == 2:
+                                ex = px
+                                ey = py
+                                ez = pz
+                            wx = ex + 0.5 * (wx - ex)
+                            wy = ey + 0.5 * (wy - ey)
+                            wz = ez + 0.5 * (wz - ez)
+                            _settle(xp, i, px, py, pz, wx, wy, wz)
+                            px = wx
+                            py = wy
+                            pz = wz
+                            last = c
+                            inside[i] = PINCHED
+                            break
                     if hit:
                         if stage == 2:
                             if (r0 - q0) ** 2 + (r1 - q1) ** 2 + (r2 - q2) ** 2 >= TOUCH_EPS * TOUCH_EPS:
-                                if pinch and last >= 0 and col_joint[c] != col_joint[last]:
+                                if pinch != PINCH_ESCAPE and last >= 0 and col_joint[c] != col_joint[last]:
                                     wx, wy, wz = apply12(fq, c, r0, r1, r2)
                                     ux = wx - px
                                     uy = wy - py

@@ -44,7 +44,7 @@ from stages.sim.cloth_contact import ClothPhase
 from stages.sim.poses import chunk_poses
 from stages.sim.settle import settle
 from stages.sim.springs import pack_springs, partition_springs
-from stages.sim.types import GarmentTrack, SimParams, SimResult, SimulationDiverged
+from stages.sim.types import PINCH_RULES, GarmentTrack, SimParams, SimResult, SimulationDiverged
 
 _CYCLES_PER_S = None
 FRAME_CHUNK = 32     # frames per kernel call (bounds the pose arrays; progress is reported per chunk)
@@ -236,7 +236,7 @@ def exit_face_data(hull_maps, m) -> tuple[np.ndarray, np.ndarray]:
 class _Colliders:
     """Colliders as flat arrays: unified index c (hulls first, then spheres)."""
 
-    def __init__(self, colliders, maps):
+    def __init__(self, colliders, maps, parents=None):
         hulls = tuple(colliders.hulls) if colliders is not None else ()
         spheres = tuple(colliders.spheres) if colliders is not None else ()
         self.notes = []
@@ -286,13 +286,32 @@ class _Colliders:
         self.grid_runs = np.zeros((max(nc * collider_grid.GRID_CELLS, 1), 3), np.int32)
         self.grid_box = np.zeros(4)
         self.grid_dims = np.zeros(3, np.int64)
+        self.family = collider_family(self.owner, parents)
 
     def cols(self) -> tuple:
         """The kernels' `cols` tuple (see stages/sim/step.py)."""
         return (self.joint, self.kind, self.index, self.bcenter, self.bradius, self.sph_center, self.sph_radius,
                 self.tq, self.tq0, self.fq, self.cw, self.grid_start, self.grid_items, self.grid_runs,
                 self.grid_box, self.grid_dims,
-                self.face_edges, self.src_range, self.cws)
+                self.face_edges, self.src_range, self.cws, self.family)
+
+
+def collider_family(owner: np.ndarray, parents=None) -> np.ndarray:
+    """(C, 3) int32 per collider: its joint, that joint's parent (-1: none), its depth in the skeleton
+    (root 0; deeper: a limb further out). The 'limb' pinch rule lets a collider act over another it
+    overlaps only when it is deeper and their joints are not parent and child (body_collide.collide).
+    parents None: every collider at depth 0 (no collider outranks another)."""
+    out = np.zeros((owner.size, 3), np.int32)
+    out[:, 0] = owner
+    out[:, 1] = -1
+    if parents is not None and owner.size:
+        parents = np.asarray(parents, np.int64)
+        depth = np.zeros(parents.size, np.int32)
+        for j in range(1, parents.size):       # parents[j] < j: topological order
+            depth[j] = depth[parents[j]] + 1 if parents[j] >= 0 else 0
+        out[:, 1] = parents[owner]
+        out[:, 2] = depth[owner]
+    return out
 
 
 def particles_inside_colliders(points, colliders, maps, pose, method: int = METHOD_PAPER) -> np.ndarray:
@@ -423,7 +442,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
         motion = replace(motion, joint_world=np.ascontiguousarray(
             colliders.frame_poses(character.inverse_bind, motion.joint_world)))
     sysm = _System(garments, motion.joint_world[0], params)
-    col = _Colliders(colliders, maps)
+    col = _Colliders(colliders, maps, character.parents)
     sysm.set_colliders(col.joint.size)
     notes = list(col.notes)
     if ignore_colliders is not None:
@@ -466,7 +485,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     n_obst = np.zeros(nf, np.int32)                                # obstacle contacts per frame
     obst_points = [np.zeros((0, 3), np.float32) for _ in range(nf)]
     prm = (h, params.step_damping(), s, k_drag, k_lift, float(params.friction), use_aero, int(params.iterations),
-           int(params.collision_passes), method, int(params.aero_steps()), params.pinch == "midpoint",
+           int(params.collision_passes), method, int(params.aero_steps()), PINCH_RULES.index(params.pinch),
            float(params.speed_limit) * h, bool(params.entry_side))
     cloth, cols, flags = sysm.cloth(), col.cols(), sysm.flags()
     # one thread: the serial kernels (compiled several times faster than the parallel ones)

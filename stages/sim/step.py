@@ -21,11 +21,13 @@ Cloth-side argument tuples (built once by simulate.py, unpacked for free inside 
     cloth = (x, xp, inv_mass, attach_joint, attach_local, ij, sp, group_start, ti, ta, tl, tris,
              tri_mass, tri_force, vt_table, x4, vertex_force, vt_eye)
     cols  = (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
-             tq, tq0, fq, cw, grid_start, grid_items, grid_runs, grid_box, grid_dims, face_edges, src_range, cws)
+             tq, tq0, fq, cw, grid_start, grid_items, grid_runs, grid_box, grid_dims, face_edges, src_range, cws,
+             family)
             cws (C, 5): the swept spheres of a frame's broad phase (collider_grid.swept_spheres)
+            family (C, 3): joint, its parent, its depth (simulate.collider_family; the 'limb' pinch rule)
     prm   = (h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method, aero_every, pinch,
              speed_h, entry)
-            entry: SimParams.entry_side (body_collide.collide's `entry`).
+            entry: SimParams.entry_side (body_collide.collide's `entry`); pinch: body_collide.PINCH_* code.
             speed_h: the speed limit times h (m per step; 0: no limit, see integrate.limit_speed).
             aero_every: steps per aerodynamic force computation (SimParams.aero_steps): the forces of
             step k with k % aero_every == 0 are held over the next aero_every steps, summed per vertex
@@ -90,7 +92,8 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
     (x, xp, inv_mass, attach_joint, attach_local, ij, sp, group_start, ti, ta, tl, tris, tri_mass,
      tri_force, vt_table, x4, vertex_force, vt_eye) = cloth
     (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
-     tq, tq0, fq, cw, grid_start, grid_items, grid_runs, grid_box, grid_dims, face_edges, src_range, cws) = cols
+     tq, tq0, fq, cw, grid_start, grid_items, grid_runs, grid_box, grid_dims, face_edges, src_range, cws,
+     family) = cols
     h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method, aero_every, pinch, speed_h, entry = prm
     corrected, inside, speed2, contact = flags
     for k in range(k0, k1):
@@ -123,7 +126,7 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
                        grid_runs, grid_box, grid_dims)
         collide(x, xp, inv_mass, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
                 grid_start, grid_items, grid_box, grid_dims, face_edges, src_range, friction, passes, corrected, inside,
-                speed2, contact, h, col_joint, pinch, entry)
+                speed2, contact, h, col_joint, pinch, entry, family)
         t3 = cycles()
         if cc is not None:
             cloth_phase(x, xp, k, cc)
