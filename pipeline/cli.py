@@ -225,8 +225,9 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("scene")
     v.set_defaults(func=cmd_validate)
     b = sub.add_parser("bench", parents=[common], help="run the benchmarks (separate from the tests)")
+    from pipeline.bench import BENCHES
     b.add_argument("which", nargs="*", default=["all"],
-                   help="any of: hulls maps sim obstacles all (default: all)")
+                   help=f"any of: {' '.join(BENCHES)} all (default: all)")
     b.add_argument("--json", help="also write the figures to this JSON file")
     b.set_defaults(func=cmd_bench)
     m = sub.add_parser("matrix", parents=[common], help="dress every garment kind on every character and tabulate the fit")

@@ -9,7 +9,7 @@ Default k = 18: Klosowski et al. (IEEE TVCG 1998, "Efficient collision detection
 volume hierarchies of k-DOPs") found 18-DOPs the best cost / tightness trade-off in their
 benchmarks, and for cloth over a table the 6 edge diagonals tighten exactly the slanted sheets
 that fold over axis-aligned edges, at 9 intervals per test versus 13 for k = 26.
-`stages.obstacles.bench.run_benchmark` measures all four on the table scene.
+`pipeline.benches.obstacles.run_benchmark` measures all four on the table scene.
 
 Trees are built top-down as in the paper: the split axis is the direction of the set along which
 the node is longest; the split point is the median of the primitives' centre projections on it;

@@ -368,7 +368,7 @@ def simulate(character, motion, colliders, maps, garments, params: SimParams, *,
     """See `_simulate`. threads: numba threads for the parallel kernels during the call (None = the
     current numba setting). Results do not depend on it (every parallel loop writes disjoint
     particles). Default 1: on the shared 2-core machine a second thread pays only when a core is
-    idle (see stages/sim/bench.py). layers: (G,) cloth collision layer per garment, 0 = innermost
+    idle (see pipeline/benches/sim.py). layers: (G,) cloth collision layer per garment, 0 = innermost
     (default: the garments' order); used when params.cloth_collision. partial: optional dict the
     simulation keeps 'result' in (a function of no argument: the SimResult of the frames done so
     far), for a caller that stops the run from outside (a sweep's timeout) and keeps what was done.
