@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from stages.obstacles.kdop import DEFAULT_K, refit_particle_tree
+from stages.geometry.kdop import DEFAULT_K, refit_particle_tree
 from stages.obstacles.kernels import candidate_pairs, motion_axis_order
 from stages.obstacles.primitives import make_obstacle, table_mesh
 from stages.obstacles.stage import ObstacleCollider, build_obstacle_set
