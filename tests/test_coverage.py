@@ -11,7 +11,7 @@ from stages.coverage import kernels as K
 from stages.coverage.measure import CollidersAtPose, SkinDistance, collider_arrays, inside_matrix, measure_coverage
 from stages.hulls.fit import fit_character
 from stages.rig.skinning import skin
-from stages.sim.winding import winding_numbers_brute
+from stages.geometry.winding import winding_numbers_brute
 from tests.toy_rig import bend_motion, bent_tube
 
 

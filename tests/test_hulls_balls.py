@@ -47,7 +47,7 @@ def test_balls_hold_every_flexible_vertex_they_claim_at_every_check_pose():
     its ball stands at most the loosest slack + delta out of the skin."""
     from stages.coverage.measure import SkinDistance
     from stages.coverage.kernels import distance_to_mesh_brute
-    from stages.sim import winding_number
+    from stages.geometry.winding import winding_number
     c, poses, x = _walk()
     delta, cover = 0.01, 0.6
     split = split_by_motion(c, bone_deviation(c, poses, x), 0.005)

@@ -133,7 +133,7 @@ def test_swept_core_points_stay_inside_the_body_at_every_pose():
     from stages.hulls.fit import core_points
     from stages.rig.procedural import procedural_character
     from stages.rig.skinning import sample_motion
-    from stages.sim import winding_number
+    from stages.geometry.winding import winding_number
     c = procedural_character()
     clip = c.clip("walk")
     poses = sample_motion(c, "walk", clip.times[::6] - clip.times[0]).joint_world

@@ -8,7 +8,7 @@ the skin.
   ball meets the point's cell of a uniform grid (`collider_cells`): CesiumMan's 1,013 colliders
   against 200 k surface samples a frame made the full matrix the audit's largest cost.
 - `distance_to_mesh_tree`: exact distance from points to a triangle mesh, branch and bound over the
-  winding-number tree (stages/sim/winding.py: a ball per node holds the node's triangles, so
+  winding-number tree (stages/geometry/winding.py: a ball per node holds the node's triangles, so
   max(0, |p - c| - r) is a lower bound of any of its triangles' distance).
 - `distance_to_mesh_brute`: the same distance over every triangle (the reference of the tree).
 """

@@ -25,6 +25,7 @@ from scipy.spatial import cKDTree
 
 from stages.checks import ContractError, check_array
 from stages.errors import InputError
+from stages.geometry.winding import WindingTree
 from stages.coverage import kernels as K
 from stages.jit import threaded
 from stages.hulls.types import ColliderSet
@@ -291,8 +292,7 @@ class SkinDistance:
     winding tree refitted per frame."""
 
     def __init__(self, character: Character):
-        from stages.sim.simulate import BodyAudit
-        self.audit = BodyAudit(character)
+        self.audit = WindingTree(character.vertices, character.triangles)
 
     def refit(self, vertices: np.ndarray) -> None:
         self.audit.refit(vertices)
