@@ -31,11 +31,12 @@ _SIM_ONLY = ("sim", "-sim/audit_kernels", "-sim/body_audit_kernels", "-sim/cloth
              "-sim/cloth_contact_bench")
 STAGE_PACKAGES = {
     "rig": ("rig",),
-    "colliders": ("hulls", "coverage", "geometry/winding"),   # skinning (rig) is compiled by the rig stage
-    "collider coverage": ("coverage", "geometry/winding"),
+    # skinning (rig) is compiled by the rig stage
+    "colliders": ("hulls", "coverage", "geometry/winding", "geometry/skin_distance"),
+    "collider coverage": ("coverage", "geometry/winding", "geometry/skin_distance"),
     "obstacles": ("obstacles", "geometry/kdop"),
-    # sewing runs the simulation, without the cloth audit or cloth collision; placement asks the winding number
-    "garments": _SIM_ONLY + ("geometry/winding",),
+    # sewing runs the simulation, without the cloth audit or cloth collision; placement and fit ask the skin
+    "garments": _SIM_ONLY + ("geometry/winding", "geometry/skin_distance"),
     "simulation": _SIM_ONLY + ("geometry/winding",),          # the body audit's winding number
     "cloth collision": ("sim/cloth_contact_kernels", "sim/cloth_contact_ccd", "sim/cloth_contact_pairs",
                         "sim/cloth_contact_cull", "geometry/kdop"),   # only scenes that turn it on

@@ -103,7 +103,7 @@ def test_a_collar_sewn_off_the_body_is_sewn_again_held(scene):
     import dataclasses
     import re
 
-    from stages.coverage import SkinDistance
+    from stages.geometry.skin_distance import SkinDistance
     from stages.garments.fit import FIT_GAP_MAX, signed_skin_distance
     c, m, cols, maps, skin0 = scene
     pattern = dataclasses.replace(library_pattern("tshirt", garment_measurements(c, cols, m)), fit_band=1.1)

@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 
 from stages.checks import ContractError, check_array
 from stages.errors import InputError
-from stages.geometry.winding import WindingTree
+from stages.geometry.skin_distance import SkinDistance
 from stages.coverage import kernels as K
 from stages.jit import threaded
 from stages.hulls.types import ColliderSet
@@ -285,28 +285,6 @@ def surface_samples(colliders: ColliderSet, spacing: float, rng: np.random.Gener
         d /= np.linalg.norm(d, axis=1, keepdims=True)
         pts.append(s.center + s.radius * d)
     return pts, areas
-
-
-class SkinDistance:
-    """Inside tests (the simulation's body audit) and exact distances to the skinned mesh, over one
-    winding tree refitted per frame."""
-
-    def __init__(self, character: Character):
-        self.audit = WindingTree(character.vertices, character.triangles)
-
-    def refit(self, vertices: np.ndarray) -> None:
-        self.audit.refit(vertices)
-
-    def inside(self, points: np.ndarray) -> np.ndarray:
-        return self.audit.winding_refitted(points) >= 0.5
-
-    def distance(self, points: np.ndarray) -> np.ndarray:
-        a = self.audit
-        order, start, end, kids = a.tree
-        out = np.zeros(points.shape[0])
-        threaded(K.distance_to_mesh_tree)(np.ascontiguousarray(points, np.float64), a.vertices, a.tris, order, start, end,
-                                kids, a.data, out)
-        return out
 
 
 def _world_boxes(arrays: ColliderArrays, colliders: ColliderSet, pose: np.ndarray) -> np.ndarray:
