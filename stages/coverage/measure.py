@@ -337,7 +337,7 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
     cell = (max(bind_volume, 1e-6) / (1.3 * interior_samples)) ** (1 / 3)
 
     rows = {k: [] for k in ("n_in", "coverage", "p50", "p95", "max", "shell", "volume", "exposed")}
-    from stages.sim.audit import mesh_edges
+    from stages.geometry.mesh import mesh_edges
     edges = mesh_edges(character.triangles)
     per_in = np.zeros(nc)        # body points nearest each collider's region
     per_cov = np.zeros(nc)       # ... of them inside some collider

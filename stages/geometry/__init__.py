@@ -2,6 +2,7 @@
 
 - kdop: k-DOP bounding volumes and trees of them (obstacle contact, cloth contact; paper B)
 - winding: generalised winding numbers of points w.r.t. a mesh, a tree refitted per frame (inside the body)
+- mesh: a triangle mesh's unique edges
 - skin_distance: exact distance to a skinned mesh over that tree (collider fit, coverage, garment fit)
 
 It imports no stage package (only stages.checks, stages.jit, stages.affine and the like), so any

@@ -374,7 +374,7 @@ def _skin_features(triangles: np.ndarray, flexible: np.ndarray) -> tuple[np.ndar
     """(indices of the triangles with a flexible corner (M,), their edges (E, 2), each once, sorted):
     the skin between the flexible vertices is sampled at their centroids and edge midpoints. Balls that
     hold only the vertices leave the skin between them out where they are small."""
-    from stages.sim.audit import mesh_edges
+    from stages.geometry.mesh import mesh_edges
     index = np.flatnonzero(flexible[triangles].any(axis=1))
     return index, mesh_edges(triangles[index]).astype(triangles.dtype)
 

@@ -19,10 +19,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from stages.checks import ContractError, check_array
+from stages.geometry.mesh import mesh_edges
 from stages.jit import threaded
 from stages.sim import audit_kernels as AK
 from stages.sim import body_audit_kernels as BK
-from stages.sim.audit import crosses_exact, mesh_edges
+from stages.sim.audit import crosses_exact
 
 
 @dataclass(frozen=True)
