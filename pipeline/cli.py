@@ -56,7 +56,8 @@ def cmd_validate(args) -> int:
     patterns = 0
     if scene["garments"]:   # build every garment as a run does, patterns sized and placed but not
         # sewn, on the bind pose: cheap, and where a garment cannot be dressed the error comes before a run
-        from pipeline.run import frame_times, sample_scene_motion, split_and_fit
+        from pipeline.run import split_and_fit
+        from pipeline.scene_motion import frame_times, sample_scene_motion
         from pipeline.dressing import check_scene_garments
         motion = sample_scene_motion(scene, character, frame_times(scene))
         where.stage("colliders")
