@@ -93,7 +93,7 @@ def load_character(scene: Scene):
             from stages.rig.gltf import load_gltf
             return load_gltf(path, scale=c["scale"], up_axis=c["up_axis"],
                              loop=c["loop"])
-        from stages.rig.bvh import load_bvh_character
+        from stages.rig.bvh_character import load_bvh_character
         return load_bvh_character(path, scale=c["scale"], body=body_params(scene.settings),
                                   bind_pose=c["bind_pose"] or "neutral")
     except InputError as err:   # the loader names the file; the scene's key path goes first

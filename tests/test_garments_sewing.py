@@ -131,7 +131,7 @@ def test_a_cape_is_dressed_without_passing_through_itself(assets_dir, asset):
     from stages.rig.skinning import rest_motion
     from stages.sim.audit import crossing_flags
     if asset.endswith(".bvh"):
-        from stages.rig.bvh import load_bvh_character
+        from stages.rig.bvh_character import load_bvh_character
         c = load_bvh_character(assets_dir / asset)
     else:
         from stages.rig.gltf import load_gltf
