@@ -1,4 +1,5 @@
-"""`python -m pipeline bench [hulls] [maps] [sim] [obstacles] [coverage]`: the stage benchmarks, with the machine.
+"""`python -m pipeline bench [hulls] [maps] [sim] [obstacles] [coverage]`: the stage benchmarks
+(pipeline/benches/), with the machine.
 
 Benchmarks are separate from the tests (no timing is asserted anywhere). stdout gets a short table
 (what, figure, target: `pipeline.bench_table`); `--json FILE` also writes the full dict of figures to
@@ -13,14 +14,12 @@ import platform
 import sys
 import time
 
-import numpy as np
-
 BENCHES = {
-    "hulls": "stages.hulls.bench",
-    "maps": "stages.maps.bench",
-    "sim": "stages.sim.bench",
-    "obstacles": "stages.obstacles.bench",
-    "coverage": "stages.coverage.bench",
+    "hulls": "pipeline.benches.hulls",
+    "maps": "pipeline.benches.maps",
+    "sim": "pipeline.benches.sim",
+    "obstacles": "pipeline.benches.obstacles",
+    "coverage": "pipeline.benches.coverage",
 }
 
 
@@ -37,6 +36,8 @@ def machine() -> dict:
 
 
 def _jsonable(x):
+    import numpy as np   # lazily: the CLI reads BENCHES for its help without loading numpy
+
     if isinstance(x, dict):
         return {str(k): _jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):

@@ -28,8 +28,8 @@ CLOTH_EDGES_COLOR = (120, 30, 200)
 
 
 def blend_frames(scene, character) -> int:
-    """Frames of the blend-in the scene's motion starts with (pipeline.run.sample_scene_motion)."""
-    from pipeline.run import blend_in_seconds
+    """Frames of the blend-in the scene's motion starts with (pipeline.scene_motion.sample_scene_motion)."""
+    from pipeline.scene_motion import blend_in_seconds
     if scene["character"]["clip"] == "rest" or not character.clips:
         return 0
     return int(round(blend_in_seconds(scene, character) / scene["simulation"]["dt"]))
@@ -77,7 +77,7 @@ def audit_and_log(rec: rr.RecordingStream, scene, state: dict, announce=lambda n
     """After the simulation of a run (pipeline.run.run_scene's `state`): the body audit into the
     recording, its lines into the summary's penetrations (after the particles inside the body), a
     stage time and the warnings; state['body_crossings'] = the BodyCrossings."""
-    from pipeline.run import StageReport
+    from pipeline.summary import StageReport
     result, summary = state.get("result"), state["summary"]
     if result is None or not result.garments or not result.n_frames or not scene["simulation"]["body_audit"]:
         return

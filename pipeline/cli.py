@@ -56,7 +56,8 @@ def cmd_validate(args) -> int:
     patterns = 0
     if scene["garments"]:   # build every garment as a run does, patterns sized and placed but not
         # sewn, on the bind pose: cheap, and where a garment cannot be dressed the error comes before a run
-        from pipeline.run import frame_times, sample_scene_motion, split_and_fit
+        from pipeline.run import split_and_fit
+        from pipeline.scene_motion import frame_times, sample_scene_motion
         from pipeline.dressing import check_scene_garments
         motion = sample_scene_motion(scene, character, frame_times(scene))
         where.stage("colliders")
@@ -225,8 +226,9 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("scene")
     v.set_defaults(func=cmd_validate)
     b = sub.add_parser("bench", parents=[common], help="run the benchmarks (separate from the tests)")
+    from pipeline.bench import BENCHES
     b.add_argument("which", nargs="*", default=["all"],
-                   help="any of: hulls maps sim obstacles all (default: all)")
+                   help=f"any of: {' '.join(BENCHES)} all (default: all)")
     b.add_argument("--json", help="also write the figures to this JSON file")
     b.set_defaults(func=cmd_bench)
     m = sub.add_parser("matrix", parents=[common], help="dress every garment kind on every character and tabulate the fit")

@@ -428,7 +428,7 @@ def garment_fits(character, motion, skinned, garments, builds, result, layers=No
     garment's cloth layer (dressing_layers) or None: a garment's fit edges are measured to the nearer
     of the skin and the garments of lower layers (a waistband worn over a tucked-in shirt sits on the
     shirt, not on the skin)."""
-    from stages.coverage import SkinDistance
+    from stages.geometry.skin_distance import SkinDistance
     from stages.garments.fit import garment_fit
     from stages.garments.placement import triangle_grid_points
     floor_y = float((skinned[..., 1] + motion.root_translation[:, None, 1]).min())

@@ -28,7 +28,7 @@ def load_asset(path: str):
     if not p.is_file():
         raise InputError(p, "file not found")
     if suffix == ".bvh":
-        from stages.rig.bvh import load_bvh_character
+        from stages.rig.bvh_character import load_bvh_character
         return load_bvh_character(p), "bvh"
     from stages.rig.gltf import load_gltf
     return load_gltf(p), "gltf"

@@ -23,22 +23,23 @@ from pathlib import Path
 
 STAGES_DIR = Path(__file__).resolve().parent.parent / "stages"
 
-# stage (as run_scene announces it) -> the packages whose kernels it calls ('pkg/module': that
-# module only; '-pkg/module': not that one)
+# stage (as run_scene announces it) -> where its kernels are, as paths under stages/: a package
+# ('sim': its own modules, not its subpackages), a module ('geometry/kdop'), or '-' and a path: not that
+# one. tests/test_progress.py checks that every entry exists and every kernel module is named.
+_SIM_ONLY = ("sim", "-sim/audit_kernels", "-sim/body_audit_kernels", "-sim/cloth_contact_kernels",
+             "-sim/cloth_contact_ccd", "-sim/cloth_contact_pairs", "-sim/cloth_contact_cull",
+             "-sim/cloth_contact_bench")
 STAGE_PACKAGES = {
     "rig": ("rig",),
-    "colliders": ("hulls", "coverage"),             # skinning (rig) is compiled by the rig stage
-    "collider coverage": ("coverage",),
-    "obstacles": ("obstacles",),
-    # sewing runs the simulation, without the cloth audit or cloth collision
-    "garments": ("sim", "-sim/audit_kernels", "-sim/body_audit_kernels", "-sim/cloth_contact_kernels",
-                 "-sim/cloth_contact_ccd", "-sim/cloth_contact_pairs", "-sim/cloth_contact_cull",
-                 "-sim/cloth_contact_bench"),
-    "simulation": ("sim", "-sim/audit_kernels", "-sim/body_audit_kernels", "-sim/cloth_contact_kernels",
-                   "-sim/cloth_contact_ccd", "-sim/cloth_contact_pairs", "-sim/cloth_contact_cull",
-                   "-sim/cloth_contact_bench"),
+    # skinning (rig) is compiled by the rig stage
+    "colliders": ("hulls", "coverage", "geometry/winding", "geometry/skin_distance"),
+    "collider coverage": ("coverage", "geometry/winding", "geometry/skin_distance"),
+    "obstacles": ("obstacles", "geometry/kdop"),
+    # sewing runs the simulation, without the cloth audit or cloth collision; placement and fit ask the skin
+    "garments": _SIM_ONLY + ("geometry/winding", "geometry/skin_distance"),
+    "simulation": _SIM_ONLY + ("geometry/winding",),          # the body audit's winding number
     "cloth collision": ("sim/cloth_contact_kernels", "sim/cloth_contact_ccd", "sim/cloth_contact_pairs",
-                        "sim/cloth_contact_cull"),   # only scenes that turn it on
+                        "sim/cloth_contact_cull", "geometry/kdop"),   # only scenes that turn it on
     "cloth audit": ("sim/audit_kernels",),
     "body audit": ("sim/body_audit_kernels",),
 }
@@ -55,7 +56,7 @@ _CACHED = re.compile(r"cache\s*=\s*True")
 
 @lru_cache(maxsize=None)
 def kernel_modules(package: str) -> tuple[Path, ...]:
-    """The modules of stages/<package> that define cached numba kernels."""
+    """The modules of stages/<package> (a folder; not its subfolders) that define cached numba kernels."""
     return tuple(p for p in sorted((STAGES_DIR / package).glob("*.py")) if _CACHED.search(p.read_text()))
 
 
@@ -71,13 +72,20 @@ def is_compiled(module: Path) -> bool:
     return any(any(d.glob(f"{module.stem}.*.nbi")) for d in _cache_dirs(module) if d.is_dir())
 
 
+def entry_modules(entry: str) -> set:
+    """The modules with cached kernels at one STAGE_PACKAGES path ('-' stripped): a package's, or the module's."""
+    path = entry.lstrip("-")
+    if (STAGES_DIR / path).is_dir():
+        return set(kernel_modules(path))
+    folder, _, stem = path.rpartition("/")
+    return {m for m in kernel_modules(folder) if m.stem == stem}
+
+
 def stage_modules(stage: str) -> set:
     """The modules with cached kernels that `stage` calls (STAGE_PACKAGES)."""
     mods, drop = set(), set()
     for entry in STAGE_PACKAGES.get(stage, ()):
-        pkg, _, stem = entry.lstrip("-").partition("/")
-        found = {m for m in kernel_modules(pkg) if not stem or m.stem == stem}
-        (drop if entry.startswith("-") else mods).update(found)
+        (drop if entry.startswith("-") else mods).update(entry_modules(entry))
     return mods - drop
 
 

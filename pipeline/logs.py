@@ -395,7 +395,7 @@ def log_obstacles(rec: rr.RecordingStream, obstacles, times: np.ndarray, *, kdop
     """obstacles/<name>/mesh static in the body frame (under a per-frame transform when moving),
     and the k-DOP nodes at `kdop_depth` of each static obstacle's tree (boxes for k = 6, wireframes
     otherwise), at obstacles/<name>/kdop."""
-    from stages.obstacles import kdop_box, kdop_wireframe
+    from stages.geometry.kdop import kdop_box, kdop_wireframe
     tree = obstacles.tree
     for i, ob in enumerate(obstacles.obstacles):
         base = f"obstacles/{ob.name}"

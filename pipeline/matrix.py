@@ -58,7 +58,8 @@ class Prepared:
     """One character's rig, motion, colliders and maps, built once for all its garments."""
 
     def __init__(self, scene):
-        from pipeline.run import check_references, frame_times, load_character, sample_scene_motion, split_and_fit
+        from pipeline.run import check_references, load_character, split_and_fit
+        from pipeline.scene_motion import frame_times, sample_scene_motion
         from stages.maps.build import build_maps
         from stages.rig.skinning import skin
         self.character = load_character(scene)
@@ -74,7 +75,8 @@ class Prepared:
 
 def run_pair(prepared: Prepared, scene) -> dict:
     """Dress, sew and simulate the scene's one garment on a prepared character; the pair's figures."""
-    from pipeline.run import ignored_colliders, motion_speed_limit, motion_substeps, sim_params
+    from pipeline.run import ignored_colliders, sim_params
+    from pipeline.scene_motion import motion_speed_limit, motion_substeps
     from pipeline.dressing import build_scene_garments, garment_fits
     from stages.garments.fit import BODY_SHARE_MAX, FIT_GAP_MAX
     from stages.sim import simulate

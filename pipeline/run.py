@@ -6,8 +6,6 @@ end summary and the recording's `meta/summary`.
 """
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -15,80 +13,10 @@ import numpy as np
 from pipeline.dressing import (build_scene_garments, build_scene_obstacles, check_pattern, check_pins, dressing_layers,
                                garment_fit_report, garment_fits, ignored_joints, load_scene_meshes)
 from pipeline.scene import Scene
+from pipeline.scene_motion import (collider_poses, frame_times, motion_speed_limit, motion_substeps,
+                                   sample_scene_motion, speed_limit_note)
 from pipeline.schema import SceneError
-
-
-@dataclass
-class StageReport:
-    name: str
-    seconds: float
-    sizes: dict = field(default_factory=dict)
-
-
-@dataclass
-class RunSummary:
-    scene: str
-    output: Path | None
-    frames: int
-    stages: list[StageReport] = field(default_factory=list)
-    penetrations: dict = field(default_factory=dict)
-    tables: dict = field(default_factory=dict)   # name -> markdown table (fit report, map stats)
-    timings: dict = field(default_factory=dict)  # wall-clock seconds besides the stages' (sewing)
-    speeds: dict = field(default_factory=dict)   # wall-clock rates, formatted (simulation steps/s)
-    exports: list = field(default_factory=list)  # files written by output.export (pipeline.export)
-
-    def text(self) -> str:
-        lines = [f"scene {self.scene}: {self.frames} frames"]
-        for s in self.stages:
-            sizes = ", ".join(f"{k} {v}" for k, v in s.sizes.items())
-            lines.append(f"  {s.name:<10} {s.seconds * 1000:9.1f} ms   {sizes}")
-        for k, v in self.timings.items():
-            lines.append(f"  {k:<10} {v * 1000:9.1f} ms")
-        for k, v in self.speeds.items():
-            lines.append(f"  {k}: {v}")
-        for k, v in self.penetrations.items():
-            lines.append(f"  {k}: {v}")
-        if "garment fit" in self.tables:
-            lines += ["  garment fit:"] + [f"    {row}" for row in self.tables["garment fit"].splitlines()]
-        if self.output:
-            lines.append(f"recording: {self.output}  (view: rerun {self.output})")
-        lines += [f"exported: {p}" for p in self.exports]
-        return "\n".join(lines)
-
-    def markdown(self) -> str:
-        """The summary without wall-clock times (those are `timings_markdown`): the same run gives
-        the same text."""
-        out = [f"# {self.scene}", "", f"{self.frames} frames", "", "| stage | sizes |", "| --- | --- |"]
-        for s in self.stages:
-            out.append(f"| {s.name} | " + ", ".join(f"{k} {v}" for k, v in s.sizes.items()) + " |")
-        if self.penetrations:
-            out += ["", "## Penetrations", ""] + [f"- {k}: {v}" for k, v in self.penetrations.items()]
-        for name, table in self.tables.items():
-            out += ["", f"## {name}", "", table]
-        return "\n".join(out)
-
-    def timings_markdown(self) -> str:
-        out = ["| stage | wall time (ms) |", "| --- | ---: |"]
-        out += [f"| {s.name} | {s.seconds * 1000:.1f} |" for s in self.stages]
-        out += [f"| {k} | {v * 1000:.1f} |" for k, v in self.timings.items()]
-        out += [""] + [f"- {k}: {v}" for k, v in self.speeds.items()] if self.speeds else []
-        return "\n".join(out)
-
-
-class _Timer:
-    def __init__(self, summary: RunSummary, name: str):
-        self.summary, self.name = summary, name
-
-    def __enter__(self):
-        self.t0 = time.perf_counter()
-        self.report = StageReport(self.name, 0.0)
-        return self.report
-
-    def __exit__(self, *exc):
-        self.report.seconds = time.perf_counter() - self.t0
-        if exc[0] is None:
-            self.summary.stages.append(self.report)
-        return False
+from pipeline.summary import RunSummary, StageTimer
 
 
 # simulation keys whose scene default (null) means "the preset's value" (stages.sim.types.PRESETS)
@@ -105,67 +33,6 @@ def sim_params(scene: Scene):
                             drag=sp["drag"], lift=sp["lift"], aero_interval=sp["aero_interval"], friction=sp["friction"],
                             inertia_scale=sp["inertia_scale"], hull_response=scene["colliders"]["response"],
                             body_audit=sp["body_audit"], cloth_thickness=sp["cloth_thickness"], **given)
-
-
-# a sub-step moves the skin at most this share of the body's height; a faster clip gets more sub-steps
-STEP_TRAVEL = 0.01
-MAX_SUBSTEPS = 100
-
-
-def motion_substeps(scene: Scene, params, skinned: np.ndarray, height: float):
-    """params with more sub-steps where the clip moves the skin far in a frame (a run, a kick, a
-    jump) and `simulation.substeps` is left to the preset: enough that no sub-step moves the skin's
-    fastest 1 % of vertices more than STEP_TRAVEL of the height (relative frame), rounded up to a
-    whole number of cloth collision calls, at most MAX_SUBSTEPS. Returns (params, warning or None).
-    A CMU walk 3x as fast: 50 sub-steps; p99 strain at the last frame 37 -> 6 %, 32 -> 0
-    self-crossing edges."""
-    from dataclasses import replace
-    if scene["simulation"]["substeps"] is not None or len(skinned) < 2 or not height > 0:
-        return params, None
-    step = np.percentile(np.linalg.norm(np.diff(skinned, axis=0), axis=2), 99, axis=1)   # (F-1,) m
-    f = int(np.argmax(step))
-    need = int(np.ceil(step[f] / (STEP_TRAVEL * height)))
-    if need <= params.substeps:
-        return params, None
-    k = params.contact_steps() if params.cloth_collision else 1
-    n = min(MAX_SUBSTEPS, -(-need // k) * k)
-    return replace(params, substeps=n), (
-        f"simulation: {n} sub-steps a frame instead of {params.substeps}: the skin moves up to "
-        f"{step[f] * 1000:.0f} mm ({100 * step[f] / height:.0f} % of its height) between frames {f} and {f + 1}"
-        + (f"; {MAX_SUBSTEPS} is the most used, {need} would keep each under {100 * STEP_TRAVEL:.0f} %"
-           if need > MAX_SUBSTEPS else ""))
-
-
-def motion_speed_limit(scene: Scene, params, skinned: np.ndarray, root: np.ndarray, times: np.ndarray,
-                       height: float):
-    """params with `simulation.speed_limit`, or where it is null and the preset is not the paper's, the
-    clip's: 3 times the fastest skin speed relative to the root (skinned (F, V, 3), root (F, 3) world
-    m) plus twice the speed of a fall from the body's height. Cloth moves with the body or falls;
-    much faster is cloth a collider threw (a Kenney chibi's skirt pressed between its arm and leg
-    boxes: 117 m/s, diverged). A limit of twice the skin speed plus 1.5 falls (13.6 m/s on CesiumMan)
-    capped its T-shirt's hem whipping off the forearm in 33 frames and raised the T-shirt's mean p99
-    strain after the blend from 26 to 42 %."""
-    from dataclasses import replace
-    given = scene["simulation"]["speed_limit"]
-    if given is not None:
-        return replace(params, speed_limit=float(given))
-    if scene["simulation"]["preset"] == "paper" or len(skinned) < 2 or not height > 0:
-        return params
-    rel = skinned - root[:, None, :]
-    dt = np.maximum(np.diff(times), 1e-9)[:, None]
-    skin_speed = float((np.linalg.norm(np.diff(rel, axis=0), axis=2) / dt).max())
-    return replace(params, speed_limit=3.0 * skin_speed + 2.0 * float(np.sqrt(2.0 * 9.81 * height)))
-
-
-def speed_limit_note(result) -> str | None:
-    """A warning naming the frames where the speed limit acted, or None."""
-    hit = np.flatnonzero(result.speed_limited[1:] > 0) + 1
-    if hit.size == 0:
-        return None
-    f = int(hit[np.argmax(result.speed_limited[hit])])
-    return (f"simulation: the speed limit ({result.params.speed_limit:.1f} m/s, simulation.speed_limit) capped cloth "
-            f"in {hit.size} frame(s), most at frame {f} ({int(result.speed_limited[f])} particles): cloth thrown "
-            "by a collider (a limb pressing it onto the body)")
 
 
 def garment_layers(scene: Scene) -> list[int]:
@@ -226,7 +93,7 @@ def load_character(scene: Scene):
             from stages.rig.gltf import load_gltf
             return load_gltf(path, scale=c["scale"], up_axis=c["up_axis"],
                              loop=c["loop"])
-        from stages.rig.bvh import load_bvh_character
+        from stages.rig.bvh_character import load_bvh_character
         return load_bvh_character(path, scale=c["scale"], body=body_params(scene.settings),
                                   bind_pose=c["bind_pose"] or "neutral")
     except InputError as err:   # the loader names the file; the scene's key path goes first
@@ -239,12 +106,6 @@ def character_item(scene: Scene) -> str:
     """The character as the last-resort error line names it."""
     c = scene["character"]
     return f"character {c['source']}" + (f" {c['path']}" if c["path"] else "")
-
-
-def frame_times(scene: Scene, frames: int | None = None) -> np.ndarray:
-    """Clip times of the frames to run: start + k * dt."""
-    n = frames if frames is not None else scene["frames"]["count"]
-    return scene["frames"]["start"] + scene["simulation"]["dt"] * np.arange(n, dtype=np.float64)
 
 
 def check_references(scene: Scene, character) -> None:
@@ -287,46 +148,6 @@ def check_references(scene: Scene, character) -> None:
                 near = difflib.get_close_matches(name, sorted(names), n=1)
                 hint = f" (did you mean {near[0]!r}?)" if near else f"; joints: {', '.join(character.joint_names)}"
                 raise SceneError(f"{src}: garments[{i}].{key}: {name!r} is not a joint of {character.name!r}{hint}")
-
-
-def blend_in_seconds(scene: Scene, character, dressed: bool | None = None) -> float:
-    """The scene's blend-in: `frames.blend_in` when given, else (auto) sized by stages.rig.blend from
-    how far the clip's pose at `frames.start` is from the rest pose, where garments are dressed; 0
-    when nothing is dressed (dressed: None = the scene has garments)."""
-    from stages.rig.blend import blend_seconds, pose_distance
-    from stages.rig.skinning import sample_clip
-    given = scene["frames"]["blend_in"]
-    if given is not None:
-        return float(given)
-    clip = scene["character"]["clip"]
-    dressed = bool(scene["garments"]) if dressed is None else dressed
-    if clip == "rest" or not character.clips or not dressed:
-        return 0.0
-    first = sample_clip(character, character.clip(clip), np.array([scene["frames"]["start"]]))[0]
-    height = float(np.ptp(character.vertices[:, 1])) if len(character.vertices) else 0.0
-    return blend_seconds(pose_distance(character, character.rest_local, first), height)
-
-
-def sample_scene_motion(scene: Scene, character, times: np.ndarray, dressed: bool | None = None):
-    """The clip at `times`, after the blend-in (`blend_in_seconds`) from the rest pose."""
-    from stages.rig.skinning import rest_motion, sample_motion
-    clip = scene["character"]["clip"]
-    if clip == "rest" or not character.clips:
-        return rest_motion(character, len(times), scene["simulation"]["dt"])
-    blend = int(round(blend_in_seconds(scene, character, dressed) / scene["simulation"]["dt"]))
-    if blend and len(times) < 2:
-        times = frame_times(scene, 2)[:2]
-    return sample_motion(character, clip, times, blend_frames=blend)
-
-
-def collider_poses(scene: Scene, character, motion) -> np.ndarray:
-    """(F, J, 4, 4) joint transforms the region split is measured over: every frame the scene plays
-    (blend-in included), plus, for `clip: rest`, the built-in range-of-motion sample. Poses the
-    scene never plays (the rest of a long clip) would only widen the swept hulls."""
-    from stages.rig.motion_range import range_of_motion
-    if scene["character"]["clip"] == "rest" or not character.clips:
-        return np.concatenate([motion.joint_world, range_of_motion(character)])
-    return motion.joint_world
 
 
 def split_and_fit(scene: Scene, character, motion, progress=None):
@@ -465,7 +286,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             announce(f"simulation kernels (compiling in a second process, first run only: about "
                      f"{warm.estimate_s:.0f} s on 2 cores)")
         say("rig")
-        with _Timer(summary, "rig") as r:
+        with StageTimer(summary, "rig") as r:
             with where.item(character_item(scene)):
                 character = load_character(scene)
             check_references(scene, character)
@@ -481,7 +302,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             logs.log_text(rec, "rig/notes", summary.tables["character"])
 
         say("colliders")
-        with _Timer(summary, "colliders") as r:
+        with StageTimer(summary, "colliders") as r:
             hull_bar = bar("colliders", "hulls")
             try:
                 split, colliders = split_and_fit(scene, character, motion, progress=hull_bar)
@@ -502,7 +323,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
 
             from stages.coverage import measure_coverage
             from stages.errors import InputError
-            with _Timer(summary, "coverage") as r:
+            with StageTimer(summary, "coverage") as r:
                 coverage_bar = bar("collider coverage", "frames")
                 try:
                     coverage = measure_coverage(character, motion, colliders, every=s["colliders"]["report_every"],
@@ -528,7 +349,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
         say("maps")
         from stages.maps.build import build_maps
         m = s["colliders"]["map"]
-        with _Timer(summary, "maps") as r:
+        with StageTimer(summary, "maps") as r:
             maps = build_maps(colliders, kind=m["type"], n_theta=m["n_theta"], n_phi=m["n_phi"], n_axial=m["n_axial"])
             r.sizes.update(maps=len(maps.maps))
         summary.tables["map cells"] = logs.log_maps(rec, character, motion, maps)
@@ -537,7 +358,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
         obstacles, garments, builds, result = None, [], {}, None
         if s["obstacles"]:
             say("obstacles")
-            with _Timer(summary, "obstacles") as r:
+            with StageTimer(summary, "obstacles") as r:
                 obstacles = build_scene_obstacles(scene, float(times[-1] - times[0]), meshes)
                 r.sizes.update(obstacles=len(obstacles.obstacles), triangles=obstacles.triangles.shape[0],
                                tree_nodes=obstacles.tree.node_min.shape[0])
@@ -552,7 +373,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             else:
                 warm.wait_simulation()
                 say("garments")
-            with _Timer(summary, "garments") as r:
+            with StageTimer(summary, "garments") as r:
                 sewing_bars = []
 
                 def sewing_bar(name: str) -> Progress:
@@ -585,7 +406,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 warnings.warn(note, stacklevel=1)
             say("simulation", *(("cloth collision",) if params.cloth_collision else ()))
             bar = Progress(len(times), "simulation", enabled=progress)
-            with _Timer(summary, "simulation") as r:
+            with StageTimer(summary, "simulation") as r:
                 try:
                     result = simulate(character, motion, colliders, maps, garments, params, obstacles=obstacles,
                                       layers=garment_layers(scene), ignore_colliders=ignored_colliders(scene, character),
@@ -611,7 +432,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 import warnings
 
                 from stages.sim.audit import audit_cloth
-                with _Timer(summary, "cloth audit") as r:
+                with StageTimer(summary, "cloth audit") as r:
                     audit = audit_cloth(result, garments, vertex_strain=sp["strain_colors"])
                     r.sizes.update(exact_pairs=audit.exact_pairs)
                 state["audit"] = audit

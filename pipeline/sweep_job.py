@@ -211,7 +211,7 @@ def _worker_name() -> str:
 # leaves a half-initialised module (numba.core.types) behind, and the job could not even write its
 # row (the pool also replaces a worker after a timeout: numba loads registries lazily too)
 RUN_MODULES = ("numba", "rerun", "trimesh", "pipeline.run", "pipeline.logs", "pipeline.export", "pipeline.blueprint",
-               "stages.rig.gltf", "stages.rig.bvh", "stages.rig.procedural", "stages.rig.capsule_skin", "stages.rig.skinning",
+               "stages.rig.gltf", "stages.rig.bvh_character", "stages.rig.procedural", "stages.rig.capsule_skin", "stages.rig.skinning",
                "stages.rig.humanoid", "stages.hulls.fit", "stages.maps", "stages.coverage", "stages.garments.library",
                "stages.garments.placement", "stages.garments.sewing", "stages.garments.types", "stages.garments.fit",
                "stages.obstacles", "stages.sim", "stages.sim.audit")

@@ -43,7 +43,7 @@ def test_run_benchmarks_prints_the_table_or_the_dict(monkeypatch, capsys, tmp_pa
     fake = types.SimpleNamespace(run_benchmark=lambda: (print("inside the bench"),
                                                         {"steps_per_s_total": 10.0, "candidate_pairs_per_traversal": 1,
                                                          "brute_pairs_per_pass": 2})[1])
-    monkeypatch.setitem(__import__("sys").modules, "stages.obstacles.bench", fake)
+    monkeypatch.setitem(__import__("sys").modules, "pipeline.benches.obstacles", fake)
     out = tmp_path / "b.json"
     bench.run_benchmarks(["obstacles"], output=str(out))
     cap = capsys.readouterr()

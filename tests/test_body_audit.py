@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from stages.garments.simple import rectangle_cloth
-from stages.sim.audit import mesh_edges
+from stages.geometry.mesh import mesh_edges
 from stages.sim.body_audit import BodyFrames, audit_body_crossings, frame_crossings, in_self_overlap
 from stages.sim.types import GarmentTrack, SimParams, SimResult
 

@@ -7,11 +7,11 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stages.coverage import kernels as K
-from stages.coverage.measure import CollidersAtPose, SkinDistance, collider_arrays, inside_matrix, measure_coverage
+from stages.coverage.measure import CollidersAtPose, collider_arrays, inside_matrix, measure_coverage
+from stages.geometry.skin_distance import SkinDistance, distance_to_mesh_brute
+from stages.geometry.winding import winding_numbers_brute
 from stages.hulls.fit import fit_character
 from stages.rig.skinning import skin
-from stages.sim.winding import winding_numbers_brute
 from tests.toy_rig import bend_motion, bent_tube
 
 
@@ -24,7 +24,7 @@ def tube():
 
 def _brute_distance(points, vertices, triangles):
     out = np.empty(points.shape[0])
-    K.distance_to_mesh_brute(np.ascontiguousarray(points), vertices, triangles.astype(np.int64), out)
+    distance_to_mesh_brute(np.ascontiguousarray(points), vertices, triangles.astype(np.int64), out)
     return out
 
 

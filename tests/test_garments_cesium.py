@@ -14,7 +14,7 @@ def test_short_skirt_sews_on_cesium_man(assets_dir):
     from stages.rig.gltf import load_gltf
     from stages.rig.regions import split_regions
     from stages.rig.skinning import rest_motion, skin
-    from stages.sim import winding_number
+    from stages.geometry.winding import winding_number
     c = load_gltf(assets_dir / "CesiumMan.glb")
     m = rest_motion(c, 2, 1.0 / 30.0)
     cols = fit_colliders(c, split_regions(c, threshold=0.55), delta=0.01, min_triangles=40, max_offset=0.02)

@@ -38,7 +38,7 @@ def _check_manifold(tri, n):
 
 @pytest.mark.parametrize("kind,openings", [("short_skirt", 2), ("long_skirt", 2), ("cape", 1)])
 def test_sewn_garment_is_clean_and_clear_of_the_body(scene, kind, openings):
-    from stages.sim import winding_number
+    from stages.geometry.winding import winding_number
     c, m, cols, maps, body = scene
     p = library_pattern(kind, garment_measurements(c, cols, m), edge_length=0.03)
     g, log, build = make_garment(p, c, m, cols, maps)
@@ -66,7 +66,7 @@ def sew_clear(scene, kind: str, n_openings: int):
     must be: nothing inside the body, placed or sewn; one oriented manifold with `n_openings`
     boundary loops. Returns (garment, sewing log, measurements, loops, loop centres), the loops
     ordered by the height of their centre, lowest first."""
-    from stages.sim import winding_number
+    from stages.geometry.winding import winding_number
     c, m, cols, maps, body = scene
     meas = garment_measurements(c, cols, m)
     g, log, build = make_garment(library_pattern(kind, meas), c, m, cols, maps)
@@ -103,7 +103,7 @@ def test_a_collar_sewn_off_the_body_is_sewn_again_held(scene):
     import dataclasses
     import re
 
-    from stages.coverage import SkinDistance
+    from stages.geometry.skin_distance import SkinDistance
     from stages.garments.fit import FIT_GAP_MAX, signed_skin_distance
     c, m, cols, maps, skin0 = scene
     pattern = dataclasses.replace(library_pattern("tshirt", garment_measurements(c, cols, m)), fit_band=1.1)
@@ -131,7 +131,7 @@ def test_a_cape_is_dressed_without_passing_through_itself(assets_dir, asset):
     from stages.rig.skinning import rest_motion
     from stages.sim.audit import crossing_flags
     if asset.endswith(".bvh"):
-        from stages.rig.bvh import load_bvh_character
+        from stages.rig.bvh_character import load_bvh_character
         c = load_bvh_character(assets_dir / asset)
     else:
         from stages.rig.gltf import load_gltf

@@ -45,9 +45,9 @@ def test_balls_hold_every_flexible_vertex_they_claim_at_every_check_pose():
     """Brute force: every flexible vertex not listed as unheld is within radius - (1 - cover) delta
     of some ball centre at every check pose; every ball centre is inside the skinned body there and
     its ball stands at most the loosest slack + delta out of the skin."""
-    from stages.coverage.measure import SkinDistance
-    from stages.coverage.kernels import distance_to_mesh_brute
-    from stages.sim import winding_number
+    from stages.geometry.skin_distance import SkinDistance
+    from stages.geometry.skin_distance import distance_to_mesh_brute
+    from stages.geometry.winding import winding_number
     c, poses, x = _walk()
     delta, cover = 0.01, 0.6
     split = split_by_motion(c, bone_deviation(c, poses, x), 0.005)
@@ -74,8 +74,8 @@ def test_skin_balls_hold_the_skin_no_ball_inside_the_body_holds():
     a check pose; the skin balls put all of it inside some ball. Each skin ball sits on the bind-pose
     skin and, at every check pose, within radius - delta of the skinned skin (it stands out of the
     skin by at most its radius, as a hull stands out by delta). Brute force over every triangle."""
-    from stages.coverage.measure import SkinDistance
-    from stages.coverage.kernels import distance_to_mesh_brute
+    from stages.geometry.skin_distance import SkinDistance
+    from stages.geometry.skin_distance import distance_to_mesh_brute
     from stages.hulls.balls import _skin_features
     c, poses, x = _walk()
     delta = 0.01

@@ -7,7 +7,7 @@ import numpy as np
 from stages.garments.simple import rectangle_cloth
 from stages.garments.types import build_garment
 from stages.obstacles import box_mesh, build_obstacle_set, make_obstacle, plane_mesh, sphere_mesh
-from stages.obstacles.bench import table_scene
+from pipeline.benches.obstacles import table_scene
 from stages.sim import SimParams, simulate
 
 N = 30

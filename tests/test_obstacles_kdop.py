@@ -6,9 +6,9 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from stages.checks import ContractError
-from stages.obstacles import (build_obstacle_set, build_particle_tree, build_triangle_tree, kdop_directions,
-                              kdop_nodes_at_depth, kdop_wireframe, make_obstacle, ObstacleCollider)
-from stages.obstacles.kdop import refit_particle_tree, segment_bounds, triangle_bounds
+from stages.geometry.kdop import (build_particle_tree, build_triangle_tree, kdop_directions, kdop_nodes_at_depth,
+                                  kdop_wireframe, refit_particle_tree, segment_bounds, triangle_bounds)
+from stages.obstacles import ObstacleCollider, build_obstacle_set, make_obstacle
 from stages.obstacles.kernels import candidate_pairs, motion_axis_order
 
 

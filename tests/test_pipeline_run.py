@@ -6,8 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.run import frame_times, load_character, run_scene, sample_scene_motion
+from pipeline.run import load_character, run_scene
 from pipeline.scene import load_scene, parse_scene_text
+from pipeline.scene_motion import frame_times, sample_scene_motion
 from tests.rrd_read import content, entity_paths, rows, timelines
 
 REPO = Path(__file__).resolve().parent.parent
@@ -267,7 +268,8 @@ def test_swept_hulls_run_hold_the_cloth_and_are_logged(tmp_path):
 def test_the_speed_limit_comes_from_the_clip_and_is_reported_where_it_acted():
     from types import SimpleNamespace
 
-    from pipeline.run import motion_speed_limit, sim_params, speed_limit_note
+    from pipeline.run import sim_params
+    from pipeline.scene_motion import motion_speed_limit, speed_limit_note
     scene = parse_scene_text("name: s\ncharacter: {source: procedural}\n")
     times = np.arange(4) / 30.0
     skinned = np.zeros((4, 2, 3))

@@ -116,3 +116,21 @@ def test_run_shows_a_line_per_stage_and_the_sewing_and_simulation_progress(tmp_p
     assert any(l.startswith("collider coverage: ") and " frames " in l for l in err), err
     assert any(l.startswith("sewing skirt (stops when the seams close): ") and " iterations " in l for l in err), err
     assert any(l.startswith("simulation: ") for l in err), err
+
+
+def test_stage_packages_name_existing_paths_and_every_kernel_module():
+    """STAGE_PACKAGES names modules by path: a moved module must be renamed there too (an entry that
+    names nothing is a stale one), and a kernel module beside the named ones that no stage names would
+    compile unannounced."""
+    stages = kernel_cache.STAGES_DIR
+    for stage, entries in kernel_cache.STAGE_PACKAGES.items():
+        for entry in entries:
+            path = entry.lstrip("-")
+            assert (stages / path).is_dir() or (stages / f"{path}.py").is_file(), (stage, entry)
+    named = set().union(*(kernel_cache.stage_modules(s) for s in kernel_cache.STAGE_PACKAGES))
+    dropped = {m for s, entries in kernel_cache.STAGE_PACKAGES.items() for e in entries if e.startswith("-")
+               for m in kernel_cache.entry_modules(e)}
+    folders = {(stages / e.lstrip("-")).parent if not (stages / e.lstrip("-")).is_dir() else stages / e.lstrip("-")
+               for entries in kernel_cache.STAGE_PACKAGES.values() for e in entries}
+    every = {p for f in folders for p in f.glob("*.py") if "cache=True" in p.read_text().replace(" ", "")}
+    assert every - named - dropped == set()   # each folder a stage draws kernels from is accounted for

@@ -195,7 +195,7 @@ def load_rig(rig: str):
             from stages.rig.procedural import procedural_character
             _LOADED[rig] = ("builtin", procedural_character())
         else:
-            from stages.rig.bvh import load_bvh_character
+            from stages.rig.bvh_character import load_bvh_character
             from stages.rig.gltf import load_gltf
             table, file = FILES[rig]
             path = _assets_dir() / file

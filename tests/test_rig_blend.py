@@ -1,5 +1,5 @@
 """The blend from the rest pose into a running clip (stages.rig.blend, sample_motion's blend_frames)
-and the scene's automatic blend length (pipeline.run.blend_in_seconds)."""
+and the scene's automatic blend length (pipeline.scene_motion.blend_in_seconds)."""
 from __future__ import annotations
 
 import numpy as np
@@ -74,7 +74,8 @@ def test_blend_seconds_grows_with_the_distance_and_is_bounded():
 def test_a_scene_blends_in_by_itself_and_blend_in_overrides():
     """frames.blend_in null (the default) sizes the blend from the rest pose to the clip's first pose;
     a given value wins; no garments or clip: rest need none."""
-    from pipeline.run import blend_in_seconds, frame_times, load_character, sample_scene_motion
+    from pipeline.run import load_character
+    from pipeline.scene_motion import blend_in_seconds, frame_times, sample_scene_motion
     from pipeline.scene import parse_scene_text
     base = "character: {source: procedural, clip: walk}\nframes: {start: 0.5, count: 4%s}\n"
     dressed = "garments: [{type: pattern, name: s, kind: short_skirt}]\n"
@@ -94,9 +95,10 @@ def test_a_scene_blends_in_by_itself_and_blend_in_overrides():
 
 
 def test_fast_clips_get_more_substeps_and_a_warning_naming_the_frame():
-    """pipeline.run.motion_substeps: sub-steps such that no sub-step moves the skin's fastest 1 % of
+    """pipeline.scene_motion.motion_substeps: sub-steps such that no sub-step moves the skin's fastest 1 % of
     vertices more than STEP_TRAVEL of the height; a scene's own `substeps` wins; capped."""
-    from pipeline.run import MAX_SUBSTEPS, STEP_TRAVEL, motion_substeps, sim_params
+    from pipeline.run import sim_params
+    from pipeline.scene_motion import MAX_SUBSTEPS, STEP_TRAVEL, motion_substeps
     from pipeline.scene import parse_scene_text
     scene = parse_scene_text("{}", source="s.yaml")
     params = sim_params(scene)

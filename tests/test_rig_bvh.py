@@ -366,7 +366,7 @@ def skinned_frames(character, times):
 
 
 def test_character_frame_zero_is_the_bind_pose_on_the_floor(tmp_path):
-    from stages.rig.bvh import load_bvh_character
+    from stages.rig.bvh_character import load_bvh_character
 
     path = write(tmp_path, FIGURE, "figure.bvh")
     ch = load_bvh_character(path, bind_pose="frame0")
@@ -393,7 +393,7 @@ def test_character_frame_zero_is_the_bind_pose_on_the_floor(tmp_path):
 
 
 def test_character_rest_pose_bind(tmp_path):
-    from stages.rig.bvh import load_bvh_character
+    from stages.rig.bvh_character import load_bvh_character
 
     path = write(tmp_path, FIGURE, "figure.bvh")
     ch = load_bvh_character(path, bind_pose="rest")
@@ -409,7 +409,7 @@ def test_character_rest_pose_bind(tmp_path):
 
 
 def test_armless_figure_falls_back_to_frame_zero_with_a_warning(tmp_path):
-    from stages.rig.bvh import load_bvh_character
+    from stages.rig.bvh_character import load_bvh_character
 
     path = write(tmp_path, FIGURE, "figure.bvh")
     with pytest.warns(UserWarning, match="no neutral bind pose, no humanoid shape found.*frame 0 instead"):
@@ -420,7 +420,7 @@ def test_armless_figure_falls_back_to_frame_zero_with_a_warning(tmp_path):
 
 
 def test_bind_options_are_checked(tmp_path):
-    from stages.rig.bvh import load_bvh_character
+    from stages.rig.bvh_character import load_bvh_character
 
     path = write(tmp_path, FIGURE, "figure.bvh")
     with pytest.raises(ValueError, match="bind_pose must be one of neutral, frame0, rest, got 'tpose'"):
@@ -436,7 +436,7 @@ def test_bind_options_are_checked(tmp_path):
 
 @pytest.fixture(scope="module")
 def cmu_character(assets_dir):
-    from stages.rig.bvh import load_bvh_character
+    from stages.rig.bvh_character import load_bvh_character
 
     return load_bvh_character(assets_dir / "cmu_131_01_walk.bvh")
 
@@ -483,7 +483,7 @@ def test_crlf_bom_and_compact_header(tmp_path):
 def test_neutral_bind_pose_of_a_humanoid(tmp_path, variant):
     """Limbs found by shape (also with meaningless names), re-posed: legs down and slightly apart,
     arms 40 degrees from the body with straight elbows, spine upright, facing as frame 0."""
-    from stages.rig.bvh import load_bvh_character
+    from stages.rig.bvh_character import load_bvh_character
     from stages.rig.neutral_pose import ARM_ANGLE_DEG, LEG_SPLAY_DEG
 
     rename = {n: f"j{k}" for k, (n, _, _) in enumerate(HUMANOID)} if variant == "anonymous" else None
@@ -519,7 +519,7 @@ def test_neutral_bind_pose_of_a_humanoid(tmp_path, variant):
 def test_neutral_bind_does_not_web_hands_to_hips(tmp_path):
     """Frame 0 has the hands on the hips: bound there, the skin joins them and the web stretches
     as the arms swing; bound in the neutral pose no edge passes 4x the median at any frame."""
-    from stages.rig.bvh import load_bvh_character
+    from stages.rig.bvh_character import load_bvh_character
 
     path = write(tmp_path, humanoid_bvh(), "h.bvh")
     old = load_bvh_character(path, bind_pose="frame0")
@@ -536,7 +536,7 @@ def test_neutral_bind_does_not_web_hands_to_hips(tmp_path):
 def test_cmu_neutral_bind_has_no_long_edges(cmu_character, assets_dir):
     """CMU walk: bound at frame 0 the arm-hip web reaches 0.86 m (34x the median edge); bound in
     the neutral pose no edge is longer than 4x the median at any of the 995 frames."""
-    from stages.rig.bvh import load_bvh_character
+    from stages.rig.bvh_character import load_bvh_character
 
     ratios = edge_ratios(cmu_character)
     assert ratios.size == 995 and ratios.max() < 4.0
@@ -549,7 +549,8 @@ def test_cmu_neutral_bind_has_no_long_edges(cmu_character, assets_dir):
 def test_limbs_found_by_names_when_the_shape_is_ambiguous(tmp_path):
     """Arms straight up in the rest pose and in every frame: a hand is the highest joint, so the
     shape alone finds no head; the names do. Without names the skin falls back to frame 0."""
-    from stages.rig.bvh import load_bvh_character, parse_bvh
+    from stages.rig.bvh import parse_bvh
+    from stages.rig.bvh_character import load_bvh_character
     from stages.rig.neutral_pose import ARM_ANGLE_DEG, neutral_pose
 
     still = [((0.0, 0.95, 0.0), {})] * 2
@@ -571,7 +572,7 @@ def test_limbs_found_by_names_when_the_shape_is_ambiguous(tmp_path):
 def test_scene_bind_pose_reaches_the_loader(tmp_path):
     from pipeline.run import load_character
     from pipeline.scene import parse_scene_text
-    from stages.rig.bvh import load_bvh_character
+    from stages.rig.bvh_character import load_bvh_character
 
     path = write(tmp_path, humanoid_bvh(), "h.bvh")
     for key, expect in (("", "neutral"), ("bind_pose: frame0", "frame0")):

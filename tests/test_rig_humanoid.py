@@ -56,7 +56,7 @@ def test_unknown_names_fall_back_to_the_skeleton_shape(builtin):
 
 
 def test_real_rigs(assets_dir):
-    from stages.rig.bvh import load_bvh_character
+    from stages.rig.bvh_character import load_bvh_character
     from stages.rig.gltf import load_gltf
     cesium = load_gltf(assets_dir / "CesiumMan.glb")
     h = humanoid_joints(cesium)
@@ -114,7 +114,7 @@ def test_how_each_part_was_found_and_its_points(builtin):
 def test_real_rigs_scrambled_names_give_the_same_parts(assets_dir):
     """CesiumMan (by shape already) and the BVH (by name) with meaningless joint names: the shape
     alone finds the same joints (the BVH's arms start past the collar, its legs past LHipJoint)."""
-    from stages.rig.bvh import load_bvh_character
+    from stages.rig.bvh_character import load_bvh_character
     from stages.rig.gltf import load_gltf
     for c in (load_gltf(assets_dir / "CesiumMan.glb"), load_bvh_character(assets_dir / "cmu_131_01_walk.bvh")):
         s = _renamed(c, [f"j{k}" for k in range(c.n_joints)])

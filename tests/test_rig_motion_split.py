@@ -128,12 +128,12 @@ def test_both_split_modes_run_with_both_flexible_kinds(flexible):
 def test_swept_core_points_stay_inside_the_body_at_every_pose():
     """The bone points a swept hull reaches down to (own bone and parent's) are inside the skinned
     body at the bind pose and at every pose: checked with the winding number directly."""
-    from stages.coverage.measure import SkinDistance
+    from stages.geometry.skin_distance import SkinDistance
     from stages.hulls import swept
     from stages.hulls.fit import core_points
     from stages.rig.procedural import procedural_character
     from stages.rig.skinning import sample_motion
-    from stages.sim import winding_number
+    from stages.geometry.winding import winding_number
     c = procedural_character()
     clip = c.clip("walk")
     poses = sample_motion(c, "walk", clip.times[::6] - clip.times[0]).joint_world

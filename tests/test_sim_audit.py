@@ -10,7 +10,8 @@ from hypothesis import given, settings, strategies as st
 
 from stages.garments.simple import rectangle_cloth
 from stages.garments.types import build_garment
-from stages.sim.audit import audit_cloth, crossing_flags, crosses_exact, mesh_edges
+from stages.geometry.mesh import mesh_edges
+from stages.sim.audit import audit_cloth, crossing_flags, crosses_exact
 from stages.sim.types import SimParams
 
 

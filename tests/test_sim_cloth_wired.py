@@ -90,7 +90,8 @@ def test_layered_sheets_do_not_cross_and_keep_their_layers(layered_run):
 def test_simulate_layers_argument_sorts_sheets_that_start_the_wrong_way():
     """Two sheets on the head, the outer one (layer 1) starting 5 mm UNDER the inner one: sorted by
     the layers before frame 1, no crossing afterwards; the same without collision keeps the start order."""
-    from pipeline.run import load_character, sample_scene_motion, frame_times, split_and_fit
+    from pipeline.run import load_character, split_and_fit
+    from pipeline.scene_motion import frame_times, sample_scene_motion
     from stages.garments.simple import rectangle_cloth
     from stages.garments.types import build_garment
     from stages.maps.build import build_maps

@@ -16,7 +16,7 @@ from stages.sim.integrate import integrate
 from stages.sim.simd import padded_rows
 from stages.jit import for_threads
 from stages.sim.springs import PIPELINE, correct_springs, pack_springs, partition_springs, spring_colours
-from stages.sim import winding_number
+from stages.geometry.winding import winding_number
 from scipy.spatial.transform import Rotation
 
 from stages.hulls.types import ColliderSet, SphereCollider

@@ -1,4 +1,4 @@
 """Collider fit audit: coverage of the body by the colliders, and how far they stand off the skin."""
-from stages.coverage.measure import ColliderFigures, CoverageReport, SkinDistance, measure_coverage
+from stages.coverage.measure import ColliderFigures, CoverageReport, measure_coverage
 
-__all__ = ["measure_coverage", "CoverageReport", "ColliderFigures", "SkinDistance"]
+__all__ = ["measure_coverage", "CoverageReport", "ColliderFigures"]

@@ -25,6 +25,7 @@ from scipy.spatial import cKDTree
 
 from stages.checks import ContractError, check_array
 from stages.errors import InputError
+from stages.geometry.skin_distance import SkinDistance
 from stages.coverage import kernels as K
 from stages.jit import threaded
 from stages.hulls.types import ColliderSet
@@ -286,29 +287,6 @@ def surface_samples(colliders: ColliderSet, spacing: float, rng: np.random.Gener
     return pts, areas
 
 
-class SkinDistance:
-    """Inside tests (the simulation's body audit) and exact distances to the skinned mesh, over one
-    winding tree refitted per frame."""
-
-    def __init__(self, character: Character):
-        from stages.sim.simulate import BodyAudit
-        self.audit = BodyAudit(character)
-
-    def refit(self, vertices: np.ndarray) -> None:
-        self.audit.refit(vertices)
-
-    def inside(self, points: np.ndarray) -> np.ndarray:
-        return self.audit.winding_refitted(points) >= 0.5
-
-    def distance(self, points: np.ndarray) -> np.ndarray:
-        a = self.audit
-        order, start, end, kids = a.tree
-        out = np.zeros(points.shape[0])
-        threaded(K.distance_to_mesh_tree)(np.ascontiguousarray(points, np.float64), a.vertices, a.tris, order, start, end,
-                                kids, a.data, out)
-        return out
-
-
 def _world_boxes(arrays: ColliderArrays, colliders: ColliderSet, pose: np.ndarray) -> np.ndarray:
     """(2, 3) box around every collider posed by `pose` (relative frame)."""
     lo, hi = [], []
@@ -359,7 +337,7 @@ def measure_coverage(character: Character, motion: Motion, colliders: ColliderSe
     cell = (max(bind_volume, 1e-6) / (1.3 * interior_samples)) ** (1 / 3)
 
     rows = {k: [] for k in ("n_in", "coverage", "p50", "p95", "max", "shell", "volume", "exposed")}
-    from stages.sim.audit import mesh_edges
+    from stages.geometry.mesh import mesh_edges
     edges = mesh_edges(character.triangles)
     per_in = np.zeros(nc)        # body points nearest each collider's region
     per_cov = np.zeros(nc)       # ... of them inside some collider

@@ -59,7 +59,7 @@ class GarmentFit:
 
 
 def signed_skin_distance(body, points: np.ndarray) -> np.ndarray:
-    """(N,) float64, m: distance of (N, 3) points to the skin of `body` (a stages.coverage.SkinDistance
+    """(N,) float64, m: distance of (N, 3) points to the skin of `body` (a stages.geometry.skin_distance.SkinDistance
     refitted to the pose of the points), negative inside the body."""
     p = np.ascontiguousarray(points, np.float64)
     return np.where(body.inside(p), -1.0, 1.0) * body.distance(p)
@@ -72,11 +72,11 @@ def garment_fit(character, bind_skin: np.ndarray, bind_positions: np.ndarray, fi
     bind_skin: (V, 3) the skinned body at the bind pose (frame 0, relative frame); bind_positions:
     (N, 3) the sewn garment there (the Garment's positions, same frame). fit_vertices: (K,) int64
     particle ids. track: the garment's GarmentTrack (world). floor_y: m, world floor height.
-    skin_distance: a stages.coverage.SkinDistance of the character to reuse (built when None).
+    skin_distance: a stages.geometry.skin_distance.SkinDistance of the character to reuse (built when None).
     under: optional (M, 3) points on the garments worn under this one (bind pose, same frame): the
     fit gap is then to the nearer of the skin and them (a waistband over a tucked-in shirt).
     """
-    from stages.coverage import SkinDistance
+    from stages.geometry.skin_distance import SkinDistance
     n = track.positions.shape[1]
     gap = np.zeros(0)
     if fit_vertices.size:

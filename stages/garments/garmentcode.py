@@ -315,6 +315,18 @@ def _stitches(sin, panels: dict, src: str) -> tuple:
     return tuple(out)
 
 
+def panel_part(p) -> str:
+    """'arm', 'leg' or 'body': the panel's label, else guessed from its name (unlabelled files)."""
+    if p.label in ("arm", "leg", "body"):
+        return p.label
+    n = p.name.lower()
+    if any(w in n for w in ("sleeve", "cuff", "arm")):
+        return "arm"
+    if any(w in n for w in ("pant", "leg", "skirt")):
+        return "leg"
+    return "body"
+
+
 def loop_points(panel: GCPanel, per_curve: int = 32) -> np.ndarray:
     """(N, 2) the panel's outline, curves sampled (start of each edge included, end not)."""
     pts = []

@@ -18,7 +18,7 @@ import numpy as np
 import yaml
 
 from stages.errors import InputError
-from stages.garments.garmentcode import GCPattern, edge_points
+from stages.garments.garmentcode import GCPattern, edge_points, panel_part
 from stages.garments.garmentcode_wrap import wrap_ring, wrap_sleeves
 from stages.garments.patterns import Edge, Panel, Pattern, PatternAttachment, Placement, Seam, SeamSide
 
@@ -189,18 +189,6 @@ def stitch_lengths(gc: GCPattern) -> list[tuple[float, float]]:
     """(length of side A, length of side B), m, of every stitch."""
     from stages.garments.garmentcode import edge_length
     return [tuple(edge_length(gc.panel(pn), gc.panel(pn).edges[k]) for pn, k in (st.a, st.b)) for st in gc.stitches]
-
-
-def panel_part(p) -> str:
-    """'arm', 'leg' or 'body': the panel's label, else guessed from its name (unlabelled files)."""
-    if p.label in ("arm", "leg", "body"):
-        return p.label
-    n = p.name.lower()
-    if any(w in n for w in ("sleeve", "cuff", "arm")):
-        return "arm"
-    if any(w in n for w in ("pant", "leg", "skirt")):
-        return "leg"
-    return "body"
 
 
 @dataclass(frozen=True)

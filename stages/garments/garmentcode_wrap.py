@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from stages.garments.garmentcode import GCPattern, edge_points
+from stages.garments.garmentcode import GCPattern, edge_points, panel_part
 
 WRAP_BIN = 0.02   # m: height bins of the wrap's ring widths
 
@@ -78,7 +78,7 @@ def wrap_ring(gc: GCPattern, points: list, body, uvs: list) -> list:
     up = []
     for p, x in zip(gc.panels, points):
         n = p.normal
-        up.append(_part(p) != "arm" and abs(n[1]) < 0.5 and len(x) > 0)
+        up.append(panel_part(p) != "arm" and abs(n[1]) < 0.5 and len(x) > 0)
     cones = {i: c for i, c in ((i, cone_apex(p)) for i, p in enumerate(gc.panels) if up[i]) if c is not None}
     points = list(points)
     if cones:
@@ -143,11 +143,6 @@ def _ring(points: list, normals: list, up: list, girth, anchor: float | None) ->
     return out
 
 
-def _part(p) -> str:
-    from stages.garments.garmentcode_place import panel_part
-    return panel_part(p)
-
-
 SLEEVE_GIRTH = 0.36   # m: a sleeve's ring is at least this round (an upper arm of 0.3 m + 6 cm)
 
 
@@ -157,7 +152,7 @@ def wrap_sleeves(gc: GCPattern, points: list, body) -> list:
     ring of the sleeve's front and back panels, as the torso's (wrap_ring)."""
     points = list(points)
     for side in (1.0, -1.0):
-        sel = [_part(p) == "arm" and len(x) > 0 and side * float(np.mean(x[:, 0])) > 0
+        sel = [panel_part(p) == "arm" and len(x) > 0 and side * float(np.mean(x[:, 0])) > 0
                for p, x in zip(gc.panels, points)]
         if not any(sel):
             continue

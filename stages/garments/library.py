@@ -526,7 +526,7 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
         # fallback: a collar whose sewing pulled it off the body (its corners stand off the hollow
         # between neck and shoulders, the patterns' flat rest shape pushing them out) is sewn again,
         # held where it was hugged until the seams are closed, then free as before
-        from stages.coverage import SkinDistance
+        from stages.geometry.skin_distance import SkinDistance
         body = SkinDistance(character)
         body.refit(np.ascontiguousarray(skinned0, np.float64))
         gap = float(np.median(signed_skin_distance(body, sewn[np.concatenate(free)])))

@@ -415,7 +415,7 @@ def near_colliders(bind, points: np.ndarray, gap: float) -> np.ndarray:
 
 def inside_body(character, skinned: np.ndarray, points: np.ndarray, colliders=None, bind=None) -> np.ndarray:
     """(N,) bool: points inside the skinned body mesh (winding number >= 0.5) or inside a collider."""
-    from stages.sim import winding_number
+    from stages.geometry.winding import winding_number
     ins = winding_number(skinned, character.triangles, points) >= 0.5
     if colliders is not None and bind is not None and (colliders.hulls or colliders.spheres):
         ins |= near_colliders(bind, points, 0.0)
@@ -567,7 +567,7 @@ def hug(points: np.ndarray, targets: np.ndarray, character, skinned: np.ndarray,
     tucked-in shirt) where the placement put it inside."""
     from scipy.spatial import cKDTree
 
-    from stages.sim import winding_number
+    from stages.geometry.winding import winding_number
     p = np.asarray(points, np.float64)
     d = np.asarray(targets, np.float64) - p
     length = np.linalg.norm(d, axis=1)

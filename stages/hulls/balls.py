@@ -152,7 +152,7 @@ def fit_balls(character: Character, split: RegionSplit, poses: np.ndarray, skinn
               cover: float = BALL_COVER, hulls=()) -> BallSet:
     """Skinned balls holding the flexible vertices of `split` and the body's interior near them
     (module doc). poses: (F, J, 4, 4) the motion sample; skinned: (F, V, 3) its skinned vertices;
-    body: stages.coverage.measure.SkinDistance (refitted to the bind pose on return). hulls: the rigid
+    body: stages.geometry.skin_distance.SkinDistance (refitted to the bind pose on return). hulls: the rigid
     hulls (HullCollider); skin they hold needs no skin ball."""
     flex = np.flatnonzero(~split.rigid)
     empty = BallSet(np.zeros((0, 3)), np.zeros((0, 1), np.int64), np.zeros((0, 1)), np.zeros(0),
@@ -374,7 +374,7 @@ def _skin_features(triangles: np.ndarray, flexible: np.ndarray) -> tuple[np.ndar
     """(indices of the triangles with a flexible corner (M,), their edges (E, 2), each once, sorted):
     the skin between the flexible vertices is sampled at their centroids and edge midpoints. Balls that
     hold only the vertices leave the skin between them out where they are small."""
-    from stages.sim.audit import mesh_edges
+    from stages.geometry.mesh import mesh_edges
     index = np.flatnonzero(flexible[triangles].any(axis=1))
     return index, mesh_edges(triangles[index]).astype(triangles.dtype)
 

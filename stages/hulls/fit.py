@@ -115,7 +115,7 @@ def fit_colliders(character: Character, split: RegionSplit, *, delta: float = 0.
     from stages.hulls import swept
     core = core and character.triangles.shape[0] > 0      # "inside the body" needs a surface
     if core:
-        from stages.coverage.measure import SkinDistance
+        from stages.geometry.skin_distance import SkinDistance
         body = SkinDistance(character)
         body.refit(character.vertices)
 
@@ -184,7 +184,7 @@ def _with_balls(character: Character, split: RegionSplit, poses: np.ndarray, hul
     from stages.hulls.balls import fit_balls
     from stages.rig.skinning import skin_poses
     if body is None:
-        from stages.coverage.measure import SkinDistance
+        from stages.geometry.skin_distance import SkinDistance
         body = SkinDistance(character)
     balls = fit_balls(character, split, poses, skin_poses(character, poses), body, delta=delta, hulls=hulls)
     j = character.n_joints
@@ -208,7 +208,7 @@ def core_points(character: Character, parts: list, poses: np.ndarray, skinned: n
     down to them, so the hulls of neighbouring patches meet inside the body instead of leaving a
     hollow at a joint (CesiumMan's pelvis: 165 of 24,836 interior samples 3.5 cm deep under no
     collider); a bone point that the skin leaves at some pose would carry the hull out of the body.
-    `body`: stages.coverage.measure.SkinDistance (refitted to the bind pose on return)."""
+    `body`: stages.geometry.skin_distance.SkinDistance (refitted to the bind pose on return)."""
     from stages.hulls import swept
     local, owner = [], []
     for k, (_, b, idx) in enumerate(parts):

@@ -58,10 +58,10 @@ from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.affine import apply_affine, apply_rigid_inverse
-from stages.obstacles.kdop import refit_particle_tree, refit_range, triangle_bounds
+from stages.geometry.kdop import refit_particle_tree, refit_range, triangle_bounds
 
 # kernels below compile in code from these modules: their edits must invalidate the disk cache
-NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.obstacles.kdop")
+NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.geometry.kdop")
 
 BARY_TOL = 1e-9
 # a particle may start up to this fraction of the band BEHIND a plane and still be pushed out;

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from stages.checks import ContractError, check_array
-from stages.obstacles.kdop import DEFAULT_K, build_particle_tree, build_triangle_tree, merge_forest
+from stages.geometry.kdop import DEFAULT_K, build_particle_tree, build_triangle_tree, merge_forest
 from stages.obstacles.kernels import collide_obstacles
 from stages.obstacles.types import Obstacle, ObstacleSet
 

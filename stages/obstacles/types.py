@@ -19,6 +19,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from stages.checks import ContractError, check_array, check_index, check_positive, check_rigid
+from stages.geometry.kdop import KdopTree
 from stages.rig.transforms import slerp
 
 
@@ -134,76 +135,6 @@ class Obstacle:
     def pose_at(self, t: float) -> np.ndarray:
         """(4, 4) body -> world at time t (identity for static obstacles)."""
         return np.eye(4) if self.motion is None else self.motion.pose_at(t)
-
-
-@dataclass(frozen=True)
-class KdopTree:
-    """A binary k-DOP (fixed-direction hull) tree, or a forest of them, as flat arrays for numba.
-
-    directions: (h, 3) float64, unit vectors, h = k / 2; a k-DOP is [min_i, max_i] of the
-      projections on directions[i].
-    node_min, node_max: (n, h) float64, metres, world frame; each node bounds its subtree's
-      primitives inflated by `margin` of its tree.
-    children: (n, 2) int32, child node ids, (-1, -1) for leaves. Children ids are always greater
-      than their parent's, so iterating node ids in reverse is a valid bottom-up (refit) order.
-    leaf_prim: (n,) int32, the primitive id of a leaf (triangle id into the owner's triangle
-      array, or particle id for the cloth tree), -1 for inner nodes.
-    depth: (n,) int32, 0 at a root.
-    tree_offsets: (r + 1,) int32; tree i owns nodes [tree_offsets[i], tree_offsets[i+1]) and its
-      root is node tree_offsets[i]. A single tree has tree_offsets = [0, n].
-    margin: (r,) float64, metres >= 0, inflation of each tree's bounds (obstacle thickness; 0 for
-      the cloth tree, whose leaves bound a particle's swept segment over the step).
-    """
-
-    directions: np.ndarray
-    node_min: np.ndarray
-    node_max: np.ndarray
-    children: np.ndarray
-    leaf_prim: np.ndarray
-    depth: np.ndarray
-    tree_offsets: np.ndarray
-    margin: np.ndarray
-
-    def __post_init__(self):
-        o = "KdopTree"
-        d = check_array(o, "directions", self.directions, (None, 3), np.float64)
-        h = d.shape[0]
-        if h not in (3, 7, 9, 13):
-            raise ContractError(f"{o}.directions: expected 3, 7, 9 or 13 directions (k = 6/14/18/26), got {h}")
-        if not np.allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12):
-            raise ContractError(f"{o}.directions: directions must be unit vectors")
-        mn = check_array(o, "node_min", self.node_min, (None, h), np.float64)
-        n = mn.shape[0]
-        mx = check_array(o, "node_max", self.node_max, (n, h), np.float64)
-        if n and not np.all(mn <= mx):
-            raise ContractError(f"{o}: node_min > node_max somewhere")
-        ch = check_array(o, "children", self.children, (n, 2), np.int32)
-        check_index(o, "children", ch, n, allow=-1)
-        lp = check_array(o, "leaf_prim", self.leaf_prim, (n,), np.int32)
-        if not np.array_equal(lp >= 0, ch[:, 0] < 0):
-            raise ContractError(f"{o}: a node must be a leaf (children -1, leaf_prim >= 0) or inner (both children, leaf_prim -1)")
-        inner = ch[:, 0] >= 0
-        if not np.all(ch[inner] > np.nonzero(inner)[0][:, None]):
-            raise ContractError(f"{o}.children: child ids must be greater than their parent's")
-        check_array(o, "depth", self.depth, (n,), np.int32)
-        off = check_array(o, "tree_offsets", self.tree_offsets, (None,), np.int32)
-        if off.size < 2 or off[0] != 0 or off[-1] != n or not np.all(np.diff(off) > 0):
-            raise ContractError(f"{o}.tree_offsets: expected increasing offsets from 0 to {n}")
-        m = check_array(o, "margin", self.margin, (off.size - 1,), np.float64)
-        if np.any(m < 0):
-            raise ContractError(f"{o}.margin: must be >= 0")
-
-    @property
-    def k(self) -> int:
-        return 2 * self.directions.shape[0]
-
-    @property
-    def n_trees(self) -> int:
-        return self.tree_offsets.size - 1
-
-    @property
-    def max_depth(self) -> int:
-        return int(self.depth.max()) if self.depth.size else 0
 
 
 @dataclass(frozen=True)

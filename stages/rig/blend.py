@@ -53,15 +53,3 @@ def blend_seconds(distance: float, height: float) -> float:
     if not np.isfinite(distance) or height <= 0 or distance <= BLEND_NONE * height:
         return 0.0
     return float(np.clip(SECONDS_PER_HEIGHT * distance / height, BLEND_MIN_S, BLEND_MAX_S))
-
-
-def pose_distance(character, local_a: np.ndarray, local_b: np.ndarray) -> float:
-    """Farthest any skin vertex is between two poses (local transforms (J, 4, 4) each), with the root
-    joints put on one another (relative simulation removes the root's translation), m."""
-    from stages.rig.skinning import skin_poses
-    from stages.rig.transforms import forward_kinematics
-    g = forward_kinematics(character.parents, np.stack([local_a, local_b]))
-    g = g.copy()
-    g[..., :3, 3] -= g[:, character.root_joint, None, :3, 3]
-    x = skin_poses(character, g)
-    return float(np.linalg.norm(x[1] - x[0], axis=1).max(initial=0.0))

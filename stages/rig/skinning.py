@@ -12,6 +12,7 @@ import scipy.sparse
 
 from scipy.spatial.transform import Rotation
 
+from stages.rig.blend import blend_schedule
 from stages.rig.kernels import lbs_kernel
 from stages.rig.transforms import forward_kinematics, slerp, trs_to_matrix
 from stages.rig.types import Character, Clip, Motion
@@ -68,7 +69,6 @@ def sample_motion(character: Character, clip_key, times, *, blend_frames: int = 
     translations and scales lerped, rotations slerped). Garments dressed on the rest pose can then
     follow any clip from any start. The returned Motion.times count from its first frame.
     """
-    from stages.rig.blend import blend_schedule
     clip = character.clip(clip_key)
     times = np.atleast_1d(np.asarray(times, np.float64))
     local = sample_clip(character, clip, times)
@@ -186,3 +186,13 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     length = np.linalg.norm(n, axis=-1, keepdims=True)
     n = np.divide(n, length, out=np.zeros_like(n), where=length > 1e-300)
     return n if v.ndim == 3 else n[0]
+
+
+def pose_distance(character, local_a: np.ndarray, local_b: np.ndarray) -> float:
+    """Farthest any skin vertex is between two poses (local transforms (J, 4, 4) each), with the root
+    joints put on one another (relative simulation removes the root's translation), m."""
+    g = forward_kinematics(character.parents, np.stack([local_a, local_b]))
+    g = g.copy()
+    g[..., :3, 3] -= g[:, character.root_joint, None, :3, 3]
+    x = skin_poses(character, g)
+    return float(np.linalg.norm(x[1] - x[0], axis=1).max(initial=0.0))

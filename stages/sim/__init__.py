@@ -1,7 +1,7 @@
 """Cloth simulation stage (paper A §1, §3.2-3.3): Verlet mass-spring cloth, position correction,
 collisions with the character's spheres and hulls, attachments, relative simulation, body audit."""
-from stages.sim.simulate import BodyAudit, particles_inside_colliders, simulate, winding_number
+from stages.sim.simulate import particles_inside_colliders, simulate
 from stages.sim.types import GarmentTrack, SimParams, SimResult, SimulationDiverged
 
-__all__ = ["simulate", "winding_number", "particles_inside_colliders", "BodyAudit", "SimParams", "SimResult",
+__all__ = ["simulate", "particles_inside_colliders", "SimParams", "SimResult",
            "GarmentTrack", "SimulationDiverged"]

@@ -22,6 +22,7 @@ import numpy as np
 
 from stages.checks import ContractError, check_array
 from stages.garments.types import STRETCH
+from stages.geometry.mesh import mesh_edges
 from stages.jit import threaded
 from stages.sim import audit_kernels as AK
 
@@ -121,12 +122,6 @@ def vertex_strains(strain: np.ndarray, edges: np.ndarray, n: int) -> np.ndarray:
 
 
 # -- crossings -----------------------------------------------------------------------------------
-def mesh_edges(triangles: np.ndarray) -> np.ndarray:
-    """(E, 2) int32 unique undirected edges (i < j) of a triangle mesh, sorted."""
-    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
-    return np.unique(np.sort(e, axis=1), axis=0).astype(np.int32)
-
-
 def _orient_exact(a, b, c, d) -> int:
     """Exact sign of det[a - d, b - d, c - d] (rational arithmetic on the float values)."""
     a, b, c, d = ([Fraction(float(v)) for v in p] for p in (a, b, c, d))

@@ -21,11 +21,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from stages.checks import ContractError, check_array
+from stages.geometry.mesh import mesh_edges
+from stages.geometry.winding import winding_numbers_brute
 from stages.jit import threaded
 from stages.sim import audit_kernels as AK
 from stages.sim import body_audit_kernels as BK
-from stages.sim.audit import crosses_exact, mesh_edges
-from stages.sim.winding import winding_numbers_brute
+from stages.sim.audit import crosses_exact
 
 
 @dataclass(frozen=True)
@@ -285,7 +286,7 @@ def in_self_overlap(body: np.ndarray, body_tris: np.ndarray, points: np.ndarray,
     surface there (along its outward normal) is still inside the body, in another part of it (a forearm
     sunk into the hip by the animation; surfaces closer than SELF_GAP). No cloth can lie between two
     parts there without one of them passing through it. Inside: generalised winding number > 1/2
-    (stages.sim.winding, exact sum over every body triangle; only crossing points are evaluated)."""
+    (stages.geometry.winding, exact sum over every body triangle; only crossing points are evaluated)."""
     if not len(points):
         return np.zeros(0, bool)
     x = np.asarray(body, np.float64)

@@ -1,7 +1,7 @@
 """Cloth x cloth collision (garment-garment and self) as a self-contained phase of the step loop.
 
 Setup (Python, once per scene) builds a `ClothContact`: topology (edges, feature ownership), one k-DOP
-tree per garment over its triangles (paper B; stages.obstacles.kdop builds and refits it), work
+tree per garment over its triangles (paper B; stages.geometry.kdop builds and refits it), work
 buffers. The phase itself is one numba call over flat arrays, `collide_cloth` in
 stages.sim.cloth_contact_kernels (exact tests in stages.sim.cloth_contact_ccd).
 
@@ -44,8 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stages.checks import ContractError, check_array, check_index, check_positive
-from stages.obstacles.kdop import DEFAULT_K, build_tree, kdop_directions, merge_forest, triangle_bounds
-from stages.obstacles.types import KdopTree
+from stages.geometry.kdop import DEFAULT_K, KdopTree, build_tree, kdop_directions, merge_forest, triangle_bounds
 from stages.sim import cloth_contact_kernels as CK
 from stages.sim import cloth_contact_narrow as CN
 from stages.sim.cloth_contact_cull import node_borders, patch_nodes

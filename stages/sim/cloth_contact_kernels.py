@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
-from stages.obstacles.kdop import refit_range
+from stages.geometry.kdop import refit_range
 from stages.sim.cloth_contact_narrow import narrow
 from stages.sim.cloth_contact_local import (LOCAL_MAX, MAX_MOTION_STEPS, STEPS_AHEAD, box_bounds,  # noqa: F401
                                             particle_box, tri_bounds, update_candidates)
@@ -41,7 +41,7 @@ from stages.sim.cloth_contact_pairs import (N_BUILDS, N_CAND_OVERFLOW, N_CONTACT
                                             vf_candidate)
 
 # kernels below compile in code from these modules: their edits must invalidate the disk cache
-NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.obstacles.kdop", "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_cull",
+NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.geometry.kdop", "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_cull",
                        "stages.sim.cloth_contact_local",
                        "stages.sim.cloth_contact_narrow", "stages.sim.cloth_contact_pairs",
                        "stages.sim.cloth_contact_response", "stages.sim.simd")

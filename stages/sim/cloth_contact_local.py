@@ -27,7 +27,7 @@ from numba import njit
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.sim.cloth_contact_pairs import test_triangle_pair
 
-NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.obstacles.kdop", "stages.sim.cloth_contact_ccd",
+NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.geometry.kdop", "stages.sim.cloth_contact_ccd",
                        "stages.sim.cloth_contact_pairs")
 
 STEPS_AHEAD = 8       # a particle's box is wide enough for this many steps at its speed,
@@ -68,7 +68,7 @@ def box_bounds(p, directions, margin, box_lo, box_hi, pt_min, pt_max):
 
 @njit(cache=True, _nrt=False)
 def tri_bounds(triangles, t, pt_min, pt_max, tri_min, tri_max):
-    """Triangle t's bounds from its corners' (as stages.obstacles.kdop.triangle_bounds, exactly:
+    """Triangle t's bounds from its corners' (as stages.geometry.kdop.triangle_bounds, exactly:
     min(p - m, q - m) == min(p, q) - m), 3 times fewer projections."""
     a = triangles[t, 0]
     b = triangles[t, 1]

@@ -54,7 +54,7 @@ def _particle_bounds(xs, xe, p, directions, margin, pdiag, pbox, p_move):
     """Particle p's bounds over its step xs -> xe inflated by `margin`: its float32 box (pbox), its
     k-DOP's other directions in float32 (pdiag: minima in lanes 0.., maxima in lanes D..; both
     rounded outwards) and how far it moves (p_move). The 6 diagonals of the 18-DOP
-    (stages.obstacles.kdop: (x+y, x+z, y+z, x-y, x-z, y-z) / sqrt 2) are projected without the
+    (stages.geometry.kdop: (x+y, x+z, y+z, x-y, x-z, y-z) / sqrt 2) are projected without the
     multiplications by 0 and 1; other direction sets by their dot products."""
     ax = xs[p, 0]
     ay = xs[p, 1]

@@ -35,11 +35,12 @@ import time
 import numpy as np
 
 from stages.checks import ContractError
-from stages.jit import for_threads, threaded
+from stages.jit import for_threads
 from stages.garments.types import BEND, STRETCH, Garment
+from stages.geometry.winding import WindingTree
 from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER
 from stages.maps.types import KIND_CYLINDER, MapArrays
-from stages.sim import body_collide, collider_grid, forces, integrate, simd, step, winding
+from stages.sim import body_collide, collider_grid, forces, integrate, simd, step
 from stages.sim.cloth_contact import ClothPhase
 from stages.sim.poses import chunk_poses
 from stages.sim.settle import settle
@@ -330,56 +331,6 @@ def particles_inside_colliders(points, colliders, maps, pose, method: int = METH
     return out.astype(bool)
 
 
-# -- body audit -------------------------------------------------------------------------------------
-class BodyAudit:
-    """Particles inside the true skinned mesh, by the fast generalised winding number (>= 0.5)."""
-
-    def __init__(self, character, beta: float = 2.0):
-        self.character = character
-        self.beta = float(beta)
-        self.tree = winding.build_winding_tree(character.vertices, character.triangles)
-        self.data = np.zeros((self.tree[1].size, 8))
-        self.tris = np.ascontiguousarray(character.triangles, dtype=np.int32)
-
-    def refit(self, vertices: np.ndarray) -> None:
-        """Refit the tree to the skinned `vertices` (V, 3) of a frame; queries then use them."""
-        order, start, end, kids = self.tree
-        self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
-        winding.refit_winding_tree(self.vertices, self.tris, order, start, end, kids, self.data)
-
-    def winding_refitted(self, points: np.ndarray) -> np.ndarray:
-        """Winding numbers of `points` w.r.t. the vertices of the last `refit`."""
-        order, start, end, kids = self.tree
-        out = np.empty(points.shape[0])
-        threaded(winding.winding_numbers_tree)(np.ascontiguousarray(points, dtype=np.float64), self.vertices, self.tris, order,
-                               start, end, kids, self.data, self.beta, out)
-        return out
-
-    def winding(self, vertices: np.ndarray, points: np.ndarray) -> np.ndarray:
-        self.refit(vertices)
-        return self.winding_refitted(points)
-
-    def inside(self, vertices: np.ndarray, points: np.ndarray) -> np.ndarray:
-        return self.winding(vertices, points) >= 0.5
-
-
-def winding_number(vertices, triangles, points, *, exact: bool = False, beta: float = 2.0) -> np.ndarray:
-    """(N,) generalised winding numbers of points w.r.t. a triangle mesh (1 inside a closed
-    outward-oriented mesh, 0 outside). exact=True sums every triangle's solid angle (O(N T))."""
-    v = np.ascontiguousarray(vertices, dtype=np.float64)
-    t = np.ascontiguousarray(triangles, dtype=np.int32)
-    p = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
-    out = np.empty(p.shape[0])
-    if exact:
-        threaded(winding.winding_numbers_brute)(p, v, t, out)
-        return out
-    order, start, end, kids = winding.build_winding_tree(v, t)
-    data = np.zeros((start.size, 8))
-    winding.refit_winding_tree(v, t, order, start, end, kids, data)
-    threaded(winding.winding_numbers_tree)(p, v, t, order, start, end, kids, data, float(beta), out)
-    return out
-
-
 # -- the stage ----------------------------------------------------------------------------------------
 def simulate(character, motion, colliders, maps, garments, params: SimParams, *, obstacles=None,
              progress=None, threads: int | None = 1, layers=None, partial: dict | None = None,
@@ -387,7 +338,7 @@ def simulate(character, motion, colliders, maps, garments, params: SimParams, *,
     """See `_simulate`. threads: numba threads for the parallel kernels during the call (None = the
     current numba setting). Results do not depend on it (every parallel loop writes disjoint
     particles). Default 1: on the shared 2-core machine a second thread pays only when a core is
-    idle (see stages/sim/bench.py). layers: (G,) cloth collision layer per garment, 0 = innermost
+    idle (see pipeline/benches/sim.py). layers: (G,) cloth collision layer per garment, 0 = innermost
     (default: the garments' order); used when params.cloth_collision. partial: optional dict the
     simulation keeps 'result' in (a function of no argument: the SimResult of the frames done so
     far), for a caller that stops the run from outside (a sweep's timeout) and keeps what was done.
@@ -474,7 +425,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
 
     audit = None
     if params.body_audit and character.triangles.shape[0] > 0:
-        audit = BodyAudit(character)
+        audit = WindingTree(character.vertices, character.triangles)
         from stages.rig.skinning import skin
 
     rel = np.zeros((nf, n, 3), np.float32)       # relative frame; root translation added at the end

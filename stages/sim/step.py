@@ -64,7 +64,7 @@ NUMBA_CACHE_DEPENDS = ("stages.sim.body_collide", "stages.sim.body_escape", "sta
                        "stages.sim.integrate", "stages.sim.simd", "stages.sim.springs", "stages.maps.kernels",
                        "stages.maps.types", "stages.affine", "stages.fastmath", "stages.sim.cloth_contact_kernels",
                        "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_cull",
-                       "stages.sim.cloth_contact_narrow", "stages.sim.cloth_contact_local", "stages.sim.cloth_contact_pairs", "stages.sim.cloth_contact_response", "stages.obstacles.kdop")
+                       "stages.sim.cloth_contact_narrow", "stages.sim.cloth_contact_local", "stages.sim.cloth_contact_pairs", "stages.sim.cloth_contact_response", "stages.geometry.kdop")
 
 # Broad phase once per frame (the spheres swept through its steps, no query-frame boxes) from this
 # many colliders on; fewer, once per step (with the boxes). Measured one frame from the same state,

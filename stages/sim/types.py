@@ -90,7 +90,7 @@ class SimParams:
     max_speed: m/s; a particle faster than this (or NaN / inf) stops the run as diverged.
     speed_limit: m/s (relative frame), 0 = none: at the end of every step a free particle's Verlet
         velocity is capped at this (stages.sim.integrate.limit_speed; counted per frame in
-        SimResult.speed_limited). The pipeline sets it from the clip (pipeline.run.motion_speed_limit).
+        SimResult.speed_limited). The pipeline sets it from the clip (pipeline.scene_motion.motion_speed_limit).
     body_audit: count particles inside the true skinned mesh per frame (generalised winding number).
     cloth_collision: the cloth x cloth phase (garment-garment and self collision, stages.sim.cloth_contact)
         last in every step; garments keep the order of their layers (simulate's `layers`: sorted

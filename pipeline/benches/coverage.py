@@ -29,7 +29,7 @@ def _assets() -> Path:
 
 def characters() -> dict:
     """name -> loader of (character, clip name, playback start in s)."""
-    from stages.rig.bvh import load_bvh_character
+    from stages.rig.bvh_character import load_bvh_character
     from stages.rig.gltf import load_gltf
     from stages.rig.procedural import procedural_character
     return {"built-in": lambda: (procedural_character(), "walk", 0.0),

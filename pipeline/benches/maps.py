@@ -1,6 +1,6 @@
 """Benchmark of the hull queries: queries per second of (a) the paper's path (slab point location +
 cell ray), (b) brute force (every half-space + the ray against every face), (c) the nearest-plane
-baseline, on 10^6 points around each hull. `python -m stages.maps.bench` prints the dict.
+baseline, on 10^6 points around each hull. `python -m pipeline.benches.maps` prints the dict.
 
 Hulls: CesiumMan's colliders (region split -> Qhull hull -> inflate 5 mm -> simplify to >= 116
 faces, bone-local) when the rig and hull stages and the asset are available, else random 116-face

@@ -1,5 +1,6 @@
-"""The body penetration audit: generalised winding numbers of the cloth particles w.r.t. the skinned
-character mesh (Barill et al. 2018), brute force and with a tree of bounding balls.
+"""Generalised winding numbers of points w.r.t. a triangle mesh (Barill et al. 2018), brute force and
+over a tree of bounding balls refitted per frame: inside the body (>= 0.5) for the simulation's body
+audit, garment placement and the collider coverage, open meshes included.
 """
 from __future__ import annotations
 
@@ -9,12 +10,11 @@ import numpy as np
 from numba import njit, prange
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
-from stages.jit import serial_and_parallel
+from stages.jit import serial_and_parallel, threaded
 from stages.affine import triangle_cross
 
 NUMBA_CACHE_DEPENDS = ("stages.affine",)
 
-# -- body penetration audit: generalised winding number ------------------------------------------
 @njit(cache=True, forceinline=True)
 def _solid_angle(ax, ay, az, bx, by, bz, cx, cy, cz):
     """Signed solid angle of triangle (a, b, c) seen from the origin (Van Oosterom & Strackee)."""
@@ -188,3 +188,52 @@ def build_winding_tree(vertices: np.ndarray, triangles: np.ndarray, leaf_size: i
     node(0, triangles.shape[0])
     return (order.astype(np.int64), np.array(starts, np.int64), np.array(ends, np.int64),
             np.array(kids, np.int64))
+
+
+class WindingTree:
+    """The winding-number tree of one mesh whose vertices move (a skinned body): topology built
+    once from `vertices`, bounds refitted per frame; inside = winding number >= 0.5."""
+
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, beta: float = 2.0):
+        self.beta = float(beta)
+        self.tree = build_winding_tree(vertices, triangles)
+        self.data = np.zeros((self.tree[1].size, 8))
+        self.tris = np.ascontiguousarray(triangles, dtype=np.int32)
+
+    def refit(self, vertices: np.ndarray) -> None:
+        """Refit the tree to the `vertices` (V, 3) of a frame; queries then use them."""
+        order, start, end, kids = self.tree
+        self.vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+        refit_winding_tree(self.vertices, self.tris, order, start, end, kids, self.data)
+
+    def winding_refitted(self, points: np.ndarray) -> np.ndarray:
+        """Winding numbers of `points` w.r.t. the vertices of the last `refit`."""
+        order, start, end, kids = self.tree
+        out = np.empty(points.shape[0])
+        threaded(winding_numbers_tree)(np.ascontiguousarray(points, dtype=np.float64), self.vertices, self.tris,
+                                       order, start, end, kids, self.data, self.beta, out)
+        return out
+
+    def winding(self, vertices: np.ndarray, points: np.ndarray) -> np.ndarray:
+        self.refit(vertices)
+        return self.winding_refitted(points)
+
+    def inside(self, vertices: np.ndarray, points: np.ndarray) -> np.ndarray:
+        return self.winding(vertices, points) >= 0.5
+
+
+def winding_number(vertices, triangles, points, *, exact: bool = False, beta: float = 2.0) -> np.ndarray:
+    """(N,) generalised winding numbers of points w.r.t. a triangle mesh (1 inside a closed
+    outward-oriented mesh, 0 outside). exact=True sums every triangle's solid angle (O(N T))."""
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    t = np.ascontiguousarray(triangles, dtype=np.int32)
+    p = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    out = np.empty(p.shape[0])
+    if exact:
+        threaded(winding_numbers_brute)(p, v, t, out)
+        return out
+    order, start, end, kids = build_winding_tree(v, t)
+    data = np.zeros((start.size, 8))
+    refit_winding_tree(v, t, order, start, end, kids, data)
+    threaded(winding_numbers_tree)(p, v, t, order, start, end, kids, data, float(beta), out)
+    return out

@@ -2,7 +2,7 @@
 preset, one thread, in one run: frames/s, sub-steps/s, edge strain, cloth crossings, penetrations.
 Heavy: run it from the CLI, not in tests.
 
-    python -m stages.sim.bench            # prints the dict as JSON, then the table
+    python -m pipeline.benches.sim           # prints the dict as JSON, then the table
 
 Figures per scene and preset: `steps_per_s` from the kernels' own cycle counts (the steps only:
 forces, Verlet, springs, collisions; recording and the body audit excluded), `frames_per_s` the

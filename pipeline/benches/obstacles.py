@@ -1,6 +1,6 @@
 """Benchmark of the k-DOP obstacle collision on the table scene (a command, not a test).
 
-    python -m stages.obstacles.bench
+    python -m pipeline.benches.obstacles
 
 A 50 x 50 = 2,500-particle cloth dropped on a table (top slab + 4 legs) by the simulation stage
 (stages.sim.simulate: its step, then the obstacle collision after every step). Reported: the stage's
@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from stages.obstacles.kdop import DEFAULT_K, refit_particle_tree
+from stages.geometry.kdop import DEFAULT_K, refit_particle_tree
 from stages.obstacles.kernels import candidate_pairs, motion_axis_order
 from stages.obstacles.primitives import make_obstacle, table_mesh
 from stages.obstacles.stage import ObstacleCollider, build_obstacle_set
