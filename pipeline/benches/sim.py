@@ -21,6 +21,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from pipeline.schema import SceneError
+from stages.errors import InputError
 from stages.garments.simple import rectangle_cloth, tube_skirt
 from stages.garments.types import attach_top_loop, bind_pose, build_garment
 from stages.sim.audit import audit_cloth
@@ -199,6 +201,32 @@ def shipped_walk(frames: int = 60, threads: int = 1, repeats: int = 1, preset: s
     return out
 
 
+def pinch_rules(frames: int = 60, repeats: int = 1) -> dict:
+    """scenes/cesium_skirt.yaml (CesiumMan's left hand swings into the skirt at the hip) with each
+    simulation.pinch rule, in one run: what pinch handling costs and what it changes (strain, particles
+    inside the body, body edges through the cloth). Skipped without the asset."""
+    from pathlib import Path
+
+    from pipeline.dressing import build_scene_garments
+    from pipeline.matrix import Prepared
+    from pipeline.run import garment_layers, sim_params
+    from pipeline.scene import load_scene
+    from stages.sim.types import PINCH_RULES
+
+    scene = load_scene(Path(__file__).resolve().parents[2] / "scenes" / "cesium_skirt.yaml")
+    scene.settings["frames"]["count"] = frames
+    p = Prepared(scene)
+    garments, _ = build_scene_garments(scene, p.character, p.motion, p.colliders, p.maps)
+    sc = (p.character, p.motion, p.colliders, p.maps, garments)
+    out = {}
+    for rule in PINCH_RULES:
+        params = replace(sim_params(scene), body_audit=True, pinch=rule)
+        r = _run(sc, params, repeats, 1, layers=garment_layers(scene))
+        r.update(threads=1, preset=f"pinch {rule}", frames=frames)
+        out[rule] = r
+    return out
+
+
 def table(results: dict) -> str:
     """The comparison as a markdown table."""
     rows = ["| scene | preset | sub-steps x rounds | cloth collision (share of the step, sub-steps per call) "
@@ -240,6 +268,11 @@ def run_benchmark(frames_drape: int = 150, frames_walk: int = 90, repeats: int =
     out["walk_tshirt_skirt_default"] = shipped_walk(fw, 1, 1)
     out["walk_tshirt_skirt_default-off"] = shipped_walk(fw, 1, repeats, cloth_collision=False)
     out["walk_tshirt_skirt_paper"] = shipped_walk(fw, 1, repeats, preset="paper")
+    try:
+        for rule, r in pinch_rules(frames_walk).items():
+            out[f"cesium_skirt_{rule}"] = r
+    except (ImportError, OSError, SceneError, InputError) as err:   # the asset or a stage it needs is missing
+        out["cesium_skirt_pinch"] = {"skipped": f"{err}"}
     out["machine"]["load_avg_1min_end"] = os.getloadavg()[0]
     out["table"] = table(out)
     return out
