@@ -45,6 +45,10 @@ def test_swept_attachments_match_brute_force():
     assert want.any() and not want.all()
     np.testing.assert_array_equal(hit, want)
     assert names == ["arm"]
+    # a skinned ball (<joint>_ball<k>) is named by its joint
+    from dataclasses import replace
+    balls = replace(cs, spheres=(replace(cs.spheres[0], name="arm_ball17"),))
+    assert swept_attachments(bind_pose(ch, mo, balls), local, np.zeros(top.size, np.int32), DELTA)[1] == ["arm"]
     # a particle following the sphere's own bone is never swept by it
     hit_own, _ = swept_attachments(bind, local - [0.0, 1.0, 0.0], np.ones(top.size, np.int32), DELTA)
     assert not hit_own.any()

@@ -20,6 +20,7 @@ edges, nothing left, non-finite positions).
 """
 from __future__ import annotations
 
+import re
 import warnings
 from dataclasses import dataclass
 
@@ -225,7 +226,7 @@ def bind_pose(character, motion, colliders=None) -> BindPose:
 
 def swept_attachments(bind: BindPose, local: np.ndarray, joints: np.ndarray, depth: float, ignore=()):
     """Attached particles that a collider of another bone holds deeper than `depth` (m) at some
-    frame of bind.poses: ((M,) bool, names of those colliders).
+    frame of bind.poses: ((M,) bool, names of those colliders' joints).
 
     local: (M, 3) bone-local positions, joints: (M,) the bones they follow. A particle's own bone's
     colliders move rigidly with it and are not tested, nor those of the joints in `ignore` (the
@@ -248,7 +249,8 @@ def swept_attachments(bind: BindPose, local: np.ndarray, joints: np.ndarray, dep
         if deep.any():
             hit[other[deep]] = True
             names.append(name)
-    return hit, list(dict.fromkeys(names))   # a bone's hull and sphere share its name
+    # a bone's hull and sphere share its name; its skinned balls (<joint>_ball<k>) are named by their joint
+    return hit, list(dict.fromkeys(re.sub(r"_ball\d+$", "", n) for n in names))
 
 
 def _signed_distance(collider, p: np.ndarray) -> np.ndarray:
