@@ -11,15 +11,9 @@ from pipeline.schema import SceneError
 
 
 def pattern_options(kind: str) -> tuple[str, ...]:
-    """The size options a built-in pattern kind accepts (its generator's keyword arguments)."""
-    import inspect
-
-    from stages.garments import library
-    gen = {"short_skirt": "skirt", "long_skirt": "skirt"}.get(kind, kind)
-    fn = getattr(library, gen, None)
-    if fn is None:
-        return ()
-    return tuple(p for p in inspect.signature(fn).parameters if p not in ("meas", "measurements", "edge_length", "name"))
+    """The size options a built-in pattern kind accepts (pipeline.scene.KIND_OPTIONS)."""
+    from pipeline.scene import KIND_OPTIONS
+    return KIND_OPTIONS.get(kind, ())
 
 
 def check_pattern(scene: Scene, index: int) -> None:
