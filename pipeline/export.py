@@ -19,7 +19,6 @@ from __future__ import annotations
 import json
 import os
 import struct
-import tempfile
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -172,16 +171,17 @@ def from_run(scene, motion, skinned, character, result, builds, source: str) -> 
 
 @contextmanager
 def _atomic(path: Path, mode: str = "wb"):
-    """Yield a temporary path next to `path`; rename it to `path` on success, remove it on failure."""
+    """Yield a temporary path next to `path` (pipeline.disk.temporary_path); rename it to `path` on
+    success, remove it on failure. A write error (a full disk) is one ExportError naming the file."""
+    from pipeline.disk import remove_stale_temporaries, temporary_path
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
+    remove_stale_temporaries(path)   # what a killed run left
+    tmp = temporary_path(path)
     try:
-        yield Path(tmp)
-        os.chmod(tmp, 0o666 & ~umask)   # mkstemp makes it private; a result file is not
+        yield tmp
         os.replace(tmp, path)
+    except OSError as e:
+        raise ExportError(f"{path}: cannot write the export ({e.strerror or e}); an earlier file there is kept") from None
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
@@ -427,6 +427,21 @@ def write(data: ExportData, formats, out_dir: str | os.PathLike) -> list[Path]:
         elif f == "usd":
             paths.append(write_usd(data, out / f"{base}.usdc"))
     return paths
+
+
+def check_export_dir(out_dir: str | os.PathLike, where: str) -> None:
+    """Before the run: the exports' folder is a folder (or can be made: its nearest existing
+    ancestor is a writable folder), so a run is never lost to a bad export path at its end."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ExportError(f"{where}: {out}: is a file, expected a folder for the exports")
+    existing = out
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ExportError(f"{where}: {out}: cannot create the folder: {existing} is a file")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ExportError(f"{where}: {out}: folder {existing} is not writable")
 
 
 def default_dir(recording: str | os.PathLike) -> Path:

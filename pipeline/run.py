@@ -12,8 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.dressing import (build_scene_garments, build_scene_obstacles, check_pattern, check_pins, dressing_layers,
-                               garment_fit_report, garment_fits, ignored_joints, load_scene_meshes)
+from pipeline.dressing import (build_scene_garments, build_scene_obstacles, dressing_layers, garment_fit_report,
+                               garment_fits, ignored_joints)
+from pipeline.preflight import check_references, preflight
 from pipeline.scene import Scene
 from pipeline.schema import SceneError
 
@@ -247,48 +248,6 @@ def frame_times(scene: Scene, frames: int | None = None) -> np.ndarray:
     return scene["frames"]["start"] + scene["simulation"]["dt"] * np.arange(n, dtype=np.float64)
 
 
-def check_references(scene: Scene, character) -> None:
-    """Names the scene uses that only the character can confirm (clip, joints)."""
-    src = scene.path or "<scene>"
-    clip = scene["character"]["clip"]
-    if not (clip == "rest" or isinstance(clip, (int, str)) and not isinstance(clip, bool)):
-        raise SceneError(f"{src}: character.clip: expected a clip name, an index or 'rest', got {clip!r}")
-    if clip != "rest":
-        try:
-            character.clip(clip)
-        except KeyError:
-            raise SceneError(f"{src}: character.clip: {clip!r} is not a clip of {character.name!r}; "
-                             f"clips: {[c.name for c in character.clips] or 'none'} (or 'rest')") from None
-    for section in ("garments", "obstacles"):
-        for i, item in enumerate(scene[section]):
-            if item["type"] == "mesh" and not Path(item["path"]).is_file():
-                raise SceneError(f"{src}: {section}[{i}].path: file not found: {item['path']}")
-    names = set(character.joint_names)
-    for i, g in enumerate(scene["garments"]):
-        if g["type"] == "pattern":
-            check_pattern(scene, i)
-        if g["type"] == "garmentcode":      # read now: a bad pattern file stops the run before the colliders
-            from stages.errors import InputError
-            from stages.garments.garmentcode import read_pattern
-            from pipeline.assets import assets_dir
-            from stages.garments.garmentcode_place import DEFAULT_BODY, body_of
-            try:
-                read_pattern(g["path"])
-                body_of(g["path"], assets_dir() / DEFAULT_BODY)
-            except InputError as err:
-                raise SceneError(f"{src}: garments[{i}].path: {err}") from None
-        refs = [("at_joint", g.get("at_joint"))]
-        if g.get("pin") is not None:
-            refs.append(("pin.collider", g["pin"]["collider"]))
-        refs += [(f"ignore_colliders[{k}]", name) for k, name in enumerate(g.get("ignore_colliders") or ())]
-        for key, name in refs:
-            if name is not None and name not in names:
-                import difflib
-                near = difflib.get_close_matches(name, sorted(names), n=1)
-                hint = f" (did you mean {near[0]!r}?)" if near else f"; joints: {', '.join(character.joint_names)}"
-                raise SceneError(f"{src}: garments[{i}].{key}: {name!r} is not a joint of {character.name!r}{hint}")
-
-
 def blend_in_seconds(scene: Scene, character, dressed: bool | None = None) -> float:
     """The scene's blend-in: `frames.blend_in` when given, else (auto) sized by stages.rig.blend from
     how far the clip's pose at `frames.start` is from the rest pose, where garments are dressed; 0
@@ -339,23 +298,6 @@ def split_and_fit(scene: Scene, character, motion, progress=None):
                          motion_tolerance=c["motion_tolerance"], rigid_threshold=c["rigid_threshold"],
                          min_triangles=c["min_triangles"], max_offset=c["max_offset"],
                          sweep_poses=motion.joint_world, progress=progress)
-
-
-def preflight(scene: Scene, output: Path | None, *, create: bool, output_flag: bool = False) -> dict:
-    """Every check that needs no character, before any work: the recording path, the mesh files,
-    the pinned indices. Returns the loaded meshes (see `load_scene_meshes`)."""
-    from pipeline import where
-    from pipeline.recording import check_output_path
-    where.stage("checking the scene")
-    src = scene.path or "<scene>"
-    out = Path(output) if output is not None else scene.output
-    key = f"{src}: {'--output' if output_flag else 'output'}"
-    check_output_path(out, where=key, create=False)
-    meshes = load_scene_meshes(scene)
-    check_pins(scene, meshes)
-    if create:   # last, so that a scene refused above leaves no new folder behind
-        check_output_path(out, where=key, create=True)
-    return meshes
 
 
 def blueprint_of(scene: Scene, character, motion, skinned, colliders, coverage_ran: bool, obstacles, garments,
@@ -426,7 +368,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     cloth audit kernels in a second process while the earlier stages run (pipeline.kernel_warmup).
     """
     from pipeline import logs, style, where
-    from pipeline.kernel_cache import compile_note
+    from pipeline.kernel_cache import compile_note, mark_ran
     from pipeline.progress import Progress
     from pipeline.recording import atomic_recording
     from stages.jit import numba_threads
@@ -434,7 +376,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
 
     out = Path(output) if output is not None else scene.output
     times = frame_times(scene, frames)
-    meshes = preflight(scene, output, create=True, output_flag=output is not None)
+    meshes = preflight(scene, output, create=True, output_flag=output is not None, export=export)
     formats, export_dir = export if export is not None else (scene.export["formats"], scene.export["dir"])
     if formats:   # an unknown format or a missing extra fails before the run
         from pipeline.export import check_formats
@@ -447,7 +389,10 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     state = {} if state is None else state
     state["summary"] = summary
 
+    ran: list[str] = []   # the stages announced: their kernels are compiled once the run ends (mark_ran)
+
     def say(name: str, *more: str) -> None:
+        ran.extend((name, *more))
         where.stage(name)
         note = compile_note(name, *more) if progress else None
         announce(f"{name} ({note})" if note else name)
@@ -546,6 +491,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
         if s["garments"]:
             if not warm.simulation_ready():   # sewing is the first stage to call the simulation's kernels
                 where.stage("garments")
+                ran.append("garments")
                 announce(f"garments (waiting for the simulation kernels compiling in a second process: "
                          f"about {warm.seconds_left():.0f} s more)")
                 warm.wait_simulation()
@@ -603,6 +549,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             if sp["cloth_audit"]:
                 if warm.running():   # its kernels compile in the second process while the run simulates
                     where.stage("cloth audit")
+                    ran.append("cloth audit")
                     announce("cloth audit (waiting for its kernels compiling in a second process)")
                     warm.wait()
                 else:
@@ -638,6 +585,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
         rec.send_blueprint(blueprint_of(scene, character, motion, skinned, colliders, coverage_ran,
                                         obstacles, garments, builds, result), make_active=True, make_default=True)
     summary.output = out
+    mark_ran(*ran)
     if formats:
         where.stage("export")
         from pipeline.export import export_run

@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
+import math
 import os
 import re
 from dataclasses import dataclass, field
@@ -70,7 +71,8 @@ SWEEP_SPEC = {
 }
 
 _KEY_PART = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[\d+\])*)")
-SWEEP_SET = ("output", "output.path", "output.export_dir")   # the sweep places every job's files
+SWEEP_SET = ("output", "output.path", "output.export_dir")
+MAX_JOBS = 10_000   # jobs a sweep file may expand to: each is a run and a table row   # the sweep places every job's files
 
 
 def parse_key(key: str) -> list:
@@ -232,6 +234,11 @@ def load_sweep(path: str | os.PathLike, output: str | os.PathLike | None = None)
                                  f"expected each key in the grid or in the cases, not both")
         cases.append((label, items, i))
 
+    total = max(len(cases), 1) * math.prod(len(vals) for _, vals in axes)
+    if total > MAX_JOBS:   # counted before any job is made: a grid of 10^10 would fill the memory first
+        sizes = " x ".join([str(len(cases))] * bool(cases) + [str(len(vals)) for _, vals in axes])
+        raise SweepError(f"{_at(p, marks, 'grid')}: grid: {sizes} = {total:,} jobs, more than {MAX_JOBS:,}; "
+                         f"expected a smaller grid (or several sweeps)")
     keys = (["case"] if cases else []) + [k for k, _ in axes]   # the table's columns of the job's labels
     jobs, seen = [], {}
     for case in (cases or [None]):
@@ -341,7 +348,8 @@ def validate_jobs(sw: Sweep, echo=None) -> None:
     character (loaded once per distinct character): clip and joint names, the joints each pattern
     garment anchors on. (Sizing, placing and sewing are left to the jobs: they need the colliders.)"""
     from pipeline import export
-    from pipeline.run import check_references, load_character, preflight
+    from pipeline.preflight import check_references, preflight
+    from pipeline.run import load_character
     from pipeline.dressing import check_pattern
     from stages.errors import InputError
     characters: dict = {}
