@@ -9,6 +9,7 @@ from pathlib import Path
 from pipeline.dressing import check_pattern, check_pins, load_scene_meshes
 from pipeline.scene import Scene
 from pipeline.schema import SceneError
+from stages.input_files import file_problem
 
 
 def preflight(scene: Scene, output: Path | None, *, create: bool, output_flag: bool = False,
@@ -49,8 +50,9 @@ def check_references(scene: Scene, character) -> None:
                              f"clips: {[c.name for c in character.clips] or 'none'} (or 'rest')") from None
     for section in ("garments", "obstacles"):
         for i, item in enumerate(scene[section]):
-            if item["type"] == "mesh" and not Path(item["path"]).is_file():
-                raise SceneError(f"{src}: {section}[{i}].path: file not found: {item['path']}")
+            problem = file_problem(Path(item["path"]), "mesh file") if item["type"] == "mesh" else None
+            if problem:
+                raise SceneError(f"{src}: {section}[{i}].path: {problem}: {item['path']}")
     names = set(character.joint_names)
     for i, g in enumerate(scene["garments"]):
         if g["type"] == "pattern":

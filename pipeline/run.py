@@ -220,8 +220,10 @@ def load_character(scene: Scene):
     from stages.errors import InputError
     src = scene.path or "<scene>"
     path = Path(c["path"])
-    if not path.is_file():
-        raise SceneError(f"{src}: character.path: file not found: {path}")
+    from stages.input_files import MAX_ASSET_BYTES, file_problem
+    problem = file_problem(path, "character file", MAX_ASSET_BYTES)   # stat only: a FIFO is never opened
+    if problem:
+        raise SceneError(f"{src}: character.path: {problem}: {path}")
     try:
         if c["source"] == "gltf":
             from stages.rig.gltf import load_gltf

@@ -395,7 +395,7 @@ def parse_scene_text(text: str, *, source: str = "<scene>", base_dir: Path | Non
                      default_name: str = "scene") -> Scene:
     """Parse and validate scene YAML text."""
     try:
-        from pipeline.safe_yaml import load_checked
+        from stages.safe_yaml import load_checked
         data, node = load_checked(text, source, SceneError, loader=_UniqueKeyLoader)
     except yaml.MarkedYAMLError as e:
         m = e.problem_mark or e.context_mark
@@ -464,7 +464,7 @@ def _check_frames(settings: dict, source: str, marks: dict) -> None:
 
 def load_scene(path: str | os.PathLike) -> Scene:
     """Read, parse and validate a scene file; every problem is a `SceneError` naming the file."""
-    from pipeline.safe_yaml import read_text_file
+    from stages.input_files import read_text_file
     p = Path(path)
     # a regular file of bounded size, checked by stat before it is opened (a FIFO would block, /dev/zero never end)
     text = read_text_file(p, "scene file", SceneError)

@@ -140,7 +140,14 @@ def _join(path: str, key: str) -> str:
 
 def _number(f: Field, v, path: str, ctx: _Ctx, kind: str):
     if isinstance(v, bool) or not isinstance(v, (int, float)):
-        ctx.fail(path, f"expected {'an integer' if kind == 'int' else 'a number'}, got {_describe(v)}")
+        hint = ""
+        if isinstance(v, str):
+            try:
+                float(v)   # YAML 1.1 reads 1e4 (no '.', no exponent sign) as text
+                hint = f" (YAML reads it as text: write it as {float(v):.1e})"
+            except ValueError:
+                pass
+        ctx.fail(path, f"expected {'an integer' if kind == 'int' else 'a number'}, got {_describe(v)}{hint}")
     if kind == "int" and not float(v).is_integer():
         ctx.fail(path, f"expected an integer, got {_describe(v)}")
     if not math.isfinite(v):

@@ -184,7 +184,7 @@ def _tab_views(bp: dict, tab: str | None) -> tuple[str | None, list[str], str | 
 def snapshot(rrd: Path, frames: list[int], out: Path, *, tab: str | None = None, timeline: str = "frame",
              echo=print) -> list[Path]:
     """Write the PNGs (see the module docstring); returns their paths."""
-    from pipeline.safe_yaml import check_regular_file
+    from stages.input_files import check_regular_file
     rrd = Path(rrd).resolve()
     check_regular_file(rrd, "recording", SnapshotError)   # a FIFO or device would hang the viewer
     viewer = Viewer()   # checks the binary and Vulkan before anything is written

@@ -175,7 +175,8 @@ def load_sweep(path: str | os.PathLike, output: str | os.PathLike | None = None)
     """Read a sweep file and expand it into jobs; every problem is a SweepError (one line, file, key,
     value, what was expected). Does not validate the jobs' scenes (`validate_jobs`)."""
     from pipeline.scene import _UniqueKeyLoader
-    from pipeline.safe_yaml import load_checked, read_text_file
+    from stages.input_files import read_text_file
+    from stages.safe_yaml import load_checked
     p = Path(path)
     text = read_text_file(p, "sweep file", SweepError)   # stat first: a FIFO or device is refused unopened
     try:

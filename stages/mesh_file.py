@@ -10,6 +10,7 @@ so no guess is needed and no optional dependency is involved.
 from __future__ import annotations
 
 import io
+import os
 import struct
 from pathlib import Path
 
@@ -36,20 +37,35 @@ def _stl(data: bytes) -> bytes:
     return _utf8(data)                        # ASCII STL (or garbage, which the parser refuses)
 
 
+def _checked_resolver():
+    import trimesh
+
+    class CheckedResolver(trimesh.resolvers.FilePathResolver):
+        """Files an OBJ names (`mtllib`, textures) read only when they are regular files of bounded
+        size: a FIFO there blocked the reader forever."""
+
+        def get(self, name):
+            from stages.input_files import MAX_ASSET_BYTES, file_problem
+            target = os.path.join(self.parent, name.strip())
+            problem = file_problem(Path(target), "file the mesh names", MAX_ASSET_BYTES)
+            if problem:
+                raise InputError(target, problem)
+            return super().get(name)
+    return CheckedResolver
+
+
 def read_mesh_file(path, *, what: str = "mesh"):
     """The file at `path` as one trimesh.Trimesh (process=False, node transforms applied), or an
     InputError naming the file: missing, a folder, empty, unreadable or not a triangle mesh."""
     import trimesh
 
+    from stages.input_files import read_bytes
     p = Path(path)
     if not p.exists():
         raise InputError(p, "file not found")
     if p.is_dir():
         raise InputError(p, "is a folder, expected a mesh file")
-    try:
-        data = p.read_bytes()
-    except OSError as exc:
-        raise InputError(p, f"cannot read the {what} file ({exc.strerror or exc})") from None
+    data = read_bytes(p, f"{what} file")   # a FIFO or device is refused unopened
     if not data.strip():
         raise InputError(p, f"the {what} file is empty")
     kind = p.suffix.lower().lstrip(".")
@@ -58,7 +74,7 @@ def read_mesh_file(path, *, what: str = "mesh"):
     elif kind == "stl":
         data = _stl(data)
     try:
-        resolver = trimesh.resolvers.FilePathResolver(str(p))
+        resolver = _checked_resolver()(str(p))
         loaded = trimesh.load(io.BytesIO(data), file_type=kind, force="mesh", process=False, resolver=resolver)
     except Exception as exc:  # trimesh raises many kinds for corrupt files; report one line
         msg = " ".join(str(exc).split())[:160]
