@@ -14,6 +14,7 @@ import numpy as np
 
 from pipeline.dressing import (build_scene_garments, build_scene_obstacles, dressing_layers, garment_fit_report,
                                garment_fits, ignored_joints)
+from pipeline.cloth_checks import check_blown_up, speed_limit_note, strain_source_notes
 from pipeline.preflight import check_references, preflight
 from pipeline.scene import Scene
 from pipeline.schema import SceneError
@@ -158,17 +159,6 @@ def motion_speed_limit(scene: Scene, params, skinned: np.ndarray, root: np.ndarr
     return replace(params, speed_limit=3.0 * skin_speed + 2.0 * float(np.sqrt(2.0 * 9.81 * height)))
 
 
-def speed_limit_note(result) -> str | None:
-    """A warning naming the frames where the speed limit acted, or None."""
-    hit = np.flatnonzero(result.speed_limited[1:] > 0) + 1
-    if hit.size == 0:
-        return None
-    f = int(hit[np.argmax(result.speed_limited[hit])])
-    return (f"simulation: the speed limit ({result.params.speed_limit:.1f} m/s, simulation.speed_limit) capped cloth "
-            f"in {hit.size} frame(s), most at frame {f} ({int(result.speed_limited[f])} particles): cloth thrown "
-            "by a collider (a limb pressing it onto the body)")
-
-
 def garment_layers(scene: Scene) -> list[int]:
     """Each garment's cloth collision layer: its `layer`, else its place in the list (earlier = inner)."""
     return [g["layer"] if g.get("layer") is not None else i for i, g in enumerate(scene["garments"])]
@@ -179,29 +169,6 @@ def ignored_colliders(scene: Scene, character) -> list[tuple[int, ...]] | None:
     no garment ignores any."""
     lists = [ignored_joints(g, character) for g in scene["garments"]]
     return lists if any(lists) else None
-
-
-def strain_source_notes(audit, garments, result, colliders, character, motion) -> tuple[str, ...]:
-    """For each garment whose p99 strain goes over the limit: the joints whose colliders its most
-    strained edges touch at its worst frame (stages.sim.strain_sources), one line each."""
-    from stages.garments.types import STRETCH
-    from stages.sim.audit import STRAIN_P99_LIMIT, edge_strains
-    from stages.sim.strain_sources import TOP_SHARE, TOUCH, strain_sources
-    out = []
-    for g, track, ga in zip(garments, result.garments, audit.garments):
-        if ga.strain_p99.max(initial=0.0) <= STRAIN_P99_LIMIT:
-            continue
-        f = int(np.argmax(ga.strain_p99))
-        sel = g.kinds == STRETCH
-        x = track.positions[f].astype(np.float64) - motion.root_translation[f]     # the colliders' frame
-        strain = edge_strains(x[None], g.springs[sel], g.rest_lengths[sel])[0]
-        poses = colliders.frame_poses(character.inverse_bind, motion.joint_world[f]) if colliders is not None else None
-        shares = strain_sources(x, g.springs[sel], strain, colliders, poses)
-        if shares:
-            named = ", ".join(f"{character.joint_names[j]} {100 * s:.0f} %" for j, s in list(shares.items())[:4])
-            out.append(f"garment {g.name!r}: at frame {f} its {100 * TOP_SHARE:.0f} % most strained edges touch "
-                       f"(within {1000 * TOUCH:.0f} mm) the colliders of {named}")
-    return tuple(out)
 
 
 def body_params(settings: dict):
@@ -543,6 +510,11 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                     bar.close()
                 state["result"] = result
                 r.sizes.update(steps=result.steps)
+            # strain and distance: a fast particle is caught in the step
+            blown = check_blown_up(result, skinned + motion.root_translation[:, None, :], height)
+            if blown is not None:
+                logs.log_text(rec, "meta/diverged", str(blown))   # a sweep keeps this partial recording
+                raise blown
             note = speed_limit_note(result)
             if note:
                 import warnings
@@ -568,6 +540,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 for w in audit.warnings + held:
                     warnings.warn(w, stacklevel=1)
             summary.penetrations = logs.log_sim(rec, motion, garments, result, audit, held)
+            from pipeline.export import run_uvs
+            logs.log_uvs(rec, run_uvs(scene, result, builds, meshes))
             summary.speeds = {k: summary.penetrations.pop(k) for k in list(summary.penetrations) if k.startswith("steps/s")}
             from pipeline.body_report import audit_and_log   # issue 38: body edges through the cloth
             audit_and_log(rec, scene, state, announce=say)
@@ -591,5 +565,6 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     if formats:
         where.stage("export")
         from pipeline.export import export_run
-        summary.exports = export_run(scene, out, motion, skinned, character, result, builds, formats, export_dir)
+        summary.exports = export_run(scene, out, motion, skinned, character, result, builds, formats, export_dir,
+                                     meshes=meshes)
     return summary

@@ -161,6 +161,10 @@ GARMENT.variants["garmentcode"] = {   # issue 39: a GarmentCode sewing pattern
 GARMENT.variants["mesh"] = {
     **_GARMENT_COMMON,
     "path": Field("path", REQUIRED, "OBJ / PLY / GLB garment mesh, relative to the scene file"),
+    "part": Field("any", None, "a glTF / GLB holding several meshes: the one to use (its name or index; one garment "
+                  "item each), or 'all' to simulate them as one cloth; null: the file must hold one",
+                  check=lambda v: None if v is None or (isinstance(v, (str, int)) and not isinstance(v, bool))
+                  else f"expected a mesh name, an index or 'all', got {v!r}"),
     "scale": Field("float", 1.0, "metres per file unit", lo=0.0, lo_open=True, hi=1e6,
                    warn=plausible(1e-3, 100.0, "a garment mesh in m, cm or mm needs 1, 0.01 or 0.001")),
     "translate": Field("vec3", [0.0, 0.0, 0.0], "m, relative frame at frame 0", item=POS),

@@ -54,9 +54,28 @@ def _checked_resolver():
     return CheckedResolver
 
 
-def read_mesh_file(path, *, what: str = "mesh"):
+def _pick_part(p: Path, scene, part):
+    """One mesh of a glTF scene of several: `part` its name (or node name) or index; 'all': merged."""
+    import trimesh
+    meshes = [m for m in scene.dump(concatenate=False) if isinstance(m, trimesh.Trimesh)]
+    names = [str(m.metadata.get("name") or m.metadata.get("node") or i) for i, m in enumerate(meshes)]
+    if part == "all" or (part is None and len(meshes) == 1):
+        return trimesh.util.concatenate(meshes) if meshes else scene.to_mesh()
+    listed = ", ".join(f"{i}: {n!r}" for i, n in enumerate(names))
+    if part is None:
+        raise InputError(p, f"holds {len(meshes)} meshes ({listed}); expected one: choose it with "
+                            f"'part: <name or index>', or 'part: all' to simulate them as one cloth")
+    for i, m in enumerate(meshes):
+        if part == i or part in (names[i], m.metadata.get("node")):
+            return m
+    raise InputError(p, f"part {part!r} is not one of its meshes ({listed})")
+
+
+def read_mesh_file(path, *, what: str = "mesh", part="all"):
     """The file at `path` as one trimesh.Trimesh (process=False, node transforms applied), or an
-    InputError naming the file: missing, a folder, empty, unreadable or not a triangle mesh."""
+    InputError naming the file: missing, a folder, empty, unreadable or not a triangle mesh.
+    part: of a glTF / GLB holding several meshes, the one to read (name or index), 'all' (merged)
+    or None (a file of several is an InputError listing them); other formats are read whole."""
     import trimesh
 
     from stages.input_files import read_bytes
@@ -75,10 +94,15 @@ def read_mesh_file(path, *, what: str = "mesh"):
         data = _stl(data)
     try:
         resolver = _checked_resolver()(str(p))
-        loaded = trimesh.load(io.BytesIO(data), file_type=kind, force="mesh", process=False, resolver=resolver)
+        if kind in ("glb", "gltf") and part != "all":
+            scene = trimesh.load(io.BytesIO(data), file_type=kind, force="scene", process=False, resolver=resolver)
+        else:
+            loaded = trimesh.load(io.BytesIO(data), file_type=kind, force="mesh", process=False, resolver=resolver)
     except Exception as exc:  # trimesh raises many kinds for corrupt files; report one line
         msg = " ".join(str(exc).split())[:160]
         raise InputError(p, f"cannot read the {what} ({type(exc).__name__}: {msg or 'no detail'})") from None
+    if kind in ("glb", "gltf") and part != "all":
+        loaded = _pick_part(p, scene, part)
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         raise InputError(p, f"no triangle faces in the {what} file")
     v, f = np.asarray(loaded.vertices), np.asarray(loaded.faces)

@@ -224,3 +224,51 @@ def test_unknown_names_and_huge_counts_on_the_command_line(argv, fragments, tmp_
     assert err.count("\n") == 0 and err.startswith("error: "), err
     for f in fragments:
         assert f in err, (f, err)
+
+
+SHEET_UV_OBJ = ("".join(f"v {x} 1.5 {z}\n" for z in (0, 0.1, 0.2) for x in (0, 0.1, 0.2))
+                + "".join(f"vt {u} {v}\n" for v in (0, 0.5, 1) for u in (0, 0.5, 1))
+                + "".join(f"f {a}/{a} {b}/{b} {c}/{c}\n" for a, b, c in ((1, 2, 4), (2, 5, 4), (2, 3, 5), (3, 6, 5),
+                                                                    (4, 5, 7), (5, 8, 7), (5, 6, 8), (6, 9, 8))))
+
+
+def test_a_mesh_garment_keeps_its_uvs_in_every_export_and_through_the_recording(tmp_path, monkeypatch, capsys):
+    """The file's 9 UVs come out in the run's npz and OBJ, and again when the recording is exported."""
+    import numpy as np
+    (tmp_path / "sheet.obj").write_text(SHEET_UV_OBJ)
+    scene = _case_folder(tmp_path, FAST.replace("output: out.rrd", "output: {path: out.rrd, export: [npz, obj], "
+                                                                   "export_dir: run}")
+                         + "colliders: {report_every: 0}\ngarments:\n  - {type: mesh, name: sheet, path: sheet.obj}\n", {})
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", str(scene), "-q"]) == 0, capsys.readouterr().err
+    assert main(["export", "out.rrd", "--format", "npz,obj", "-o", "again"]) == 0, capsys.readouterr().err
+    for folder, stem in (("run", "scene"), ("again", "out")):   # a recording's exports are named after it
+        d = np.load(tmp_path / folder / f"{stem}.sheet.npz")
+        uv = d["uv"][d["uv_faces"]]                             # per corner
+        x0 = d["vertices_seq"][0][d["faces"]]                   # the sheet lies flat at y = 1.5 at frame 0
+        assert d["uv"].shape == (9, 2)
+        np.testing.assert_allclose(uv, x0[..., [0, 2]] / 0.2, atol=1e-5)   # u = x / 0.2, v = z / 0.2
+        obj = (tmp_path / folder / f"{stem}.sheet.obj").read_text().splitlines()
+        assert sum(line.startswith("vt ") for line in obj) == 9
+
+
+def test_a_glb_of_several_meshes_is_a_clear_choice(tmp_path, monkeypatch, capsys):
+    import trimesh
+    s = trimesh.Scene()
+    s.add_geometry(trimesh.creation.box(), geom_name="shirt", node_name="shirt")
+    s.add_geometry(trimesh.creation.icosphere(subdivisions=1).apply_translation([3, 0, 0]), geom_name="buttons",
+                   node_name="buttons")
+    s.export(tmp_path / "two.glb")
+    monkeypatch.chdir(tmp_path)
+    for part, expect, fragments in ((None, 2, ["garments[0]", "two.glb", "holds 2 meshes", "'shirt'", "'buttons'",
+                                               "part: all"]),
+                                    ("nope", 2, ["part 'nope' is not one of its meshes", "'shirt'"]),
+                                    ("shirt", 0, []), (1, 0, []), ("all", 0, [])):
+        more = "" if part is None else f", part: {part}"
+        scene = _case_folder(tmp_path, FAST + f"garments:\n  - {{type: mesh, name: g, path: two.glb{more}}}\n", {})
+        code = main(["validate", str(scene)])
+        out = capsys.readouterr()
+        if expect:
+            _assert_one_clear_line(out.err, scene, fragments, code)
+        else:
+            assert code == 0, out.err
