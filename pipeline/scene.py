@@ -383,11 +383,14 @@ def _marks(node, path: str, out: dict):
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):
-    """SafeLoader that refuses duplicate keys (YAML silently keeps the last one)."""
+    """SafeLoader that refuses duplicate keys (YAML silently keeps the last one). Merge keys
+    (`<<: *anchor`) work as in YAML 1.1: the mapping's own keys override the merged ones."""
 
     def construct_mapping(self, node, deep=False):
         seen = set()
         for k, _ in node.value:
+            if k.tag == "tag:yaml.org,2002:merge":
+                continue
             key = self.construct_object(k, deep=deep)
             if key in seen:
                 raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", k.start_mark)
