@@ -56,7 +56,7 @@ def _user_errors():
 
 def cmd_validate(args) -> int:
     from pipeline import where
-    from pipeline.preflight import check_references, preflight
+    from pipeline.preflight import check_memory, check_references, preflight
     from pipeline.run import character_item, load_character
     from pipeline.scene import load_scene
     scene = load_scene(args.scene)
@@ -65,6 +65,7 @@ def cmd_validate(args) -> int:
     with where.item(character_item(scene)):
         character = load_character(scene)
     check_references(scene, character)
+    check_memory(scene, scene["frames"]["count"], character.vertices.shape[0], 0)
     patterns = 0
     if scene["garments"]:   # build every garment as a run does, patterns sized and placed but not
         # sewn, on the bind pose: cheap, and where a garment cannot be dressed the error comes before a run

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.scene import Scene
+from pipeline.scene import MAX_GARMENT_PARTICLES, Scene
 from pipeline.schema import SceneError
 
 
@@ -57,6 +57,11 @@ def load_scene_meshes(scene: Scene) -> dict:
                 except InputError as err:
                     raise SceneError(f"{src}: {section}[{i}].path: {err.problem}: {err.source} "
                                      f"({section[:-1]} {it['name']!r})") from None
+                n = len(out[(section, i)][0])
+                if section == "garments" and n > MAX_GARMENT_PARTICLES:
+                    raise SceneError(f"{src}: garments[{i}].path: the mesh has {n:,} vertices, more than "
+                                     f"{MAX_GARMENT_PARTICLES:,} cloth particles (expected a garment-sized mesh; "
+                                     f"decimate it): {it['path']} (garment {it['name']!r})")
     return out
 
 

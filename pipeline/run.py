@@ -15,7 +15,7 @@ import numpy as np
 from pipeline.dressing import (build_scene_garments, build_scene_obstacles, dressing_layers, garment_fit_report,
                                garment_fits, ignored_joints)
 from pipeline.cloth_checks import check_blown_up, speed_limit_note, strain_source_notes
-from pipeline.preflight import check_references, preflight
+from pipeline.preflight import check_memory, check_references, preflight
 from pipeline.scene import Scene
 from pipeline.schema import SceneError
 
@@ -384,6 +384,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 character = load_character(scene)
             check_references(scene, character)
             motion = sample_scene_motion(scene, character, times)
+            check_memory(scene, len(motion.times), character.vertices.shape[0], 0)   # before the body is skinned
             times = motion.times
             summary.frames = len(times)
             skinned = skin(character, motion)
@@ -498,6 +499,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             if note:
                 import warnings
                 warnings.warn(note, stacklevel=1)
+            check_memory(scene, len(times), character.vertices.shape[0], sum(g.n_particles for g in garments))
             say("simulation", *(("cloth collision",) if params.cloth_collision else ()))
             bar = Progress(len(times), "simulation", enabled=progress)
             with _Timer(summary, "simulation") as r:

@@ -272,3 +272,19 @@ def test_a_glb_of_several_meshes_is_a_clear_choice(tmp_path, monkeypatch, capsys
             _assert_one_clear_line(out.err, scene, fragments, code)
         else:
             assert code == 0, out.err
+
+
+def test_a_run_that_would_exceed_the_memory_is_one_line_before_it_allocates(tmp_path, monkeypatch, capsys):
+    """The estimate (pipeline.preflight.check_memory) against a machine of 64 MB available."""
+    from pipeline import preflight
+    monkeypatch.setattr(preflight, "available_memory", lambda: 64 * 1024 ** 2)
+    scene = _case_folder(tmp_path, FAST.replace("count: 2", "count: 5000"), {})
+    monkeypatch.chdir(tmp_path)
+    before = _left(tmp_path)
+    for cmd in ("validate", "run"):
+        code = main([cmd, str(scene)] + (["-q"] if cmd == "run" else []))
+        _assert_one_clear_line(capsys.readouterr().err, scene, ["frames.count", "5,000 frames", "GB of memory",
+                                                                "0.1 GB available"], code)
+        assert _left(tmp_path) == before and (tmp_path / "out.rrd").read_bytes() == EARLIER
+    monkeypatch.setattr(preflight, "available_memory", lambda: None)   # unknown: no refusal
+    assert main(["validate", str(scene)]) == 0
