@@ -353,10 +353,17 @@ def validate_jobs(sw: Sweep, echo=None) -> None:
     from pipeline.run import load_character
     from pipeline.dressing import check_pattern
     from stages.errors import InputError
+    import warnings
     characters: dict = {}
+    noted: dict = {}   # a warning the jobs' scenes share: once, with the jobs it applies to
     for job in sw.jobs:
         try:
-            scene = job_scene(job.text, job.source, sw.base_dir)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                scene = job_scene(job.text, job.source, sw.base_dir)
+            for w in caught:
+                text = str(w.message)
+                noted.setdefault(text.split(": ", 1)[-1] if text.startswith(job.source) else text, []).append(job.id)
             for i, g in enumerate(scene["garments"]):
                 if g["type"] == "pattern":
                     check_pattern(scene, i)
@@ -378,6 +385,10 @@ def validate_jobs(sw: Sweep, echo=None) -> None:
             raise _blame(job, str(e)) from None
         except InputError as e:
             raise _blame(job, f"{job.source}: {e}") from None
+    for text, ids in noted.items():
+        jobs = "every job" if len(ids) == len(sw.jobs) else f"jobs {', '.join(ids[:4])}" + (
+            f" (+{len(ids) - 4} more)" if len(ids) > 4 else "")
+        warnings.warn(f"{sw.path}: {text} ({jobs})", stacklevel=2)
 
 
 def _check_anchors(scene, character) -> None:
