@@ -76,6 +76,8 @@ def cmd_validate(args) -> int:
         _, colliders = split_and_fit(scene, character, motion)
         where.stage("garments")
         patterns = check_scene_garments(scene, character, motion, colliders, meshes)
+    from pipeline.scene import warn_notes
+    warn_notes(scene)   # implausible values: once every check passed
     print(f"{args.scene}: ok — scene {scene.name!r}, character {character.name!r} "
           f"({character.vertices.shape[0]} vertices, {character.n_joints} joints, "
           f"{len(character.clips)} clips), {len(scene['garments'])} garments built ({patterns} patterns sized and placed, not sewn), "

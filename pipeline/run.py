@@ -16,7 +16,7 @@ from pipeline.dressing import (build_scene_garments, build_scene_obstacles, dres
                                garment_fits, ignored_joints)
 from pipeline.cloth_checks import check_blown_up, speed_limit_note, strain_source_notes
 from pipeline.preflight import check_memory, check_references, preflight
-from pipeline.scene import Scene
+from pipeline.scene import Scene, warn_notes
 from pipeline.schema import SceneError
 
 
@@ -385,6 +385,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             check_references(scene, character)
             motion = sample_scene_motion(scene, character, times)
             check_memory(scene, len(motion.times), character.vertices.shape[0], 0)   # before the body is skinned
+            warn_notes(scene)   # implausible values: once the checks before the stages passed
             times = motion.times
             summary.frames = len(times)
             skinned = skin(character, motion)

@@ -358,6 +358,8 @@ class Scene:
     settings: dict
     # output.export / output.export_dir: {'formats': [...], 'dir': path or None} (pipeline.export)
     export: dict = field(default_factory=lambda: {"formats": [], "dir": None})
+    # legal but implausible values (schema `warn`), shown by `warn_notes` once every check passed
+    notes: tuple = ()
 
     def __getitem__(self, key):
         return self.settings[key]
@@ -430,12 +432,13 @@ def scene_from_data(data, *, text: str, source: str = "<scene>", base_dir: Path 
     Without `marks` the messages name the key path but no line and column (a sweep's generated
     scenes: pipeline.sweep)."""
     marks = {} if marks is None else marks
+    notes: list = []
     export = {"path": None, "export": [], "export_dir": None}
     if isinstance(data, dict) and isinstance(data.get("output"), dict):   # output: {path, export, export_dir}
         export = validate({"output": Field("section", {}, fields=OUTPUT_FIELDS)}, {"output": data["output"]},
-                          source=source, marks=marks, base_dir=base_dir)["output"]
+                          source=source, marks=marks, base_dir=base_dir, notes=notes)["output"]
         data = {**data, "output": export["path"]}
-    settings = validate(SCENE_SPEC, data, source=source, marks=marks, base_dir=base_dir)
+    settings = validate(SCENE_SPEC, data, source=source, marks=marks, base_dir=base_dir, notes=notes)
     for section in ("garments", "obstacles"):   # names are entity paths: sim/<name>, obstacles/<name>
         first: dict = {}
         for i, item in enumerate(settings[section]):
@@ -450,7 +453,15 @@ def scene_from_data(data, *, text: str, source: str = "<scene>", base_dir: Path 
     if not re.fullmatch(r"[A-Za-z0-9_.-]+", name):
         raise SceneError(f"{source}: name: {name!r} must use only letters, digits, '_', '-' and '.'")
     return Scene(path=None, name=name, text=text, settings=settings,
-                 export={"formats": list(export["export"]), "dir": export["export_dir"]})
+                 export={"formats": list(export["export"]), "dir": export["export_dir"]}, notes=tuple(notes))
+
+
+def warn_notes(scene: Scene) -> None:
+    """The scene's implausible-value lines as warnings (`validate` and `run` call it once their
+    checks before the stages passed)."""
+    import warnings
+    for note in scene.notes:
+        warnings.warn(note, stacklevel=2)
 
 
 MAX_FRAMES = 100_000   # frames run, blend-in included: the recording and memory grow with them
@@ -476,4 +487,4 @@ def load_scene(path: str | os.PathLike) -> Scene:
     # a regular file of bounded size, checked by stat before it is opened (a FIFO would block, /dev/zero never end)
     text = read_text_file(p, "scene file", SceneError)
     scene = parse_scene_text(text, source=str(p), base_dir=p.resolve().parent, default_name=p.stem)
-    return Scene(path=p, name=scene.name, text=text, settings=scene.settings, export=scene.export)
+    return Scene(path=p, name=scene.name, text=text, settings=scene.settings, export=scene.export, notes=scene.notes)

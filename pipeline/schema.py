@@ -89,8 +89,8 @@ def _describe(v) -> str:
 
 
 class _Ctx:
-    def __init__(self, source: str, marks: dict, base_dir: Path | None):
-        self.source, self.marks, self.base_dir = source, marks, base_dir
+    def __init__(self, source: str, marks: dict, base_dir: Path | None, notes: list | None = None):
+        self.source, self.marks, self.base_dir, self.notes = source, marks, base_dir, notes
 
     def at(self, path: str, at_key: bool = False) -> str:
         mark = (self.marks.get("@" + path) if at_key else None) or self.marks.get(path)
@@ -101,9 +101,11 @@ class _Ctx:
 
 
 def validate(spec: dict, data, *, source: str = "<scene>", marks: dict | None = None,
-             base_dir: Path | None = None) -> dict:
-    """Validate `data` against the top-level fields `spec`; return the filled-in dict."""
-    return _section(spec, data, "", _Ctx(source, marks or {}, base_dir))
+             base_dir: Path | None = None, notes: list | None = None) -> dict:
+    """Validate `data` against the top-level fields `spec`; return the filled-in dict. The `warn`
+    lines of legal but implausible values go to `notes` when given (shown once every check passed:
+    a scene with an error prints that one line), else to warnings.warn."""
+    return _section(spec, data, "", _Ctx(source, marks or {}, base_dir, notes))
 
 
 def _section(fields: dict, data, path: str, ctx: _Ctx, skip: tuple = (), sparse: bool = False) -> dict:
@@ -224,6 +226,10 @@ def _value(f: Field, v, path: str, ctx: _Ctx):
     if f.warn is not None:
         note = f.warn(out)
         if note:
-            import warnings
-            warnings.warn(f"{ctx.at(path)}: {_where(path)}: {note}", stacklevel=2)
+            line = f"{ctx.at(path)}: {_where(path)}: {note}"
+            if ctx.notes is not None:
+                ctx.notes.append(line)
+            else:
+                import warnings
+                warnings.warn(line, stacklevel=2)
     return out

@@ -326,7 +326,7 @@ def job_scene(text: str, source: str, base_dir: str | Path):
     from pipeline.scene import Scene, scene_from_data
     data = yaml.safe_load(text)
     sc = scene_from_data(data, text=text, source=source, base_dir=Path(base_dir), default_name="sweep")
-    return Scene(path=Path(source), name=sc.name, text=text, settings=sc.settings, export=sc.export)
+    return Scene(path=Path(source), name=sc.name, text=text, settings=sc.settings, export=sc.export, notes=sc.notes)
 
 
 def _blame(job: Job, message: str) -> SweepError:
@@ -358,11 +358,8 @@ def validate_jobs(sw: Sweep, echo=None) -> None:
     noted: dict = {}   # a warning the jobs' scenes share: once, with the jobs it applies to
     for job in sw.jobs:
         try:
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                scene = job_scene(job.text, job.source, sw.base_dir)
-            for w in caught:
-                text = str(w.message)
+            scene = job_scene(job.text, job.source, sw.base_dir)
+            for text in scene.notes:
                 noted.setdefault(text.split(": ", 1)[-1] if text.startswith(job.source) else text, []).append(job.id)
             for i, g in enumerate(scene["garments"]):
                 if g["type"] == "pattern":
