@@ -54,6 +54,24 @@ def _user_errors():
     return (SceneError, InputError, ContractError, SimulationDiverged)
 
 
+def _check_out_file(path, flag: str) -> None:
+    """An output file named on the command line (--json, measure -o) is a file path that is not a
+    folder, FIFO or device: opened for writing, a FIFO blocks until a reader comes."""
+    import os
+    import stat
+
+    from stages.errors import InputError
+    if path is None:
+        return
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return
+    if not stat.S_ISREG(mode):
+        raise InputError(flag, f"{path!r} is {'a folder' if stat.S_ISDIR(mode) else 'not a regular file'}; "
+                               f"expected a file path")
+
+
 def cmd_validate(args) -> int:
     from pipeline import where
     from pipeline.preflight import check_memory, check_references, preflight
@@ -105,6 +123,7 @@ def cmd_run(args) -> int:
 
 def cmd_bench(args) -> int:
     from pipeline.bench import run_benchmarks
+    _check_out_file(args.json, "--json")
     run_benchmarks(args.which, output=args.json)
     return 0
 
@@ -112,6 +131,7 @@ def cmd_bench(args) -> int:
 def cmd_matrix(args) -> int:
     import json
 
+    _check_out_file(args.json, "--json")
     if args.corpus:
         return cmd_corpus(args)
     from pipeline.matrix import run_matrix, table
@@ -199,6 +219,7 @@ def cmd_measure(args) -> int:
     from stages.garments.garmentcode_body import body_yaml, gc_body
     from stages.garments.garmentcode_place import DEFAULT_BODY, read_body
     from stages.garments.measurements import garment_measurements
+    _check_out_file(args.out, "--out")
     where.stage(f"measure {args.character}")
     character, _ = load_asset(args.character)
     default = assets_dir() / DEFAULT_BODY       # the keys a mesh cannot give are scaled from it

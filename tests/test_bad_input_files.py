@@ -288,3 +288,12 @@ def test_a_run_that_would_exceed_the_memory_is_one_line_before_it_allocates(tmp_
         assert _left(tmp_path) == before and (tmp_path / "out.rrd").read_bytes() == EARLIER
     monkeypatch.setattr(preflight, "available_memory", lambda: None)   # unknown: no refusal
     assert main(["validate", str(scene)]) == 0
+
+
+@pytest.mark.parametrize("argv", [["measure", "builtin", "-o", "p"], ["matrix", "--json", "p"], ["bench", "--json", "p"]])
+def test_an_output_file_flag_naming_a_fifo_is_one_line(argv, tmp_path, monkeypatch, capsys):
+    os.mkfifo(tmp_path / "p")
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2   # checked before any work: opened for writing, the FIFO would block
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "'p' is not a regular file" in err, err
