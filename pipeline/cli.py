@@ -68,8 +68,8 @@ def _check_out_file(path, flag: str) -> None:
     except OSError:
         return
     if not stat.S_ISREG(mode):
-        raise InputError(flag, f"{path!r} is {'a folder' if stat.S_ISDIR(mode) else 'not a regular file'}; "
-                               f"expected a file path")
+        from stages.input_files import file_kind
+        raise InputError(flag, f"{path!r} is {file_kind(mode)}; expected a file path")
 
 
 def cmd_validate(args) -> int:

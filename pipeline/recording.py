@@ -55,6 +55,7 @@ def check_output_path(path, *, where: str, create: bool) -> Path:
 
     from pipeline.disk import MIN_FREE_BYTES, free_bytes
     from stages.errors import InputError
+    from stages.input_files import file_kind
     p = Path(path)
     try:
         mode = os.stat(p).st_mode
@@ -62,9 +63,7 @@ def check_output_path(path, *, where: str, create: bool) -> Path:
         mode = None
     if mode is not None and not stat.S_ISDIR(mode) and not stat.S_ISREG(mode):
         # a device or FIFO would be replaced by a regular file (or, opened, block or swallow the data)
-        kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a character device" if stat.S_ISCHR(mode)
-                else "a block device" if stat.S_ISBLK(mode) else "a socket" if stat.S_ISSOCK(mode) else "not a file")
-        raise InputError(where, f"{str(path)!r} is {kind}; expected a recording file path (.rrd)")
+        raise InputError(where, f"{str(path)!r} is {file_kind(mode)}; expected a recording file path (.rrd)")
     if p.is_dir() or str(path).endswith(("/", os.sep)) or p.name in ("", ".", ".."):
         raise InputError(where, f"{str(path)!r} is a folder; expected a recording file path such as "
                                 f"{str(Path(path) / 'out.rrd')!r}")

@@ -206,8 +206,10 @@ def load_sweep(path: str | os.PathLike, output: str | os.PathLike | None = None)
         from pipeline.schema import expand_path_vars
         bp = Path(expand_path_vars(base)).expanduser()
         bp = bp if bp.is_absolute() else p.resolve().parent / bp
-        if not bp.is_file():
-            raise SweepError(f"{_at(p, marks, 'base')}: base: scene file not found: {bp}")
+        from stages.input_files import file_problem
+        problem = file_problem(bp, "scene file")   # stat only: a FIFO is never opened
+        if problem:
+            raise SweepError(f"{_at(p, marks, 'base')}: base: {problem}: {bp}")
         from pipeline.scene import load_scene
         load_scene(bp)   # the base alone must be a valid scene (its own file, line and column)
         base_data = yaml.safe_load(bp.read_text(encoding="utf-8"))

@@ -11,6 +11,13 @@ MAX_TEXT_BYTES = 4 * 1024 * 1024         # a scene, sweep or body file is a few 
 MAX_ASSET_BYTES = 2 * 1024 ** 3          # a character, mesh or glTF buffer: 2 GB is far beyond a real one
 
 
+def file_kind(mode: int) -> str:
+    """What a file that is not a regular one is, for a message ('a FIFO (named pipe)', ...)."""
+    return ("a folder" if stat.S_ISDIR(mode) else "a FIFO (named pipe)" if stat.S_ISFIFO(mode) else
+            "a character device" if stat.S_ISCHR(mode) else "a block device" if stat.S_ISBLK(mode) else
+            "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+
+
 def file_problem(path: Path, what: str, max_bytes: int | None = None) -> str | None:
     """Why `path` cannot be read as a `what` (missing, a folder, not a regular file, larger than
     `max_bytes`), or None."""
@@ -23,11 +30,7 @@ def file_problem(path: Path, what: str, max_bytes: int | None = None) -> str | N
     if stat.S_ISDIR(st.st_mode):
         return f"is a folder, expected a {what}"
     if not stat.S_ISREG(st.st_mode):
-        kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(st.st_mode) else
-                "a character device" if stat.S_ISCHR(st.st_mode) else
-                "a block device" if stat.S_ISBLK(st.st_mode) else
-                "a socket" if stat.S_ISSOCK(st.st_mode) else "not a regular file")
-        return f"is {kind}, expected a {what} (a regular file)"
+        return f"is {file_kind(st.st_mode)}, expected a {what} (a regular file)"
     if max_bytes is not None and st.st_size > max_bytes:
         return f"the {what} is {st.st_size:,} bytes, more than the limit of {max_bytes:,}"
     return None

@@ -296,4 +296,4 @@ def test_an_output_file_flag_naming_a_fifo_is_one_line(argv, tmp_path, monkeypat
     monkeypatch.chdir(tmp_path)
     assert main(argv) == 2   # checked before any work: opened for writing, the FIFO would block
     err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and "'p' is not a regular file" in err, err
+    assert err.count("\n") == 0 and "'p' is a FIFO" in err, err
