@@ -3,7 +3,7 @@
 User errors (bad scene, bad asset, bad output path, broken stage input) print one line
 `error: ...` naming the scene file and exit 2, without a traceback. Any other exception is a bug:
 one line naming the stage, the scene file and the item being processed, exit 1 (`--debug` shows
-the traceback). Ctrl-C exits 130. None of them leaves a recording, or a temporary file, behind;
+the traceback). Ctrl-C exits 130, SIGTERM (a `kill`, a job scheduler's stop) the same way with 143. None of them leaves a recording, or a temporary file, behind;
 an earlier recording stays.
 """
 from __future__ import annotations
@@ -15,7 +15,8 @@ from pathlib import Path
 
 EXIT_USAGE = 2
 EXIT_BUG = 1
-_interrupted = [False]   # a Ctrl-C arrived during this command
+_interrupted = [False]   # a Ctrl-C (or SIGTERM) arrived during this command
+_terminated = [False]    # it was SIGTERM
 _cli_process = [False]   # set by `python -m pipeline`: after a Ctrl-C, further ones stay ignored until exit
 
 
@@ -26,11 +27,21 @@ def _on_sigint(signum, frame):
     signal.default_int_handler(signum, frame)
 
 
+def _on_sigterm(signum, frame):
+    # the same unwinding as Ctrl-C: the temporary recording is removed, the compile process and a
+    # sweep's workers stopped, an earlier recording kept
+    _terminated[0] = True
+    _on_sigint(signal.SIGINT, frame)
+
+
 def _interrupted_exit() -> int:
     """Report the interrupt, exit code 130. Further Ctrl-Cs are ignored from here on: the process
     is ending, and one landing while it reports or stops its compile process (seconds on a loaded
     machine) ended it by SIGINT instead (CI: exit -2 right after the message)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if _terminated[0]:
+        print("\nterminated (SIGTERM): no recording written", file=sys.stderr)
+        return 143
     print("\ninterrupted: no recording written", file=sys.stderr)
     return 130
 
@@ -43,9 +54,28 @@ def _user_errors():
     return (SceneError, InputError, ContractError, SimulationDiverged)
 
 
+def _check_out_file(path, flag: str) -> None:
+    """An output file named on the command line (--json, measure -o) is a file path that is not a
+    folder, FIFO or device: opened for writing, a FIFO blocks until a reader comes."""
+    import os
+    import stat
+
+    from stages.errors import InputError
+    if path is None:
+        return
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return
+    if not stat.S_ISREG(mode):
+        from stages.input_files import file_kind
+        raise InputError(flag, f"{path!r} is {file_kind(mode)}; expected a file path")
+
+
 def cmd_validate(args) -> int:
     from pipeline import where
-    from pipeline.run import character_item, check_references, load_character, preflight
+    from pipeline.preflight import check_memory, check_references, preflight
+    from pipeline.run import character_item, load_character
     from pipeline.scene import load_scene
     scene = load_scene(args.scene)
     meshes = preflight(scene, None, create=False)   # output path, every mesh file, pinned indices
@@ -53,6 +83,7 @@ def cmd_validate(args) -> int:
     with where.item(character_item(scene)):
         character = load_character(scene)
     check_references(scene, character)
+    check_memory(scene, scene["frames"]["count"], character.vertices.shape[0], 0)
     patterns = 0
     if scene["garments"]:   # build every garment as a run does, patterns sized and placed but not
         # sewn, on the bind pose: cheap, and where a garment cannot be dressed the error comes before a run
@@ -64,6 +95,8 @@ def cmd_validate(args) -> int:
         _, colliders = split_and_fit(scene, character, motion)
         where.stage("garments")
         patterns = check_scene_garments(scene, character, motion, colliders, meshes)
+    from pipeline.scene import warn_notes
+    warn_notes(scene)   # implausible values: once every check passed
     print(f"{args.scene}: ok — scene {scene.name!r}, character {character.name!r} "
           f"({character.vertices.shape[0]} vertices, {character.n_joints} joints, "
           f"{len(character.clips)} clips), {len(scene['garments'])} garments built ({patterns} patterns sized and placed, not sewn), "
@@ -91,6 +124,7 @@ def cmd_run(args) -> int:
 
 def cmd_bench(args) -> int:
     from pipeline.bench import run_benchmarks
+    _check_out_file(args.json, "--json")
     run_benchmarks(args.which, output=args.json)
     return 0
 
@@ -98,6 +132,7 @@ def cmd_bench(args) -> int:
 def cmd_matrix(args) -> int:
     import json
 
+    _check_out_file(args.json, "--json")
     if args.corpus:
         return cmd_corpus(args)
     from pipeline.matrix import run_matrix, table
@@ -156,9 +191,9 @@ def cmd_sweep(args) -> int:
                              ray_address=False if args.ray is None else args.ray,
                              retry_failed=args.retry_failed, progress=not args.quiet, echo=echo)
     except KeyboardInterrupt:   # the workers are stopped; finished jobs keep their rows
-        print("\ninterrupted: the finished jobs are in the table; run the same command to go on",
-              file=sys.stderr)
-        return 130
+        print(f"\n{'terminated (SIGTERM)' if _terminated[0] else 'interrupted'}: the finished jobs are in the "
+              f"table; run the same command to go on", file=sys.stderr)
+        return 143 if _terminated[0] else 130
     print(summary_text(sw, rows))
     return 0 if len(rows) == len(sw.jobs) and all(r["status"] == "ok" for r in rows) else 1
 
@@ -185,6 +220,7 @@ def cmd_measure(args) -> int:
     from stages.garments.garmentcode_body import body_yaml, gc_body
     from stages.garments.garmentcode_place import DEFAULT_BODY, read_body
     from stages.garments.measurements import garment_measurements
+    _check_out_file(args.out, "--out")
     where.stage(f"measure {args.character}")
     character, _ = load_asset(args.character)
     default = assets_dir() / DEFAULT_BODY       # the keys a mesh cannot give are scaled from it
@@ -277,7 +313,7 @@ def build_parser() -> argparse.ArgumentParser:
     me.add_argument("character", help="a .glb / .gltf / .bvh file, or 'builtin' (the procedural character)")
     me.add_argument("-o", "--out", help="write the body file here (default: print it)")
     me.set_defaults(func=cmd_measure)
-    sn = sub.add_parser("snapshot", help="PNGs of a recording's scene view at chosen frames, through the Rerun "
+    sn = sub.add_parser("snapshot", parents=[common], help="PNGs of a recording's scene view at chosen frames, through the Rerun "
                                          "viewer (headless; software Vulkan without a GPU)")
     sn.add_argument("recording", help="the .rrd file")
     sn.add_argument("--frames", default="0,45,-1", help="frame numbers on the timeline, comma-separated; -1 = last "
@@ -323,6 +359,7 @@ def main(argv: list[str] | None = None) -> int:
     import warnings
 
     from pipeline import where
+    from pipeline.scene import MAX_FRAMES
     args = build_parser().parse_args(argv)
     scene = str(Path(args.scene)) if getattr(args, "scene", None) else None   # as load_scene names it
     where.reset(scene)
@@ -330,15 +367,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {scene + ': ' if scene else ''}--jobs: expected a positive integer, got {args.jobs}",
               file=sys.stderr)
         return EXIT_USAGE
-    if isinstance(getattr(args, "frames", None), int) and args.frames < 1:   # snapshot's --frames is a list
-        print(f"error: {scene + ': ' if scene else ''}--frames: expected a positive integer, got {args.frames}",
-              file=sys.stderr)
+    if isinstance(getattr(args, "frames", None), int) and not 1 <= args.frames <= MAX_FRAMES:   # snapshot's is a list
+        print(f"error: {scene + ': ' if scene else ''}--frames: expected a positive integer up to {MAX_FRAMES:,}, "
+              f"got {args.frames}", file=sys.stderr)
         return EXIT_USAGE
     shown, warnings.showwarning = warnings.showwarning, _show_warning
-    _interrupted[0] = False
+    _interrupted[0] = _terminated[0] = False
     installed = signal.getsignal(signal.SIGINT) is signal.default_int_handler   # not ignored (a background job)
     if installed:
         signal.signal(signal.SIGINT, _on_sigint)
+    term = signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+    if term:
+        signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         return args.func(args)
     except _user_errors() as e:
@@ -349,13 +389,15 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:   # last resort: a bug. One line, exit 1; the recording was not written
         if _interrupted[0]:   # a library turned the Ctrl-C into another error
             return _interrupted_exit()
-        if args.debug:
+        if getattr(args, "debug", False):
             import traceback
             traceback.print_exc()
         print(f"error: {_bug_message(e, scene)}", file=sys.stderr)
         return EXIT_BUG
     finally:
         warnings.showwarning = shown
+        if term:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
         handler = signal.getsignal(signal.SIGINT)
         if handler is _on_sigint or (handler is signal.SIG_IGN and installed and not _cli_process[0]):
             signal.signal(signal.SIGINT, signal.default_int_handler)   # called in-process: as found

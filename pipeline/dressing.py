@@ -6,20 +6,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.scene import Scene
+from pipeline.scene import MAX_GARMENT_PARTICLES, Scene
 from pipeline.schema import SceneError
 
 
 def pattern_options(kind: str) -> tuple[str, ...]:
-    """The size options a built-in pattern kind accepts (its generator's keyword arguments)."""
-    import inspect
-
-    from stages.garments import library
-    gen = {"short_skirt": "skirt", "long_skirt": "skirt"}.get(kind, kind)
-    fn = getattr(library, gen, None)
-    if fn is None:
-        return ()
-    return tuple(p for p in inspect.signature(fn).parameters if p not in ("meas", "measurements", "edge_length", "name"))
+    """The size options a built-in pattern kind accepts (pipeline.scene.KIND_OPTIONS)."""
+    from pipeline.scene import KIND_OPTIONS
+    return KIND_OPTIONS.get(kind, ())
 
 
 def check_pattern(scene: Scene, index: int) -> None:
@@ -42,25 +36,32 @@ def _item(scene: Scene, section: str, index: int) -> str:
 
 
 def load_scene_meshes(scene: Scene) -> dict:
-    """Every mesh file the scene references, read and checked: {(section, index): (x, tri)}. A
+    """Every mesh file the scene references, read and checked: {(section, index): (x, tri)} (a
+    garment's: a GarmentMesh, the file's UVs too). A
     missing, empty, corrupt or degenerate file is a SceneError naming the scene file, the key
     path, the item and the mesh file (what `validate` and `run` check before any stage)."""
     from stages.errors import InputError
-    from stages.garments.importer import import_garment_mesh
+    from stages.garments.importer import read_garment_mesh
     from stages.obstacles import load_obstacle_mesh
     from pipeline import where
     src = scene.path or "<scene>"
     out = {}
-    for section, load in (("garments", import_garment_mesh), ("obstacles", load_obstacle_mesh)):
+    for section, load in (("garments", read_garment_mesh), ("obstacles", load_obstacle_mesh)):
         for i, it in enumerate(scene[section]):
             if it["type"] != "mesh":
                 continue
             with where.item(f"{_item(scene, section, i)} mesh file {it['path']}"):
                 try:
-                    out[(section, i)] = load(it["path"], scale=it["scale"], transform=placement_matrix(it))
+                    more = {"part": it["part"]} if section == "garments" else {}
+                    out[(section, i)] = load(it["path"], scale=it["scale"], transform=placement_matrix(it), **more)
                 except InputError as err:
                     raise SceneError(f"{src}: {section}[{i}].path: {err.problem}: {err.source} "
                                      f"({section[:-1]} {it['name']!r})") from None
+                n = len(out[(section, i)][0])
+                if section == "garments" and n > MAX_GARMENT_PARTICLES:
+                    raise SceneError(f"{src}: garments[{i}].path: the mesh has {n:,} vertices, more than "
+                                     f"{MAX_GARMENT_PARTICLES:,} cloth particles (expected a garment-sized mesh; "
+                                     f"decimate it): {it['path']} (garment {it['name']!r})")
     return out
 
 
@@ -350,7 +351,7 @@ def _build_scene_garment(scene: Scene, i: int, character, motion, colliders, map
         return garment, (log, build)
     bind = bind_pose(character, motion, colliders)
     if g["type"] == "mesh":
-        x, tri = meshes[("garments", i)]
+        x, tri = meshes[("garments", i)][:2]
     elif g["type"] == "rectangle":
         nx, ny = g["resolution"]
         axis = {"x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0)}[g["normal"]]

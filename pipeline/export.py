@@ -8,8 +8,9 @@ file and what was expected; the CLI prints it and exits 2).
 
 Conventions, in every format: world metres, Y up (right-handed), frame i at time times[i] s;
 vertex order = the garment's particles (the sewn, merged seam vertices) or the body's skinned
-mesh vertices; faces once. UVs of a pattern garment come from its flat panels laid out side by
-side, scaled uniformly into [0, 1]; a sewn seam has two UVs for one particle, so UVs are per
+mesh vertices; faces once. UVs of a pattern (or GarmentCode) garment come from its flat panels laid out
+side by side, scaled uniformly into [0, 1] (a fabric texture maps as the panels were cut), a mesh
+garment's from its file; a sewn seam has two UVs for one particle, so UVs are per
 corner: `uv` (U, 2) with `uv_faces` (T, 3) indices into it (npz, OBJ `f v/vt`, USD faceVarying
 `st`); glTF only has per-vertex attributes, so the glb appends a duplicate vertex for each seam
 corner after the N particles (`extras.particle_of_vertex` maps every vertex to its particle).
@@ -19,7 +20,6 @@ from __future__ import annotations
 import json
 import os
 import struct
-import tempfile
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -98,6 +98,19 @@ def _rows(store, entity: str):
             [pos[i] for i in order], tri)
 
 
+def _recorded_uv(store, entity: str, faces: np.ndarray):
+    """(uv, uv_faces) a run stored at sim/<name>/uv (logs.log_uvs), when they fit `faces`."""
+    for chunk in store.stream().filter(content=entity).to_chunks():
+        b = chunk.to_record_batch()
+        if "texcoords" in b.schema.names and "texcoord_faces" in b.schema.names:
+            uv = np.asarray(b.column("texcoords")[0].values.to_numpy(zero_copy_only=False), np.float32).reshape(-1, 2)
+            uvf = np.asarray(b.column("texcoord_faces")[0].values.to_numpy(zero_copy_only=False), np.int64)
+            uvf = uvf.reshape(-1, 3).astype(np.int32)
+            if uvf.shape == faces.shape and len(uv) and 0 <= uvf.min() and uvf.max() < len(uv):
+                return uv, uvf
+    return None, None
+
+
 def from_recording(path: str | os.PathLike) -> ExportData:
     """Read the garments (`sim/<name>/mesh`) and the body (`rig/mesh`) back from a recording.
 
@@ -130,7 +143,10 @@ def from_recording(path: str | os.PathLike) -> ExportData:
             raise ExportError(f"{p}: {entity.lstrip('/')} has other frames than sim/{garments[0]}/mesh")
         if len({q.shape for q in pos}) != 1:
             raise ExportError(f"{p}: {entity.lstrip('/')}: the vertex count changes between frames")
-        meshes.append(AnimatedMesh(name, kind, np.stack(pos).astype(np.float32), tri.astype(np.int32)))
+        m = AnimatedMesh(name, kind, np.stack(pos).astype(np.float32), tri.astype(np.int32))
+        if kind == "garment" and f"/sim/{name}/uv" in entities:
+            m.uv, m.uv_faces = _recorded_uv(store, f"/sim/{name}/uv", m.faces)
+        meshes.append(m)
     frames, tns = ref
     times = tns / 1e9 if tns is not None else frames.astype(np.float64) / 30.0
     fps = 1.0 / float(np.median(np.diff(times))) if len(times) > 1 else 30.0
@@ -146,42 +162,78 @@ def pattern_uv(build) -> tuple[np.ndarray, np.ndarray]:
     return ((flat - lo) / span).astype(np.float32), np.asarray(build.unsewn_triangles, np.int32)
 
 
-def from_run(scene, motion, skinned, character, result, builds, source: str) -> ExportData:
-    """The in-memory run: garment tracks (world), the skinned body + root translation, UVs of
-    pattern garments whose sewn triangles are the merged flat triangles (as make_garment builds them)."""
-    from stages.garments.sewing import merge_pairs
-    meshes = []
+def garment_uv(name: str, faces: np.ndarray, builds: dict, mesh_uv=None):
+    """(uv, uv_faces) of a garment with `faces` (T, 3): a pattern's (GarmentCode's) flat panels when it
+    was sewn from one (`builds`), else a mesh garment's file UVs (`mesh_uv`: (uv, uv_faces)), or
+    (None, None). Only when the UV corners match the faces one to one (the sewn triangles are the merged
+    flat ones; a mesh garment's are the file's)."""
+    faces = np.asarray(faces)
+    if name in builds:
+        from stages.garments.sewing import merge_pairs
+        build = builds[name][1]
+        uv, uvf = pattern_uv(build)
+        remap = merge_pairs(uv.shape[0], np.asarray(build.seam_pairs))
+        if uvf.shape == faces.shape and np.array_equal(remap[uvf], faces):
+            return uv, uvf
+    elif mesh_uv is not None and mesh_uv[0] is not None and mesh_uv[1].shape == faces.shape:
+        return mesh_uv
+    return None, None
+
+
+def mesh_uvs(scene, meshes: dict | None) -> dict:
+    """name -> (uv, uv_faces) of the scene's mesh garments whose files have UVs (load_scene_meshes)."""
+    out = {}
+    for i, g in enumerate(scene["garments"]):
+        m = (meshes or {}).get(("garments", i))
+        if g["type"] == "mesh" and m is not None and len(m) == 4 and m[2] is not None:
+            out[g["name"]] = (m[2], m[3])
+    return out
+
+
+def run_uvs(scene, result, builds, meshes: dict | None = None) -> dict:
+    """name -> (uv, uv_faces) of every simulated garment that has UVs (`garment_uv`); what the
+    recording stores (sim/<name>/uv) and the exports write."""
+    files = mesh_uvs(scene, meshes)
+    out = {}
+    for track in result.garments:
+        uv, uvf = garment_uv(track.name, track.triangles, builds, files.get(track.name))
+        if uv is not None:
+            out[track.name] = (uv, uvf)
+    return out
+
+
+def from_run(scene, motion, skinned, character, result, builds, source: str, meshes: dict | None = None) -> ExportData:
+    """The in-memory run: garment tracks (world), the skinned body + root translation, UVs
+    (`run_uvs`: pattern panels, mesh garments' files; `meshes` from load_scene_meshes)."""
+    uvs = run_uvs(scene, result, builds, meshes)
+    out = []
     for track in result.garments:
         m = AnimatedMesh(track.name, "garment", np.asarray(track.positions, np.float32),
                          np.asarray(track.triangles, np.int32))
-        if track.name in builds:
-            build = builds[track.name][1]
-            uv, uvf = pattern_uv(build)
-            remap = merge_pairs(uv.shape[0], np.asarray(build.seam_pairs))
-            if uvf.shape == m.faces.shape and np.array_equal(remap[uvf], m.faces):
-                m.uv, m.uv_faces = uv, uvf
-        meshes.append(m)
+        m.uv, m.uv_faces = uvs.get(track.name, (None, None))
+        out.append(m)
     body = (np.asarray(skinned) + motion.root_translation[:, None, :]).astype(np.float32)
-    meshes.append(AnimatedMesh("body", "body", body, np.asarray(character.triangles, np.int32)))
+    out.append(AnimatedMesh("body", "body", body, np.asarray(character.triangles, np.int32)))
     times = np.asarray(result.times, np.float64)
     fps = 1.0 / float(scene["simulation"]["dt"])
-    return ExportData(meshes, times, np.arange(len(times), dtype=np.int64), fps, source, scene_name=scene.name)
+    return ExportData(out, times, np.arange(len(times), dtype=np.int64), fps, source, scene_name=scene.name)
 
 
 # ---------------------------------------------------------------- writers
 
 @contextmanager
 def _atomic(path: Path, mode: str = "wb"):
-    """Yield a temporary path next to `path`; rename it to `path` on success, remove it on failure."""
+    """Yield a temporary path next to `path` (pipeline.disk.temporary_path); rename it to `path` on
+    success, remove it on failure. A write error (a full disk) is one ExportError naming the file."""
+    from pipeline.disk import remove_stale_temporaries, temporary_path
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
+    remove_stale_temporaries(path)   # what a killed run left
+    tmp = temporary_path(path)
     try:
-        yield Path(tmp)
-        os.chmod(tmp, 0o666 & ~umask)   # mkstemp makes it private; a result file is not
+        yield tmp
         os.replace(tmp, path)
+    except OSError as e:
+        raise ExportError(f"{path}: cannot write the export ({e.strerror or e}); an earlier file there is kept") from None
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
@@ -429,17 +481,33 @@ def write(data: ExportData, formats, out_dir: str | os.PathLike) -> list[Path]:
     return paths
 
 
+def check_export_dir(out_dir: str | os.PathLike, where: str) -> None:
+    """Before the run: the exports' folder is a folder (or can be made: its nearest existing
+    ancestor is a writable folder), so a run is never lost to a bad export path at its end."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ExportError(f"{where}: {out}: is a file, expected a folder for the exports")
+    existing = out
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ExportError(f"{where}: {out}: cannot create the folder: {existing} is a file")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ExportError(f"{where}: {out}: folder {existing} is not writable")
+
+
 def default_dir(recording: str | os.PathLike) -> Path:
     """Where exports go unless told: next to the recording, `<recording stem>_export/`."""
     r = Path(recording)
     return r.with_name(f"{r.stem}_export")
 
 
-def export_run(scene, recording: Path, motion, skinned, character, result, builds, formats, out_dir=None) -> list[Path]:
+def export_run(scene, recording: Path, motion, skinned, character, result, builds, formats, out_dir=None,
+               meshes: dict | None = None) -> list[Path]:
     """After a run: write `formats` of the in-memory result (UVs included) into out_dir."""
     src = str(scene.path or scene.name)
     if result is None or not result.garments:
         raise ExportError(f"{src}: output.export: the scene has no garments to export (expected at least one "
                           f"entry under 'garments:')")
-    data = from_run(scene, motion, skinned, character, result, builds, source=src)
+    data = from_run(scene, motion, skinned, character, result, builds, source=src, meshes=meshes)
     return write(data, formats, out_dir if out_dir is not None else default_dir(recording))

@@ -25,8 +25,10 @@ def load_asset(path: str):
     suffix = p.suffix.lower()
     if suffix not in SUFFIXES:
         raise InputError(p, f"not a character file: expected {', '.join(SUFFIXES)} or '{BUILTIN}'")
-    if not p.is_file():
-        raise InputError(p, "file not found")
+    from stages.input_files import file_problem
+    problem = file_problem(p, "character file")
+    if problem:
+        raise InputError(p, problem)
     if suffix == ".bvh":
         from stages.rig.bvh_character import load_bvh_character
         return load_bvh_character(p), "bvh"

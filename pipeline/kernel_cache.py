@@ -89,9 +89,39 @@ def stage_modules(stage: str) -> set:
     return mods - drop
 
 
+def _stamp(stage: str) -> Path:
+    user = os.environ.get("NUMBA_CACHE_DIR")
+    return (Path(user) if user else STAGES_DIR / "__pycache__") / f"ran-{stage.replace(' ', '_')}.stamp"
+
+
+def mark_ran(*stages: str) -> None:
+    """Remember that these stages ran to the end: the kernels they call are compiled. A module
+    whose kernels a scene never calls (cloth contact's continuous-collision kernels on a slow
+    clip) keeps no numba index, and was counted as uncompiled on every run."""
+    for st in stages:
+        path = _stamp(st)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.touch()
+        except OSError:   # a read-only install: the module-level test alone
+            pass
+
+
+def _ran_since_edit(stage: str, mods: set) -> bool:
+    """The stage ran to the end after its kernel modules were last changed."""
+    try:
+        ran = _stamp(stage).stat().st_mtime
+        return all(m.stat().st_mtime <= ran for m in mods)
+    except OSError:
+        return False
+
+
 def uncompiled(stage: str) -> tuple[int, int]:
-    """(modules of the stage's kernels without a numba cache, modules with kernels)."""
+    """(modules of the stage's kernels without a numba cache, modules with kernels); none once the
+    stage has run to the end since its modules were edited (mark_ran)."""
     mods = stage_modules(stage)
+    if mods and _ran_since_edit(stage, mods):
+        return 0, len(mods)
     return sum(not is_compiled(m) for m in mods), len(mods)
 
 

@@ -303,7 +303,7 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=Non
     """Cloth meshes (each garment its fabric colour), penetration counts, step time and the
     parameters; with `audit` (a stages.sim.audit.ClothAudit) the strain and crossing series and, when
     it has per-vertex strain, the meshes coloured by it; strain_notes: lines on what holds the
-    strained edges (pipeline.run.strain_source_notes), into the report. Returns the summary figures."""
+    strained edges (pipeline.cloth_checks.strain_source_notes), into the report. Returns the summary figures."""
     for i, (track, g) in enumerate(zip(result.garments, garments)):
         vs = audit.garments[i].vertex_strain if audit is not None else None
         frame_colors = None
@@ -418,6 +418,14 @@ def log_obstacles(rec: rr.RecordingStream, obstacles, times: np.ndarray, *, kdop
             segs = [kdop_wireframe(a, b, tree.directions) for a, b in zip(mins, maxs)]
             rec.log(f"{base}/kdop", rr.LineStrips3D([s.astype(np.float32) for g in segs for s in g],
                                                     colors=[(*c, 255)], radii=0.001), static=True)
+
+
+def log_uvs(rec: rr.RecordingStream, uvs: dict) -> None:
+    """sim/<name>/uv: a garment's texture coordinates per corner (pipeline.export.run_uvs), so that
+    `export` of the recording writes them as a run's own export does."""
+    for name, (uv, uvf) in uvs.items():
+        rec.log(f"sim/{name}/uv", rr.AnyValues(texcoords=np.asarray(uv, np.float32).reshape(-1),
+                                              texcoord_faces=np.asarray(uvf, np.int32).reshape(-1)), static=True)
 
 
 def log_sewing(rec: rr.RecordingStream, name: str, log, build, garment, color=style.FABRICS[0]) -> None:

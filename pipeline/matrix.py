@@ -58,7 +58,8 @@ class Prepared:
     """One character's rig, motion, colliders and maps, built once for all its garments."""
 
     def __init__(self, scene):
-        from pipeline.run import check_references, load_character, split_and_fit
+        from pipeline.preflight import check_references
+        from pipeline.run import load_character, split_and_fit
         from pipeline.scene_motion import frame_times, sample_scene_motion
         from stages.maps.build import build_maps
         from stages.rig.skinning import skin
@@ -137,6 +138,12 @@ def run_matrix(frames: int = 30, characters_: list[str] | None = None, kinds: li
                echo=print) -> dict:
     """{character: {kind: figures}}; an error a user would see (exit 2) is a row's status."""
     from pipeline.scene import parse_scene_text
+    from pipeline.schema import SceneError
+    for flag, asked, known in (("--character", characters_, list(characters())), ("--garment", kinds, KINDS)):
+        for n in asked or ():
+            if n not in known:   # an empty table and exit 0 would say every pair passed
+                raise SceneError(f"{flag}: {n!r} is not in the matrix; expected one of: "
+                                 + ", ".join(repr(k) for k in known))
     out: dict = {}
     for name, text in characters().items():
         if characters_ and name not in characters_:

@@ -3,7 +3,7 @@ end of a run, is `pipeline.blueprint`).
 
 The recording is written to a temporary file beside the final path and renamed only when the run
 finished, so an interrupted or failed run never leaves a half-written file under the final name and
-never destroys an earlier recording there.
+never destroys an earlier recording there; a full filesystem ends the run at once (pipeline.disk).
 """
 from __future__ import annotations
 
@@ -51,8 +51,19 @@ def check_output_path(path, *, where: str, create: bool) -> Path:
     is a file or cannot be created, a location that is not writable. `where` names the scene file
     and the key ('scene.yaml: output' or 'scene.yaml: --output') in the InputError. With `create`
     the missing parents are made and a probe file is written and removed; without, only checked."""
+    import stat
+
+    from pipeline.disk import MIN_FREE_BYTES, free_bytes
     from stages.errors import InputError
+    from stages.input_files import file_kind
     p = Path(path)
+    try:
+        mode = os.stat(p).st_mode
+    except OSError:
+        mode = None
+    if mode is not None and not stat.S_ISDIR(mode) and not stat.S_ISREG(mode):
+        # a device or FIFO would be replaced by a regular file (or, opened, block or swallow the data)
+        raise InputError(where, f"{str(path)!r} is {file_kind(mode)}; expected a recording file path (.rrd)")
     if p.is_dir() or str(path).endswith(("/", os.sep)) or p.name in ("", ".", ".."):
         raise InputError(where, f"{str(path)!r} is a folder; expected a recording file path such as "
                                 f"{str(Path(path) / 'out.rrd')!r}")
@@ -83,7 +94,25 @@ def check_output_path(path, *, where: str, create: bool) -> Path:
     finally:
         with contextlib.suppress(OSError):
             probe.unlink()
+    free = free_bytes(parent)
+    if free is not None and free < MIN_FREE_BYTES:
+        raise InputError(where, f"{str(path)!r}: the filesystem of {str(parent)!r} is full ({free // 1024:,} kB "
+                                f"free; expected at least {MIN_FREE_BYTES // (1024 * 1024)} MB)")
     return p
+
+
+FOOTER = b"RRF2FOOT"   # the last bytes of an .rrd that rerun finished (0.41: 8 bytes magic + 4 version)
+
+
+def is_complete(path: Path) -> bool:
+    """The file ends with rerun's footer: it was written to the end, not cut off by a failed write."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - 64))
+            return FOOTER in f.read()
+    except OSError:
+        return False
 
 
 @contextlib.contextmanager
@@ -95,9 +124,12 @@ def atomic_recording(path: Path, *, scene_name: str, scene_text: str, seed: int,
     keep_failed: on an exception, the temporary file (what was logged before it) is renamed to
     this path instead (a sweep keeps a failed job's partial recording).
     """
+    from pipeline.disk import DiskFull, DiskWatch, remove_stale_temporaries, temporary_path
+    from stages.errors import InputError
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    remove_stale_temporaries(path)   # what a killed run left beside the same output
+    tmp = temporary_path(path)
     # chunks cut by size only, never by the batcher's 200 ms clock: the same logging gives the same
     # chunks, so `rerun rrd compare` (which compares chunk by chunk) finds two runs equal
     batcher = rr.ChunkBatcherConfig(flush_tick=datetime.timedelta(days=1), flush_num_bytes=2 * 1024 * 1024,
@@ -106,23 +138,35 @@ def atomic_recording(path: Path, *, scene_name: str, scene_text: str, seed: int,
                              send_properties=False, batcher_config=batcher)
     rec.set_log_time_enabled(False)  # no wall clock: identical runs give identical recordings
     ok = False
+    watch = DiskWatch(path.parent)
     try:
-        rec.save(tmp)   # the blueprint is sent at the end of the run (pipeline.blueprint)
-        rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Y_UP, static=True)  # the pipeline is Y up, metres
-        rec.log("meta/scene", rr.TextDocument(f"```yaml\n{scene_text}\n```", media_type="text/markdown"), static=True)
-        rec.log("meta/provenance", rr.TextDocument(
-            "## Package versions\n" + package_versions() + "\n\n## Asset attributions\n" + ASSET_ATTRIBUTIONS,
-            media_type="text/markdown"), static=True)
-        yield rec
-        ok = True
+        with watch:
+            rec.save(tmp)   # the blueprint is sent at the end of the run (pipeline.blueprint)
+            rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Y_UP, static=True)  # the pipeline is Y up, metres
+            rec.log("meta/scene", rr.TextDocument(f"```yaml\n{scene_text}\n```", media_type="text/markdown"),
+                    static=True)
+            rec.log("meta/provenance", rr.TextDocument(
+                "## Package versions\n" + package_versions() + "\n\n## Asset attributions\n" + ASSET_ATTRIBUTIONS,
+                media_type="text/markdown"), static=True)
+            yield rec
+        ok = watch.low is None
+    except DiskFull:
+        pass
     finally:
         try:
             rec.disconnect()  # writes the footer; flushes everything
             if ok:
+                if not is_complete(tmp):   # the sink dropped data (a full disk it met between two checks)
+                    raise InputError(str(path), "the recording could not be written completely (is the disk "
+                                                "full?); the earlier file there is kept")
                 os.replace(tmp, path)
-            elif keep_failed is not None and tmp.exists():
+            elif keep_failed is not None and tmp.exists() and watch.low is None:
                 os.replace(tmp, keep_failed)
         finally:
             with contextlib.suppress(OSError):
                 if tmp.exists():   # anything but a completed rename: no temporary file survives
                     tmp.unlink()
+    if watch.low is not None:
+        raise InputError(str(path), f"cannot write the recording: the filesystem of {str(path.parent)!r} is full "
+                                    f"({watch.low // 1024:,} kB free); the run was stopped and the earlier file "
+                                    f"there is kept")

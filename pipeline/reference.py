@@ -63,7 +63,7 @@ def _range(f: Field) -> str:
     parts = []
     if f.choices:
         parts.append(" | ".join(f"`{c}`" for c in f.choices))
-    item = f.item if f.kind == "list" and f.item is not None and f.item.kind != "union" else None
+    item = f.item if f.kind in ("list", "vec3") and f.item is not None and f.item.kind != "union" else None
     for g, what in ((f, ""), (item, "each ")):
         if g is None:
             continue
@@ -75,6 +75,8 @@ def _range(f: Field) -> str:
             parts.append(what + ", ".join(x for x in (lo, hi) if x))
     if f.nullable and f.default is not None:
         parts.append("or `null`")
+    if f.warn is not None:
+        parts.append(getattr(f.warn, "text", "warns when implausible"))
     return "; ".join(parts) or "—"
 
 

@@ -10,11 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.dressing import (build_scene_garments, build_scene_obstacles, check_pattern, check_pins, dressing_layers,
-                               garment_fit_report, garment_fits, ignored_joints, load_scene_meshes)
-from pipeline.scene import Scene
+from pipeline.cloth_checks import check_blown_up, speed_limit_note, strain_source_notes
+from pipeline.dressing import (build_scene_garments, build_scene_obstacles, dressing_layers, garment_fit_report,
+                               garment_fits, ignored_joints)
+from pipeline.preflight import check_memory, check_references, preflight
+from pipeline.scene import Scene, warn_notes
 from pipeline.scene_motion import (collider_poses, frame_times, motion_speed_limit, motion_substeps,
-                                   sample_scene_motion, speed_limit_note)
+                                   sample_scene_motion)
 from pipeline.schema import SceneError
 from pipeline.summary import RunSummary, StageTimer
 
@@ -47,29 +49,6 @@ def ignored_colliders(scene: Scene, character) -> list[tuple[int, ...]] | None:
     return lists if any(lists) else None
 
 
-def strain_source_notes(audit, garments, result, colliders, character, motion) -> tuple[str, ...]:
-    """For each garment whose p99 strain goes over the limit: the joints whose colliders its most
-    strained edges touch at its worst frame (stages.sim.strain_sources), one line each."""
-    from stages.garments.types import STRETCH
-    from stages.sim.audit import STRAIN_P99_LIMIT, edge_strains
-    from stages.sim.strain_sources import TOP_SHARE, TOUCH, strain_sources
-    out = []
-    for g, track, ga in zip(garments, result.garments, audit.garments):
-        if ga.strain_p99.max(initial=0.0) <= STRAIN_P99_LIMIT:
-            continue
-        f = int(np.argmax(ga.strain_p99))
-        sel = g.kinds == STRETCH
-        x = track.positions[f].astype(np.float64) - motion.root_translation[f]     # the colliders' frame
-        strain = edge_strains(x[None], g.springs[sel], g.rest_lengths[sel])[0]
-        poses = colliders.frame_poses(character.inverse_bind, motion.joint_world[f]) if colliders is not None else None
-        shares = strain_sources(x, g.springs[sel], strain, colliders, poses)
-        if shares:
-            named = ", ".join(f"{character.joint_names[j]} {100 * s:.0f} %" for j, s in list(shares.items())[:4])
-            out.append(f"garment {g.name!r}: at frame {f} its {100 * TOP_SHARE:.0f} % most strained edges touch "
-                       f"(within {1000 * TOUCH:.0f} mm) the colliders of {named}")
-    return tuple(out)
-
-
 def body_params(settings: dict):
     from stages.rig.procedural import BodyParams
     b = settings["character"]["body"]
@@ -86,8 +65,10 @@ def load_character(scene: Scene):
     from stages.errors import InputError
     src = scene.path or "<scene>"
     path = Path(c["path"])
-    if not path.is_file():
-        raise SceneError(f"{src}: character.path: file not found: {path}")
+    from stages.input_files import MAX_ASSET_BYTES, file_problem
+    problem = file_problem(path, "character file", MAX_ASSET_BYTES)   # stat only: a FIFO is never opened
+    if problem:
+        raise SceneError(f"{src}: character.path: {problem}: {path}")
     try:
         if c["source"] == "gltf":
             from stages.rig.gltf import load_gltf
@@ -108,46 +89,6 @@ def character_item(scene: Scene) -> str:
     return f"character {c['source']}" + (f" {c['path']}" if c["path"] else "")
 
 
-def check_references(scene: Scene, character) -> None:
-    """Names the scene uses that only the character can confirm (clip, joints)."""
-    src = scene.path or "<scene>"
-    clip = scene["character"]["clip"]
-    if not (clip == "rest" or isinstance(clip, (int, str)) and not isinstance(clip, bool)):
-        raise SceneError(f"{src}: character.clip: expected a clip name, an index or 'rest', got {clip!r}")
-    if clip != "rest":
-        try:
-            character.clip(clip)
-        except KeyError:
-            raise SceneError(f"{src}: character.clip: {clip!r} is not a clip of {character.name!r}; "
-                             f"clips: {[c.name for c in character.clips] or 'none'} (or 'rest')") from None
-    for section in ("garments", "obstacles"):
-        for i, item in enumerate(scene[section]):
-            if item["type"] == "mesh" and not Path(item["path"]).is_file():
-                raise SceneError(f"{src}: {section}[{i}].path: file not found: {item['path']}")
-    names = set(character.joint_names)
-    for i, g in enumerate(scene["garments"]):
-        if g["type"] == "pattern":
-            check_pattern(scene, i)
-        if g["type"] == "garmentcode":      # read now: a bad pattern file stops the run before the colliders
-            from stages.errors import InputError
-            from stages.garments.garmentcode import read_pattern
-            from pipeline.assets import assets_dir
-            from stages.garments.garmentcode_place import DEFAULT_BODY, body_of
-            try:
-                read_pattern(g["path"])
-                body_of(g["path"], assets_dir() / DEFAULT_BODY)
-            except InputError as err:
-                raise SceneError(f"{src}: garments[{i}].path: {err}") from None
-        refs = [("at_joint", g.get("at_joint"))]
-        if g.get("pin") is not None:
-            refs.append(("pin.collider", g["pin"]["collider"]))
-        refs += [(f"ignore_colliders[{k}]", name) for k, name in enumerate(g.get("ignore_colliders") or ())]
-        for key, name in refs:
-            if name is not None and name not in names:
-                import difflib
-                near = difflib.get_close_matches(name, sorted(names), n=1)
-                hint = f" (did you mean {near[0]!r}?)" if near else f"; joints: {', '.join(character.joint_names)}"
-                raise SceneError(f"{src}: garments[{i}].{key}: {name!r} is not a joint of {character.name!r}{hint}")
 
 
 def split_and_fit(scene: Scene, character, motion, progress=None):
@@ -160,23 +101,6 @@ def split_and_fit(scene: Scene, character, motion, progress=None):
                          motion_tolerance=c["motion_tolerance"], rigid_threshold=c["rigid_threshold"],
                          min_triangles=c["min_triangles"], max_offset=c["max_offset"],
                          sweep_poses=motion.joint_world, progress=progress)
-
-
-def preflight(scene: Scene, output: Path | None, *, create: bool, output_flag: bool = False) -> dict:
-    """Every check that needs no character, before any work: the recording path, the mesh files,
-    the pinned indices. Returns the loaded meshes (see `load_scene_meshes`)."""
-    from pipeline import where
-    from pipeline.recording import check_output_path
-    where.stage("checking the scene")
-    src = scene.path or "<scene>"
-    out = Path(output) if output is not None else scene.output
-    key = f"{src}: {'--output' if output_flag else 'output'}"
-    check_output_path(out, where=key, create=False)
-    meshes = load_scene_meshes(scene)
-    check_pins(scene, meshes)
-    if create:   # last, so that a scene refused above leaves no new folder behind
-        check_output_path(out, where=key, create=True)
-    return meshes
 
 
 def blueprint_of(scene: Scene, character, motion, skinned, colliders, coverage_ran: bool, obstacles, garments,
@@ -247,7 +171,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     cloth audit kernels in a second process while the earlier stages run (pipeline.kernel_warmup).
     """
     from pipeline import logs, style, where
-    from pipeline.kernel_cache import compile_note
+    from pipeline.kernel_cache import compile_note, mark_ran
     from pipeline.progress import Progress
     from pipeline.recording import atomic_recording
     from stages.jit import numba_threads
@@ -255,7 +179,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
 
     out = Path(output) if output is not None else scene.output
     times = frame_times(scene, frames)
-    meshes = preflight(scene, output, create=True, output_flag=output is not None)
+    meshes = preflight(scene, output, create=True, output_flag=output is not None, export=export)
     formats, export_dir = export if export is not None else (scene.export["formats"], scene.export["dir"])
     if formats:   # an unknown format or a missing extra fails before the run
         from pipeline.export import check_formats
@@ -268,7 +192,10 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     state = {} if state is None else state
     state["summary"] = summary
 
+    ran: list[str] = []   # the stages announced: their kernels are compiled once the run ends (mark_ran)
+
     def say(name: str, *more: str) -> None:
+        ran.extend((name, *more))
         where.stage(name)
         note = compile_note(name, *more) if progress else None
         announce(f"{name} ({note})" if note else name)
@@ -291,6 +218,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 character = load_character(scene)
             check_references(scene, character)
             motion = sample_scene_motion(scene, character, times)
+            check_memory(scene, len(motion.times), character.vertices.shape[0], 0)   # before the body is skinned
+            warn_notes(scene)   # implausible values: once the checks before the stages passed
             times = motion.times
             summary.frames = len(times)
             skinned = skin(character, motion)
@@ -367,6 +296,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
         if s["garments"]:
             if not warm.simulation_ready():   # sewing is the first stage to call the simulation's kernels
                 where.stage("garments")
+                ran.append("garments")
                 announce(f"garments (waiting for the simulation kernels compiling in a second process: "
                          f"about {warm.seconds_left():.0f} s more)")
                 warm.wait_simulation()
@@ -404,6 +334,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             if note:
                 import warnings
                 warnings.warn(note, stacklevel=1)
+            check_memory(scene, len(times), character.vertices.shape[0], sum(g.n_particles for g in garments))
             say("simulation", *(("cloth collision",) if params.cloth_collision else ()))
             bar = Progress(len(times), "simulation", enabled=progress)
             with StageTimer(summary, "simulation") as r:
@@ -416,6 +347,11 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                     bar.close()
                 state["result"] = result
                 r.sizes.update(steps=result.steps)
+            # strain and distance: a fast particle is caught in the step
+            blown = check_blown_up(result, skinned + motion.root_translation[:, None, :], height)
+            if blown is not None:
+                logs.log_text(rec, "meta/diverged", str(blown))   # a sweep keeps this partial recording
+                raise blown
             note = speed_limit_note(result)
             if note:
                 import warnings
@@ -424,6 +360,7 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
             if sp["cloth_audit"]:
                 if warm.running():   # its kernels compile in the second process while the run simulates
                     where.stage("cloth audit")
+                    ran.append("cloth audit")
                     announce("cloth audit (waiting for its kernels compiling in a second process)")
                     warm.wait()
                 else:
@@ -440,6 +377,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 for w in audit.warnings + held:
                     warnings.warn(w, stacklevel=1)
             summary.penetrations = logs.log_sim(rec, motion, garments, result, audit, held)
+            from pipeline.export import run_uvs
+            logs.log_uvs(rec, run_uvs(scene, result, builds, meshes))
             summary.speeds = {k: summary.penetrations.pop(k) for k in list(summary.penetrations) if k.startswith("steps/s")}
             from pipeline.body_report import audit_and_log   # issue 38: body edges through the cloth
             audit_and_log(rec, scene, state, announce=say)
@@ -459,8 +398,10 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
         rec.send_blueprint(blueprint_of(scene, character, motion, skinned, colliders, coverage_ran,
                                         obstacles, garments, builds, result), make_active=True, make_default=True)
     summary.output = out
+    mark_ran(*ran)
     if formats:
         where.stage("export")
         from pipeline.export import export_run
-        summary.exports = export_run(scene, out, motion, skinned, character, result, builds, formats, export_dir)
+        summary.exports = export_run(scene, out, motion, skinned, character, result, builds, formats, export_dir,
+                                     meshes=meshes)
     return summary

@@ -5,6 +5,7 @@ from. Relative paths inside the file resolve against the scene file's folder.
 """
 from __future__ import annotations
 
+import difflib
 import os
 import re
 from dataclasses import dataclass, field
@@ -12,16 +13,20 @@ from pathlib import Path
 
 import yaml
 
-from pipeline.schema import REQUIRED, Field, SceneError, validate
+from pipeline.schema import REQUIRED, Field, SceneError, plausible, validate
 
-V3 = Field("vec3", [0.0, 0.0, 0.0], "centre, m")
+# bounds of positions, speeds and angles: far past any scene, short of sizes that overflow the kernels
+POS = Field("float", lo=-1e4, hi=1e4)          # m
+SPEED = Field("float", lo=-1e3, hi=1e3)        # m/s (rad/s)
+ANGLE = Field("float", lo=-3600.0, hi=3600.0)  # degrees
+V3 = Field("vec3", [0.0, 0.0, 0.0], "centre, m", item=POS)
 
 
 def _pin_fields():
     return {
-        "indices": Field("list", None, "particle indices to pin", item=Field("int", lo=0)),
+        "indices": Field("list", None, "particle indices to pin", item=Field("int", lo=0, hi=10_000_000)),
         "collider": Field("str", None, "joint name: pin particles near this joint's collider (bind pose)"),
-        "within": Field("float", 0.03, "distance (m) to the collider surface / joint for `collider`", lo=0.0),
+        "within": Field("float", 0.03, "distance (m) to the collider surface / joint for `collider`", lo=0.0, hi=1.0),
         "boundary": Field("str", None, "pin the whole top boundary loop, to one bone: the collider's, else the common ancestor of the nearest colliders' bones", choices=("top",)),
     }
 
@@ -38,7 +43,8 @@ PIN = Field("section", None, "particles with inverse mass 0, attached to a bone"
 
 _GARMENT_COMMON = {
     "name": Field("str", REQUIRED, "garment name (entity path sim/<name>)"),
-    "density": Field("float", 0.2, "area density, kg/m^2", lo=0.0, lo_open=True),
+    "density": Field("float", 0.2, "area density, kg/m^2", lo=0.0, lo_open=True, hi=100.0,
+                     warn=plausible(0.02, 2.0, "cloth weighs 0.05-0.6 kg/m^2")),
     "pin": PIN,
     "layer": Field("int", None, "cloth collision layer, 0 = innermost; default: the garment's place in the "
                    "list (earlier = inner); garments of a higher layer are kept outside lower ones", lo=0, hi=1000),
@@ -47,36 +53,75 @@ _GARMENT_COMMON = {
                               "(counted by the body audit)", item=Field("str")),
 }
 
-GARMENT = Field("union", REQUIRED, "a garment", variants={
+GARMENT = Field("union", REQUIRED, "a garment", check=lambda g: _check_garment(g), variants={
     "rectangle": {
         **_GARMENT_COMMON,
-        "width": Field("float", 1.0, "size along the cloth's first axis, m", lo=0.0, lo_open=True),
-        "height": Field("float", 1.0, "size along the cloth's second axis, m", lo=0.0, lo_open=True),
+        "width": Field("float", 1.0, "size along the cloth's first axis, m", lo=0.0, lo_open=True, hi=100.0),
+        "height": Field("float", 1.0, "size along the cloth's second axis, m", lo=0.0, lo_open=True, hi=100.0),
         "resolution": Field("list", [50, 50], "particles along each axis [nx, ny]", item=Field("int", lo=2, hi=1000), length=2),
-        "center": Field("vec3", [0.0, 1.0, 0.0], "centre, m, relative frame at frame 0"),
+        "center": Field("vec3", [0.0, 1.0, 0.0], "centre, m, relative frame at frame 0", item=POS),
         "normal": Field("str", "y", "axis the cloth faces", choices=("x", "y", "z")),
     },
     "tube": {
         **_GARMENT_COMMON,
-        "radius_top": Field("float", 0.18, "m", lo=0.0, lo_open=True),
-        "radius_bottom": Field("float", 0.30, "m", lo=0.0, lo_open=True),
-        "length": Field("float", 0.45, "m", lo=0.0, lo_open=True),
+        "radius_top": Field("float", 0.18, "m", lo=0.0, lo_open=True, hi=10.0),
+        "radius_bottom": Field("float", 0.30, "m", lo=0.0, lo_open=True, hi=10.0),
+        "length": Field("float", 0.45, "m", lo=0.0, lo_open=True, hi=10.0),
         "n_around": Field("int", 48, "particles around", lo=6, hi=2000),
         "n_down": Field("int", 24, "particle rings top to bottom", lo=2, hi=2000),
         "at_joint": Field("str", None, "centre the tube top at this joint (bind pose)"),
-        "center": Field("vec3", None, "top centre, m (instead of at_joint)"),
-        "offset": Field("vec3", [0.0, 0.0, 0.0], "added to the top centre, m"),
+        "center": Field("vec3", None, "top centre, m (instead of at_joint)", item=POS),
+        "offset": Field("vec3", [0.0, 0.0, 0.0], "added to the top centre, m", item=POS),
     },
 })
 
 _PATTERN_KINDS = ("tshirt", "short_skirt", "long_skirt", "shorts", "trousers", "cape", "square")
 
-def _check_options(o):
-    if not isinstance(o, dict):
-        return f"expected a mapping of option names to numbers, got {o!r}"
-    for k, v in o.items():
-        if not isinstance(k, str) or isinstance(v, bool) or not isinstance(v, (int, float)) or v != v:
-            return f"option {k!r}: expected a number, got {v!r}"
+# the size options of the built-in patterns (stages/garments/library.py: each generator's keyword
+# arguments; tests/test_scene_ranges.py holds the two in step), one range for each name whatever the kind
+PATTERN_OPTIONS = {
+    "ease": Field("float", None, "girth added to the body's (or its colliders'), m", lo=0.0, hi=0.5),
+    "hip_ease": Field("float", None, "girth added at the hips, m", lo=0.0, hi=0.5),
+    "length": Field("float", None, "skirt or cape length, m", lo=0.0, lo_open=True, hi=3.0),
+    "flare": Field("float", None, "hem width over hip width (1: straight)", lo=1.0, hi=5.0),
+    "length_below_waist": Field("float", None, "tshirt hem below the waist, m (negative: above it)", lo=-0.5, hi=1.5),
+    "sleeve_length": Field("float", None, "tshirt sleeve length, m", lo=0.0, lo_open=True, hi=1.0),
+    "leg_length": Field("float", None, "shorts / trousers leg length below the crotch, m", lo=0.0, lo_open=True,
+                        hi=1.5),
+    "leg_ease": Field("float", None, "radius added to the thigh (shorts) or shin (trousers) at the hem, m",
+                      lo=0.0, hi=0.3),
+    "crotch_drop": Field("float", None, "crotch below the body's, m", lo=0.0, hi=0.3),
+    "size": Field("float", None, "square edge length, m", lo=0.0, lo_open=True, hi=5.0),
+    "height_above": Field("float", None, "square height above the head, m", lo=0.0, hi=2.0),
+}
+KIND_OPTIONS = {
+    "tshirt": ("ease", "length_below_waist", "sleeve_length"),
+    "short_skirt": ("length", "flare", "ease", "hip_ease"),
+    "long_skirt": ("length", "flare", "ease", "hip_ease"),
+    "shorts": ("leg_length", "ease", "hip_ease", "leg_ease", "crotch_drop"),
+    "trousers": ("leg_length", "ease", "hip_ease", "leg_ease", "crotch_drop"),
+    "cape": ("length",),
+    "square": ("size", "height_above"),
+}
+MAX_GARMENT_PARTICLES = 100_000   # ~10x the largest shipped garment: memory and time grow with it
+
+
+def _check_garment(g):
+    """Options of a pattern garment's kind; a rectangle's or tube's particle count (the schema's per-axis
+    bounds allow 4 million)."""
+    if g["type"] == "pattern":
+        allowed = KIND_OPTIONS.get(g["kind"], ())
+        for key in g["options"]:
+            if key not in allowed:
+                near = difflib.get_close_matches(key, allowed, n=1, cutoff=0.5)
+                hint = f" (did you mean {near[0]!r}?)" if near else ""
+                return (f"options.{key}", f"not an option of kind {g['kind']!r}{hint}; options: "
+                                          f"{', '.join(allowed) or 'none'}")
+    n = (g["resolution"][0] * g["resolution"][1] if g["type"] == "rectangle" else
+         g["n_around"] * g["n_down"] if g["type"] == "tube" else 0)
+    if n > MAX_GARMENT_PARTICLES:
+        keys = "resolution" if g["type"] == "rectangle" else "n_around x n_down"
+        return f"{keys} make {n:,} particles, more than {MAX_GARMENT_PARTICLES:,} (expected a garment-sized mesh)"
     return None
 
 
@@ -88,8 +133,9 @@ GARMENT.variants["pattern"] = {
     "kind": Field("str", REQUIRED, "a built-in sewing pattern, sized from the character's measurements",
                   choices=_PATTERN_KINDS),
     "edge_length": Field("float", 0.025, "target mean edge length of the flat panels, m", lo=0.005, hi=0.2),
-    "options": Field("any", {}, "pattern options of the kind (e.g. ease, length, flare, sleeve_length), m",
-                     check=_check_options),
+    "options": Field("section", {}, "size options of the kind (a key left out: sized from the body); "
+                     + "; ".join(f"{k}: {', '.join(v)}" for k, v in KIND_OPTIONS.items()),
+                     fields=PATTERN_OPTIONS, sparse=True),
     "sewing": Field("section", {}, "sewing under micro-gravity", fields={
         "tolerance": Field("float", 0.004, "largest seam gap accepted, m", lo=0.0, lo_open=True),
         "max_iterations": Field("int", 40, "sewing simulation rounds at most (the sewing runs at least 2)", lo=2, hi=10000),
@@ -115,36 +161,52 @@ GARMENT.variants["garmentcode"] = {   # issue 39: a GarmentCode sewing pattern
 GARMENT.variants["mesh"] = {
     **_GARMENT_COMMON,
     "path": Field("path", REQUIRED, "OBJ / PLY / GLB garment mesh, relative to the scene file"),
-    "scale": Field("float", 1.0, lo=0.0, lo_open=True),
-    "translate": Field("vec3", [0.0, 0.0, 0.0], "m, relative frame at frame 0"),
-    "rotate_deg": Field("vec3", [0.0, 0.0, 0.0], "XYZ Euler angles, degrees"),
+    "part": Field("any", None, "a glTF / GLB holding several meshes: the one to use (its name or index; one garment "
+                  "item each), or 'all' to simulate them as one cloth; null: the file must hold one",
+                  check=lambda v: None if v is None or (isinstance(v, (str, int)) and not isinstance(v, bool))
+                  else f"expected a mesh name, an index or 'all', got {v!r}"),
+    "scale": Field("float", 1.0, "metres per file unit", lo=0.0, lo_open=True, hi=1e6,
+                   warn=plausible(1e-3, 100.0, "a garment mesh in m, cm or mm needs 1, 0.01 or 0.001")),
+    "translate": Field("vec3", [0.0, 0.0, 0.0], "m, relative frame at frame 0", item=POS),
+    "rotate_deg": Field("vec3", [0.0, 0.0, 0.0], "XYZ Euler angles, degrees", item=ANGLE),
 }
+
+def _nonzero(v):
+    return None if any(abs(c) > 1e-9 for c in v) else f"expected a non-zero direction, got {v!r}"
+
 
 _OBSTACLE_COMMON = {
     "name": Field("str", REQUIRED, "obstacle name (entity path obstacles/<name>)"),
-    "thickness": Field("float", 0.005, "contact thickness, m", lo=0.0),
+    "thickness": Field("float", 0.005, "contact thickness, m", lo=0.0, hi=1.0,
+                       warn=plausible(None, 0.05, "cloth is held this far off the surface")),
     "friction": Field("float", 0.3, "tangential friction coefficient", lo=0.0, hi=1.0),
     "restitution": Field("float", 0.0, "normal restitution", lo=0.0, hi=1.0),
-    "velocity": Field("vec3", [0.0, 0.0, 0.0], "rigid linear velocity, m/s"),
-    "angular_velocity": Field("vec3", [0.0, 0.0, 0.0], "rigid angular velocity about the centre, rad/s"),
+    "velocity": Field("vec3", [0.0, 0.0, 0.0], "rigid linear velocity, m/s", item=SPEED),
+    "angular_velocity": Field("vec3", [0.0, 0.0, 0.0], "rigid angular velocity about the centre, rad/s", item=SPEED),
 }
 
 OBSTACLE = Field("union", REQUIRED, "an obstacle", variants={
-    "box": {**_OBSTACLE_COMMON, "center": V3, "size": Field("vec3", REQUIRED, "edge lengths, m")},
-    "table": {**_OBSTACLE_COMMON, "center": Field("vec3", [0.0, 0.0, 0.0], "floor point under the table centre"),
-              "top_size": Field("list", [1.0, 0.6], "table top [x, z] size, m", item=Field("float", lo=0.0, lo_open=True), length=2),
-              "height": Field("float", 0.75, "m", lo=0.0, lo_open=True),
-              "top_thickness": Field("float", 0.03, "m", lo=0.0, lo_open=True)},
-    "sphere": {**_OBSTACLE_COMMON, "center": V3, "radius": Field("float", REQUIRED, "m", lo=0.0, lo_open=True),
+    "box": {**_OBSTACLE_COMMON, "center": V3,
+            "size": Field("vec3", REQUIRED, "edge lengths, m", item=Field("float", lo=0.0, lo_open=True, hi=1e3))},
+    "table": {**_OBSTACLE_COMMON, "center": Field("vec3", [0.0, 0.0, 0.0], "floor point under the table centre", item=POS),
+              "top_size": Field("list", [1.0, 0.6], "table top [x, z] size, m",
+                                item=Field("float", lo=0.0, lo_open=True, hi=100.0), length=2),
+              "height": Field("float", 0.75, "m", lo=0.0, lo_open=True, hi=100.0),
+              "top_thickness": Field("float", 0.03, "m", lo=0.0, lo_open=True, hi=10.0)},
+    "sphere": {**_OBSTACLE_COMMON, "center": V3, "radius": Field("float", REQUIRED, "m", lo=0.0, lo_open=True, hi=1e3),
                "subdivisions": Field("int", 3, "icosphere subdivisions", lo=0, hi=6)},
-    "plane": {**_OBSTACLE_COMMON, "point": Field("vec3", [0.0, 0.0, 0.0]), "normal": Field("vec3", [0.0, 1.0, 0.0]),
-              "size": Field("float", 10.0, "finite extent, m", lo=0.0, lo_open=True)},
-    "cylinder": {**_OBSTACLE_COMMON, "center": V3, "radius": Field("float", REQUIRED, "m", lo=0.0, lo_open=True),
-                 "height": Field("float", REQUIRED, "m", lo=0.0, lo_open=True),
+    "plane": {**_OBSTACLE_COMMON, "point": Field("vec3", [0.0, 0.0, 0.0], "a point on the plane, m", item=POS),
+              "normal": Field("vec3", [0.0, 1.0, 0.0], "the side the cloth stays on (any length but 0)",
+                              item=Field("float", lo=-1e3, hi=1e3), check=_nonzero),
+              "size": Field("float", 10.0, "finite extent, m", lo=0.0, lo_open=True, hi=1e5)},
+    "cylinder": {**_OBSTACLE_COMMON, "center": V3, "radius": Field("float", REQUIRED, "m", lo=0.0, lo_open=True, hi=1e3),
+                 "height": Field("float", REQUIRED, "m", lo=0.0, lo_open=True, hi=1e3),
                  "sections": Field("int", 32, "facets around", lo=3, hi=512)},
     "mesh": {**_OBSTACLE_COMMON, "path": Field("path", REQUIRED, "OBJ / PLY / STL / GLB file"),
-             "scale": Field("float", 1.0, lo=0.0, lo_open=True), "translate": Field("vec3", [0.0, 0.0, 0.0]),
-             "rotate_deg": Field("vec3", [0.0, 0.0, 0.0], "XYZ Euler angles, degrees")},
+             "scale": Field("float", 1.0, "metres per file unit", lo=0.0, lo_open=True, hi=1e6,
+                            warn=plausible(1e-3, 1e3, "a mesh in m, cm or mm needs 1, 0.01 or 0.001")),
+             "translate": Field("vec3", [0.0, 0.0, 0.0], "m", item=POS),
+             "rotate_deg": Field("vec3", [0.0, 0.0, 0.0], "XYZ Euler angles, degrees", item=ANGLE)},
 })
 
 
@@ -162,7 +224,7 @@ def _check_character(c):
 
 SCENE_SPEC = {
     "name": Field("str", None, "scene name; default: the file name without .yaml"),
-    "seed": Field("int", 0, "seed for every random choice", lo=0),
+    "seed": Field("int", 0, "seed for every random choice", lo=0, hi=2**32 - 1),
     "character": Field("section", {}, "the skinned character", check=_check_character, fields={
         "source": Field("str", "procedural", "procedural | gltf | bvh", choices=("procedural", "gltf", "bvh")),
         "path": Field("path", None, ".glb/.gltf or .bvh file, relative to the scene file"),
@@ -170,7 +232,8 @@ SCENE_SPEC = {
         "scale": Field("float", None, "length scale applied to the asset (metres per file unit); default "
                        "(null): glTF auto (metres, or cm / mm when metres make a biped or animal implausibly "
                        "tall, else an error naming the scale to set), BVH 1; a number is taken as it is",
-                       lo=0.0, lo_open=True, nullable=True),
+                       lo=0.0, lo_open=True, hi=1e6, nullable=True,
+                       warn=plausible(1e-4, 100.0, "metres per file unit: 1 for m, 0.01 for cm, 0.001 for mm")),
         "up_axis": Field("str", "auto", "up axis of a glTF asset: auto (where two limbs of the skinned rest "
                          "pose hang down to the floor), y or z", choices=("auto", "y", "z")),
         "loop": Field("bool", None, "glTF clips past their end: on (loop), off (hold the last pose), or null "
@@ -187,7 +250,7 @@ SCENE_SPEC = {
         }),
     }),
     "frames": Field("section", {}, "which part of the clip to run", fields={
-        "start": Field("float", 0.0, "clip time of the first frame, s", lo=0.0),
+        "start": Field("float", 0.0, "clip time of the first frame, s", lo=0.0, hi=1e6),
         "count": Field("int", 60, "number of frames", lo=1, hi=100000),
         "blend_in": Field("float", None, "seconds of extra frames first, carrying the character from its rest "
                           "pose (where garments are dressed) into the running clip; default (null): sized from how "
@@ -196,7 +259,8 @@ SCENE_SPEC = {
                           nullable=True),
     }),
     "colliders": Field("section", {}, "collider fitting (paper A §2)", fields={
-        "delta": Field("float", 0.01, "inflation thickness, m", lo=0.0, hi=0.5),
+        "delta": Field("float", 0.01, "inflation thickness, m", lo=0.0, lo_open=True, hi=0.5,
+                       warn=plausible(0.001, 0.1, "the colliders stand this far off the skin")),
         "split": Field("str", "motion", "motion: a vertex is rigid for the bone it moves with over the clip (within "
                        "motion_tolerance) | weights: dominant skin weight >= rigid_threshold (paper)",
                        choices=("motion", "weights")),
@@ -206,10 +270,10 @@ SCENE_SPEC = {
         "flexible": Field("str", "balls", "balls: spheres whose centres are skinned with the flexible skin (stages/hulls/balls.py) "
                           "| swept: hulls of the flexible vertices over the motion, in the frame of the bone each moves "
                           "least with | sphere: one sphere per joint (paper)", choices=("balls", "swept", "sphere")),
-        "min_triangles": Field("int", 40, "simplification stops at this many hull faces", lo=4),
+        "min_triangles": Field("int", 40, "simplification stops at this many hull faces", lo=4, hi=100_000),
         "max_offset": Field("float", 0.005, "simplified hull stays within this distance (m) of the inflated one; null = unbounded (paper)", lo=0.0, lo_open=True,
                             nullable=True),
-        "report_every": Field("int", 10, "measure coverage and excess every this many frames (and the last); 0 = off", lo=0),
+        "report_every": Field("int", 10, "measure coverage and excess every this many frames (and the last); 0 = off", lo=0, hi=100_000),
         "map": Field("section", {}, "map volume per hull", fields={
             "type": Field("str", "auto", "auto | sphere | cylinder", choices=("auto", "sphere", "cylinder")),
             "n_theta": Field("int", 12, "cells around", lo=3, hi=720),
@@ -225,14 +289,17 @@ SCENE_SPEC = {
         "preset": Field("str", "default", "default (small steps: 20 sub-steps x 2 rounds, tethers) | paper (paper A: "
                         "1 step x 3 rounds per frame, no tethers); the keys marked 'preset' below override it",
                         choices=("default", "paper")),
-        "dt": Field("float", 1.0 / 30.0, "frame time, s", lo=0.0, lo_open=True, hi=1.0),
+        "dt": Field("float", 1.0 / 30.0, "frame time, s", lo=1e-4, hi=1.0,
+                    warn=plausible(None, 0.1, "frames far apart let the cloth overshoot (1/30 s is usual)")),
         "substeps": Field("int", None, "steps per frame (preset)", lo=1, hi=1000),
         "iterations": Field("int", None, "rounds of spring position correction per step (preset)", lo=1, hi=1000),
-        "gravity": Field("vec3", [0.0, -9.81, 0.0], "m/s^2"),
+        "gravity": Field("vec3", [0.0, -9.81, 0.0], "m/s^2", item=Field("float", lo=-1e3, hi=1e3),
+                         warn=plausible(None, 30.0, "the Earth's is 9.81 m/s^2", norm=True)),
         "damping": Field("float", None, "fraction of the velocity lost per 1/30 s (preset)", lo=0.0, hi=1.0),
-        "wind": Field("vec3", [0.0, 0.0, 0.0], "air velocity, m/s"),
-        "drag": Field("float", 0.5, "aerodynamic drag coefficient", lo=0.0),
-        "lift": Field("float", 0.1, "aerodynamic lift coefficient", lo=0.0),
+        "wind": Field("vec3", [0.0, 0.0, 0.0], "air velocity, m/s", item=Field("float", lo=-200.0, hi=200.0),
+                      warn=plausible(None, 40.0, "a storm's wind is 25 m/s", norm=True)),
+        "drag": Field("float", 0.5, "aerodynamic drag coefficient", lo=0.0, hi=100.0),
+        "lift": Field("float", 0.1, "aerodynamic lift coefficient", lo=0.0, hi=100.0),
         "aero_interval": Field("float", 1.0 / 30.0, "s: the aerodynamic forces are computed once per this span of "
                                "sub-steps and held over it (0: every sub-step)", lo=0.0, hi=10.0),
         "friction": Field("float", 0.5, "Coulomb friction with colliders: sliding reduced by up to friction x push depth", lo=0.0, hi=10.0),
@@ -294,6 +361,8 @@ class Scene:
     settings: dict
     # output.export / output.export_dir: {'formats': [...], 'dir': path or None} (pipeline.export)
     export: dict = field(default_factory=lambda: {"formats": [], "dir": None})
+    # legal but implausible values (schema `warn`), shown by `warn_notes` once every check passed
+    notes: tuple = ()
 
     def __getitem__(self, key):
         return self.settings[key]
@@ -319,11 +388,14 @@ def _marks(node, path: str, out: dict):
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):
-    """SafeLoader that refuses duplicate keys (YAML silently keeps the last one)."""
+    """SafeLoader that refuses duplicate keys (YAML silently keeps the last one). Merge keys
+    (`<<: *anchor`) work as in YAML 1.1: the mapping's own keys override the merged ones."""
 
     def construct_mapping(self, node, deep=False):
         seen = set()
         for k, _ in node.value:
+            if k.tag == "tag:yaml.org,2002:merge":
+                continue
             key = self.construct_object(k, deep=deep)
             if key in seen:
                 raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", k.start_mark)
@@ -335,7 +407,7 @@ def parse_scene_text(text: str, *, source: str = "<scene>", base_dir: Path | Non
                      default_name: str = "scene") -> Scene:
     """Parse and validate scene YAML text."""
     try:
-        from pipeline.safe_yaml import load_checked
+        from stages.safe_yaml import load_checked
         data, node = load_checked(text, source, SceneError, loader=_UniqueKeyLoader)
     except yaml.MarkedYAMLError as e:
         m = e.problem_mark or e.context_mark
@@ -363,12 +435,13 @@ def scene_from_data(data, *, text: str, source: str = "<scene>", base_dir: Path 
     Without `marks` the messages name the key path but no line and column (a sweep's generated
     scenes: pipeline.sweep)."""
     marks = {} if marks is None else marks
+    notes: list = []
     export = {"path": None, "export": [], "export_dir": None}
     if isinstance(data, dict) and isinstance(data.get("output"), dict):   # output: {path, export, export_dir}
         export = validate({"output": Field("section", {}, fields=OUTPUT_FIELDS)}, {"output": data["output"]},
-                          source=source, marks=marks, base_dir=base_dir)["output"]
+                          source=source, marks=marks, base_dir=base_dir, notes=notes)["output"]
         data = {**data, "output": export["path"]}
-    settings = validate(SCENE_SPEC, data, source=source, marks=marks, base_dir=base_dir)
+    settings = validate(SCENE_SPEC, data, source=source, marks=marks, base_dir=base_dir, notes=notes)
     for section in ("garments", "obstacles"):   # names are entity paths: sim/<name>, obstacles/<name>
         first: dict = {}
         for i, item in enumerate(settings[section]):
@@ -378,18 +451,43 @@ def scene_from_data(data, *, text: str, source: str = "<scene>", base_dir: Path 
                 at = f"{source}:{mark[0]}:{mark[1]}" if mark else source
                 raise SceneError(f"{at}: {section}[{i}].name: {item['name']!r} is already the name of "
                                  f"{section}[{j}]; names must be unique")
+    _check_frames(settings, source, marks)
     name = settings["name"] or default_name
     if not re.fullmatch(r"[A-Za-z0-9_.-]+", name):
         raise SceneError(f"{source}: name: {name!r} must use only letters, digits, '_', '-' and '.'")
     return Scene(path=None, name=name, text=text, settings=settings,
-                 export={"formats": list(export["export"]), "dir": export["export_dir"]})
+                 export={"formats": list(export["export"]), "dir": export["export_dir"]}, notes=tuple(notes))
+
+
+def warn_notes(scene: Scene) -> None:
+    """The scene's implausible-value lines as warnings (`validate` and `run` call it once their
+    checks before the stages passed)."""
+    import warnings
+    for note in scene.notes:
+        warnings.warn(note, stacklevel=2)
+
+
+MAX_FRAMES = 100_000   # frames run, blend-in included: the recording and memory grow with them
+
+
+def _check_frames(settings: dict, source: str, marks: dict) -> None:
+    """The blend-in's frames (frames.blend_in / simulation.dt) and the clip's together at most MAX_FRAMES."""
+    fr, dt = settings["frames"], settings["simulation"]["dt"]
+    blend = int(round((fr["blend_in"] or 0.0) / dt))
+    if fr["count"] + blend > MAX_FRAMES:
+        key = "frames.blend_in" if blend else "frames.count"
+        mark = marks.get(key) or marks.get("simulation.dt")
+        at = f"{source}:{mark[0]}:{mark[1]}" if mark else source
+        raise SceneError(f"{at}: {key}: {fr['count']:,} frames plus {blend:,} blend-in frames "
+                         f"({fr['blend_in'] or 0:g} s at simulation.dt {dt:g} s) are more than {MAX_FRAMES:,}; "
+                         f"expected fewer frames or a longer dt")
 
 
 def load_scene(path: str | os.PathLike) -> Scene:
     """Read, parse and validate a scene file; every problem is a `SceneError` naming the file."""
-    from pipeline.safe_yaml import read_text_file
+    from stages.input_files import read_text_file
     p = Path(path)
     # a regular file of bounded size, checked by stat before it is opened (a FIFO would block, /dev/zero never end)
     text = read_text_file(p, "scene file", SceneError)
     scene = parse_scene_text(text, source=str(p), base_dir=p.resolve().parent, default_name=p.stem)
-    return Scene(path=p, name=scene.name, text=text, settings=scene.settings, export=scene.export)
+    return Scene(path=p, name=scene.name, text=text, settings=scene.settings, export=scene.export, notes=scene.notes)

@@ -103,13 +103,3 @@ def motion_speed_limit(scene: Scene, params, skinned: np.ndarray, root: np.ndarr
     skin_speed = float((np.linalg.norm(np.diff(rel, axis=0), axis=2) / dt).max())
     return replace(params, speed_limit=3.0 * skin_speed + 2.0 * float(np.sqrt(2.0 * 9.81 * height)))
 
-
-def speed_limit_note(result) -> str | None:
-    """A warning naming the frames where the speed limit acted, or None."""
-    hit = np.flatnonzero(result.speed_limited[1:] > 0) + 1
-    if hit.size == 0:
-        return None
-    f = int(hit[np.argmax(result.speed_limited[hit])])
-    return (f"simulation: the speed limit ({result.params.speed_limit:.1f} m/s, simulation.speed_limit) capped cloth "
-            f"in {hit.size} frame(s), most at frame {f} ({int(result.speed_limited[f])} particles): cloth thrown "
-            "by a collider (a limb pressing it onto the body)")

@@ -42,8 +42,33 @@ class Field:
     tag: str = "type"                                  # union
     variants: dict = field(default_factory=dict)      # union: tag value -> fields dict
     length: int | None = None                          # fixed-length number lists ('vec3' is 3)
-    check: Callable[[Any], str | None] | None = None   # extra check: returns a problem or None
+    # extra check: returns a problem, or (sub-key, problem) to name a key inside this one, or None
+    check: Callable[[Any], "str | tuple[str, str] | None"] | None = None
     nullable: bool = False                             # null accepted (as None) though the default is not
+    # section: keys left out stay out (no defaults filled), and keys it does not know are kept as they
+    # are for the parent's `check` to name (a pattern's options: which are allowed depends on its kind)
+    sparse: bool = False
+    # legal but physically implausible: returns a warning (the run goes on) or None
+    warn: Callable[[Any], str | None] | None = None
+
+
+def plausible(lo: float | None, hi: float | None, why: str, *, norm: bool = False) -> Callable[[Any], str | None]:
+    """A `Field.warn` for a value (or a vector's length, `norm`) outside [lo, hi]: legal, but not what
+    a garment scene means; `why` says what to expect from it."""
+    def warn(v):
+        if v is None:
+            return None
+        x = math.sqrt(sum(c * c for c in v)) if norm else v
+        if (lo is not None and x < lo) or (hi is not None and x > hi):
+            what = f"length {x:.4g}" if norm else _describe(v)
+            rng = (f"{lo:g} to {hi:g}" if lo is not None and hi is not None else
+                   f"at most {hi:g}" if hi is not None else f"at least {lo:g}")
+            return f"{what} is implausible (expected {rng}): {why}; running anyway"
+        return None
+    rng = (f"{lo:g} to {hi:g}" if lo is not None and hi is not None else
+           f"above {hi:g}" if hi is not None else f"below {lo:g}")
+    warn.text = f"warns {'outside ' if lo is not None and hi is not None else ''}{rng}{' (length)' if norm else ''}"
+    return warn
 
 
 def expand_path_vars(text: str) -> str:
@@ -64,22 +89,26 @@ def _describe(v) -> str:
 
 
 class _Ctx:
-    def __init__(self, source: str, marks: dict, base_dir: Path | None):
-        self.source, self.marks, self.base_dir = source, marks, base_dir
+    def __init__(self, source: str, marks: dict, base_dir: Path | None, notes: list | None = None):
+        self.source, self.marks, self.base_dir, self.notes = source, marks, base_dir, notes
+
+    def at(self, path: str, at_key: bool = False) -> str:
+        mark = (self.marks.get("@" + path) if at_key else None) or self.marks.get(path)
+        return f"{self.source}:{mark[0]}:{mark[1]}" if mark else self.source
 
     def fail(self, path: str, problem: str, *, at_key: bool = False):
-        mark = (self.marks.get("@" + path) if at_key else None) or self.marks.get(path)
-        at = f"{self.source}:{mark[0]}:{mark[1]}" if mark else self.source
-        raise SceneError(f"{at}: {_where(path)}: {problem}")
+        raise SceneError(f"{self.at(path, at_key)}: {_where(path)}: {problem}")
 
 
 def validate(spec: dict, data, *, source: str = "<scene>", marks: dict | None = None,
-             base_dir: Path | None = None) -> dict:
-    """Validate `data` against the top-level fields `spec`; return the filled-in dict."""
-    return _section(spec, data, "", _Ctx(source, marks or {}, base_dir))
+             base_dir: Path | None = None, notes: list | None = None) -> dict:
+    """Validate `data` against the top-level fields `spec`; return the filled-in dict. The `warn`
+    lines of legal but implausible values go to `notes` when given (shown once every check passed:
+    a scene with an error prints that one line), else to warnings.warn."""
+    return _section(spec, data, "", _Ctx(source, marks or {}, base_dir, notes))
 
 
-def _section(fields: dict, data, path: str, ctx: _Ctx, skip: tuple = ()) -> dict:
+def _section(fields: dict, data, path: str, ctx: _Ctx, skip: tuple = (), sparse: bool = False) -> dict:
     if data is None:
         data = {}
     if not isinstance(data, dict):
@@ -88,14 +117,18 @@ def _section(fields: dict, data, path: str, ctx: _Ctx, skip: tuple = ()) -> dict
     for key in data:
         if not isinstance(key, str):
             ctx.fail(path, f"keys must be strings, got {_describe(key)}")
-        if key not in fields and key not in skip:
+        if key not in fields and key not in skip and not sparse:
             near = difflib.get_close_matches(key, list(fields), n=1, cutoff=0.5)
             hint = f"; did you mean {near[0]!r}?" if near else f"; valid keys: {', '.join(fields)}"
             ctx.fail(_join(path, key), f"unknown key {key!r}{hint}", at_key=True)
+    if sparse:
+        out.update((k, v) for k, v in data.items() if k not in fields)
     for key, f in fields.items():
         sub = _join(path, key)
         if key in data:
             out[key] = _value(f, data[key], sub, ctx)
+        elif sparse:
+            continue
         elif f.default is REQUIRED:
             ctx.fail(sub, f"missing required key ({f.doc or f.kind})")
         else:
@@ -109,7 +142,14 @@ def _join(path: str, key: str) -> str:
 
 def _number(f: Field, v, path: str, ctx: _Ctx, kind: str):
     if isinstance(v, bool) or not isinstance(v, (int, float)):
-        ctx.fail(path, f"expected {'an integer' if kind == 'int' else 'a number'}, got {_describe(v)}")
+        hint = ""
+        if isinstance(v, str):
+            try:
+                float(v)   # YAML 1.1 reads 1e4 (no '.', no exponent sign) as text
+                hint = f" (YAML reads it as text: write it as {float(v):.1e})"
+            except ValueError:
+                pass
+        ctx.fail(path, f"expected {'an integer' if kind == 'int' else 'a number'}, got {_describe(v)}{hint}")
     if kind == "int" and not float(v).is_integer():
         ctx.fail(path, f"expected an integer, got {_describe(v)}")
     if not math.isfinite(v):
@@ -152,7 +192,7 @@ def _value(f: Field, v, path: str, ctx: _Ctx):
         item = f.item or Field("float")
         out = [_number(item, x, f"{path}[{i}]", ctx, item.kind) for i, x in enumerate(v)]
     elif k == "section":
-        out = _section(f.fields, v, path, ctx)
+        out = _section(f.fields, v, path, ctx, sparse=f.sparse)
     elif k == "list":
         if not isinstance(v, list):
             ctx.fail(path, f"expected a list, got {_describe(v)}")
@@ -179,6 +219,17 @@ def _value(f: Field, v, path: str, ctx: _Ctx):
         raise AssertionError(f"unknown field kind {k!r}")
     if f.check is not None:
         problem = f.check(out)
+        if isinstance(problem, tuple):
+            ctx.fail(_join(path, problem[0]), problem[1])
         if problem:
             ctx.fail(path, problem)
+    if f.warn is not None:
+        note = f.warn(out)
+        if note:
+            line = f"{ctx.at(path)}: {_where(path)}: {note}"
+            if ctx.notes is not None:
+                ctx.notes.append(line)
+            else:
+                import warnings
+                warnings.warn(line, stacklevel=2)
     return out

@@ -184,9 +184,9 @@ def _tab_views(bp: dict, tab: str | None) -> tuple[str | None, list[str], str | 
 def snapshot(rrd: Path, frames: list[int], out: Path, *, tab: str | None = None, timeline: str = "frame",
              echo=print) -> list[Path]:
     """Write the PNGs (see the module docstring); returns their paths."""
+    from stages.input_files import check_regular_file
     rrd = Path(rrd).resolve()
-    if not rrd.is_file():
-        raise SnapshotError(f"{rrd}: no such recording")
+    check_regular_file(rrd, "recording", SnapshotError)   # a FIFO or device would hang the viewer
     viewer = Viewer()   # checks the binary and Vulkan before anything is written
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
@@ -249,4 +249,9 @@ def main(args) -> int:
     except KeyboardInterrupt:
         print("\ninterrupted: the viewer was stopped", file=sys.stderr)
         return 130
+    except (TimeoutError, ConnectionError, OSError) as err:   # the viewer stopped answering (it was stopped)
+        print(f"error: {args.recording}: the Rerun viewer failed: {type(err).__name__}: "
+              f"{' '.join(str(err).split())[:300]} (it was stopped; try again on a less loaded machine)",
+              file=sys.stderr)
+        return EXIT_MISSING
     return 0

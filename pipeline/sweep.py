@@ -48,7 +48,7 @@ from pathlib import Path
 
 from pipeline.sweep_file import Sweep, SweepError, load_sweep, validate_jobs
 from pipeline.sweep_job import (COLUMNS, FLOAT_COLUMNS, INT_COLUMNS, TIMING_COLUMNS, _one_line, crash_row, run_job,
-                                timeout_row, warm_up)
+                                timeout_row, warm_up, warm_up_timeout_row)
 
 # ------------------------------------------------------------------ the table
 
@@ -278,6 +278,9 @@ def run_pool(specs: list[dict], workers: int, warm_spec: dict | None, on_row, on
             now = time.perf_counter()
             deadlines = [w["t0"] + w["spec"]["timeout"] + _grace(w["spec"]["timeout"])
                          for w in live if w["spec"] is not None and w["spec"].get("timeout")]
+            if pending and pending[0].get("timeout"):   # workers still warming up: bounded by the same timeout
+                deadlines += [w["started"] + pending[0]["timeout"] + _grace(pending[0]["timeout"])
+                              for w in live if not w["ready"]]
             wait_s = max(0.0, min(deadlines) - now) if deadlines else None
             ready = wait([w["conn"] for w in live] + [w["proc"].sentinel for w in live], timeout=wait_s)
             for w in list(live):
@@ -321,6 +324,12 @@ def run_pool(specs: list[dict], workers: int, warm_spec: dict | None, on_row, on
                 if s is not None and s.get("timeout") and now > w["t0"] + s["timeout"] + _grace(s["timeout"]):
                     stop(w)
                     on_row(timeout_row(s, now - w["t0"], "the worker was killed"))
+                    if pending:
+                        start()
+                elif (not w["ready"] and pending and pending[0].get("timeout")
+                      and now > w["started"] + pending[0]["timeout"] + _grace(pending[0]["timeout"])):
+                    stop(w)   # a warm-up past the timeout: the job it was to run is the one timed out
+                    on_row(warm_up_timeout_row(pending.pop(0), now - w["started"]))
                     if pending:
                         start()
             if stagger and not live and pending:   # the compiling worker died

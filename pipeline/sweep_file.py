@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
+import math
 import os
 import re
 from dataclasses import dataclass, field
@@ -70,7 +71,8 @@ SWEEP_SPEC = {
 }
 
 _KEY_PART = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[\d+\])*)")
-SWEEP_SET = ("output", "output.path", "output.export_dir")   # the sweep places every job's files
+SWEEP_SET = ("output", "output.path", "output.export_dir")
+MAX_JOBS = 10_000   # jobs a sweep file may expand to: each is a run and a table row   # the sweep places every job's files
 
 
 def parse_key(key: str) -> list:
@@ -173,7 +175,8 @@ def load_sweep(path: str | os.PathLike, output: str | os.PathLike | None = None)
     """Read a sweep file and expand it into jobs; every problem is a SweepError (one line, file, key,
     value, what was expected). Does not validate the jobs' scenes (`validate_jobs`)."""
     from pipeline.scene import _UniqueKeyLoader
-    from pipeline.safe_yaml import load_checked, read_text_file
+    from stages.input_files import read_text_file
+    from stages.safe_yaml import load_checked
     p = Path(path)
     text = read_text_file(p, "sweep file", SweepError)   # stat first: a FIFO or device is refused unopened
     try:
@@ -203,8 +206,10 @@ def load_sweep(path: str | os.PathLike, output: str | os.PathLike | None = None)
         from pipeline.schema import expand_path_vars
         bp = Path(expand_path_vars(base)).expanduser()
         bp = bp if bp.is_absolute() else p.resolve().parent / bp
-        if not bp.is_file():
-            raise SweepError(f"{_at(p, marks, 'base')}: base: scene file not found: {bp}")
+        from stages.input_files import file_problem
+        problem = file_problem(bp, "scene file")   # stat only: a FIFO is never opened
+        if problem:
+            raise SweepError(f"{_at(p, marks, 'base')}: base: {problem}: {bp}")
         from pipeline.scene import load_scene
         load_scene(bp)   # the base alone must be a valid scene (its own file, line and column)
         base_data = yaml.safe_load(bp.read_text(encoding="utf-8"))
@@ -232,6 +237,11 @@ def load_sweep(path: str | os.PathLike, output: str | os.PathLike | None = None)
                                  f"expected each key in the grid or in the cases, not both")
         cases.append((label, items, i))
 
+    total = max(len(cases), 1) * math.prod(len(vals) for _, vals in axes)
+    if total > MAX_JOBS:   # counted before any job is made: a grid of 10^10 would fill the memory first
+        sizes = " x ".join([str(len(cases))] * bool(cases) + [str(len(vals)) for _, vals in axes])
+        raise SweepError(f"{_at(p, marks, 'grid')}: grid: {sizes} = {total:,} jobs, more than {MAX_JOBS:,}; "
+                         f"expected a smaller grid (or several sweeps)")
     keys = (["case"] if cases else []) + [k for k, _ in axes]   # the table's columns of the job's labels
     jobs, seen = [], {}
     for case in (cases or [None]):
@@ -318,7 +328,7 @@ def job_scene(text: str, source: str, base_dir: str | Path):
     from pipeline.scene import Scene, scene_from_data
     data = yaml.safe_load(text)
     sc = scene_from_data(data, text=text, source=source, base_dir=Path(base_dir), default_name="sweep")
-    return Scene(path=Path(source), name=sc.name, text=text, settings=sc.settings, export=sc.export)
+    return Scene(path=Path(source), name=sc.name, text=text, settings=sc.settings, export=sc.export, notes=sc.notes)
 
 
 def _blame(job: Job, message: str) -> SweepError:
@@ -341,13 +351,18 @@ def validate_jobs(sw: Sweep, echo=None) -> None:
     character (loaded once per distinct character): clip and joint names, the joints each pattern
     garment anchors on. (Sizing, placing and sewing are left to the jobs: they need the colliders.)"""
     from pipeline import export
-    from pipeline.run import check_references, load_character, preflight
+    from pipeline.preflight import check_references, preflight
+    from pipeline.run import load_character
     from pipeline.dressing import check_pattern
     from stages.errors import InputError
+    import warnings
     characters: dict = {}
+    noted: dict = {}   # a warning the jobs' scenes share: once, with the jobs it applies to
     for job in sw.jobs:
         try:
             scene = job_scene(job.text, job.source, sw.base_dir)
+            for text in scene.notes:
+                noted.setdefault(text.split(": ", 1)[-1] if text.startswith(job.source) else text, []).append(job.id)
             for i, g in enumerate(scene["garments"]):
                 if g["type"] == "pattern":
                     check_pattern(scene, i)
@@ -369,6 +384,10 @@ def validate_jobs(sw: Sweep, echo=None) -> None:
             raise _blame(job, str(e)) from None
         except InputError as e:
             raise _blame(job, f"{job.source}: {e}") from None
+    for text, ids in noted.items():
+        jobs = "every job" if len(ids) == len(sw.jobs) else f"jobs {', '.join(ids[:4])}" + (
+            f" (+{len(ids) - 4} more)" if len(ids) > 4 else "")
+        warnings.warn(f"{sw.path}: {text} ({jobs})", stacklevel=2)
 
 
 def _check_anchors(scene, character) -> None:

@@ -159,17 +159,11 @@ def _partial_geometry(state: dict, err: BaseException, job_dir: Path, formats: l
                 if garments else "the body only (no garment was built)")
         if not garments:
             f = len(motion.times)
-    for m in meshes:   # UVs of pattern garments (as export.from_run)
-        if m.name in builds:
-            try:
-                from stages.garments.sewing import merge_pairs
-                build = builds[m.name][1]
-                uv, uvf = export.pattern_uv(build)
-                remap = merge_pairs(uv.shape[0], np.asarray(build.seam_pairs))
-                if uvf.shape == m.faces.shape and np.array_equal(remap[uvf], m.faces):
-                    m.uv, m.uv_faces = uv, uvf
-            except Exception:
-                pass
+    for m in meshes:   # UVs as export.from_run gives them
+        try:
+            m.uv, m.uv_faces = export.garment_uv(m.name, m.faces, builds)
+        except Exception:   # a failed job's garment as it was left: exported without UVs
+            pass
     body = (np.asarray(skinned[:f]) + motion.root_translation[:f, None, :]).astype(np.float32)
     meshes.append(export.AnimatedMesh("body", "body", body, np.asarray(character.triangles, np.int32)))
     times = np.asarray(motion.times[:f], np.float64)
@@ -351,6 +345,15 @@ def timeout_row(spec: dict, seconds: float, how: str) -> dict:
     """The row of a job whose worker was killed (no answer after the timeout and its grace)."""
     return _lost_worker_row(spec, seconds, "timeout", f"timeout: {how} after {seconds:.0f} s (the job ran longer than "
                             f"{spec['timeout']:g} s and did not stop at the deadline: stuck in one long kernel call)")
+
+
+def warm_up_timeout_row(spec: dict, seconds: float) -> dict:
+    """The row of the job a worker was to start with when its warm-up (loading or compiling the numba
+    kernels) outlasted the job timeout: the timeout bounds the job's whole wait, warm-up included."""
+    return _lost_worker_row(spec, seconds, "timeout", f"timeout: the worker's warm-up (loading or compiling the "
+                            f"numba kernels) took more than the job timeout of {spec['timeout']:g} s; the worker "
+                            f"was killed after {seconds:.0f} s (raise 'timeout', or run one job first to fill the "
+                            f"kernel cache)")
 
 
 def crash_row(spec: dict, seconds: float, what: str) -> dict:

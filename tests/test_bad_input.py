@@ -50,6 +50,8 @@ NON_MANIFOLD = ("m.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nf 1 2 3
 def _write_mesh(folder: Path, name: str, data) -> None:
     if data is None:
         (folder / name).mkdir()
+    elif data == "fifo":   # a named pipe: opened, it blocks the reader until a writer comes
+        os.mkfifo(folder / name)
     elif data != "missing":
         (folder / name).write_bytes(data)
 
@@ -115,6 +117,51 @@ CASES.update({
         FAST.replace("out.rrd", "/proc/no_such_dir/out.rrd"), {}, ["output", "/proc/no_such_dir", "cannot create"], RUN_ONLY),
     "output: a location that is not writable": (
         FAST.replace("out.rrd", "/proc/out.rrd"), {}, ["output", "/proc", "cannot write"], RUN_ONLY),
+})
+
+SKIRT = "garments:\n  - {{type: pattern, name: skirt, kind: {kind}, options: {{{options}}}}}\n"
+CASES.update({   # issue 42: files that are not files, values out of physical range
+    "garment mesh: a FIFO": (FAST + "garments:\n  - {type: mesh, name: shirt, path: p.obj}\n", {"p.obj": "fifo"},
+                             ["garments[0].path", "'shirt'", "p.obj", "FIFO"], BOTH),
+    "obstacle mesh: a FIFO": (FAST + "obstacles:\n  - {type: mesh, name: rock, path: p.stl}\n", {"p.stl": "fifo"},
+                              ["obstacles[0].path", "p.stl", "FIFO"], BOTH),
+    "garment mesh: /dev/zero": (FAST + "garments:\n  - {type: mesh, name: shirt, path: /dev/zero}\n", {},
+                                ["garments[0].path", "/dev/zero", "character device"], BOTH),
+    "character: a FIFO glb": ("character: {source: gltf, path: c.glb}\noutput: out.rrd\n", {"c.glb": "fifo"},
+                              ["character.path", "c.glb", "FIFO"], BOTH),
+    "character: /dev/zero as a bvh": ("character: {source: bvh, path: /dev/zero}\noutput: out.rrd\n", {},
+                                      ["character.path", "/dev/zero", "character device"], BOTH),
+    "output: a character device": (FAST.replace("out.rrd", "/dev/null"), {},
+                                   ["output", "/dev/null", "character device"], BOTH),
+    "output: a FIFO": (FAST.replace("out.rrd", "p.rrd"), {"p.rrd": "fifo"}, ["output", "p.rrd", "FIFO"], BOTH),
+    "output.export_dir: a file": (
+        FAST.replace("output: out.rrd", "output: {path: out.rrd, export: [npz], export_dir: exp}")
+        + "garments:\n  - {type: rectangle, name: flag}\n", {"exp": b"x"}, ["output.export_dir", "exp", "is a file"],
+        BOTH),
+    "option: negative ease": (FAST + SKIRT.format(kind="short_skirt", options="ease: -0.1"), {},
+                              ["garments[0].options.ease", "-0.1", ">= 0.0"], BOTH),
+    "option: ease 50": (FAST + SKIRT.format(kind="short_skirt", options="ease: 50"), {},
+                        ["garments[0].options.ease", "50.0", "<= 0.5"], BOTH),
+    "option: negative length": (FAST + SKIRT.format(kind="long_skirt", options="length: -0.3"), {},
+                                ["garments[0].options.length", "-0.3", "> 0.0"], BOTH),
+    "option: infinite length": (FAST + SKIRT.format(kind="cape", options="length: .inf"), {},
+                                ["garments[0].options.length", "finite"], BOTH),
+    "option: of another kind": (FAST + SKIRT.format(kind="tshirt", options="flare: 1.5"), {},
+                                ["garments[0].options.flare", "kind 'tshirt'", "sleeve_length"], BOTH),
+    "plane: zero normal": (FAST + "obstacles:\n  - {type: plane, name: floor, normal: [0, 0, 0]}\n", {},
+                           ["obstacles[0].normal", "non-zero"], BOTH),
+    "box: negative size": (FAST + "obstacles:\n  - {type: box, name: b, size: [1, -1, 1]}\n", {},
+                           ["obstacles[0].size[1]", "-1.0", "> 0.0"], BOTH),
+    "colliders.delta: 0": (FAST + "colliders: {delta: 0}\n", {}, ["colliders.delta", "0.0", "> 0.0"], BOTH),
+    "tube: 4 million particles": (FAST + "garments:\n  - {type: tube, name: t, n_around: 2000, n_down: 2000}\n", {},
+                                  ["garments[0]", "4,000,000 particles", "100,000"], BOTH),
+    "blend_in at a tiny dt": (FAST.replace("{count: 2}", "{count: 2, blend_in: 20}") + "simulation: {dt: 0.0001}\n", {},
+                              ["frames.blend_in", "200,000 blend-in frames", "100,000"], BOTH),
+    "dt below its range": (FAST + "simulation: {dt: 1.0e-9}\n", {}, ["simulation.dt", ">= 0.0001"], BOTH),
+    "gravity 1e4": (FAST + "simulation: {gravity: [0, -1.0e+4, 0]}\n", {},
+                    ["simulation.gravity[1]", "-10000.0", ">= -1000.0"], BOTH),
+    "a number YAML reads as text": (FAST + "simulation: {gravity: [0, -1e4, 0]}\n", {},
+                                    ["simulation.gravity[1]", "'-1e4'", "write it as -1.0e+04"], BOTH),
 })
 
 

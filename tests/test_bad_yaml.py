@@ -112,3 +112,25 @@ def test_an_oversize_scene_is_refused(tmp_path, capsys):
 def test_a_folder_as_scene(tmp_path, capsys):
     assert main(["validate", str(tmp_path)]) == 2
     _one_line(capsys.readouterr().err, str(tmp_path), "is a folder")
+
+
+def test_merge_keys_work_with_the_mappings_own_keys_overriding(tmp_path):
+    from pipeline.scene import load_scene
+    from pipeline.schema import SceneError
+    scene = tmp_path / "merge.yaml"
+    scene.write_text("character: {clip: rest}\ngarments:\n  - &base {type: rectangle, name: a, width: 0.7}\n"
+                     "  - <<: *base\n    name: b\n  - {<<: [*base], name: c, width: 0.5}\n")
+    got = [(g["name"], g["width"], g["type"]) for g in load_scene(scene)["garments"]]
+    assert got == [("a", 0.7, "rectangle"), ("b", 0.7, "rectangle"), ("c", 0.5, "rectangle")]
+    scene.write_text("garments:\n  - &base {type: rectangle, name: a}\n  - {<<: *base, name: b, name: c}\n")
+    with pytest.raises(SceneError, match="merge.yaml:3:.*duplicate key 'name'"):
+        load_scene(scene)
+    scene.write_text("garments:\n  - {<<: 3, name: b}\n")
+    with pytest.raises(SceneError, match="merge.yaml:2:.*merging"):
+        load_scene(scene)
+    # a merge bomb: ten merges of ten merges ... is counted as its expansion
+    bomb = "a: &a {k0: 0}\n" + "".join(f"{c}: &{c} {{<<: [{', '.join(['*' + p] * 10)}], x{c}: 1}}\n"
+                                       for p, c in zip("abcdefg", "bcdefgh"))
+    scene.write_text(bomb)
+    with pytest.raises(SceneError, match="expands to more than 200,000 values"):
+        load_scene(scene)

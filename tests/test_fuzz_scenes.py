@@ -1,5 +1,6 @@
-"""Fuzzing the scene checks: hypothesis mutates a valid scene (types, ranges, keys, paths, raw text)
-and corrupts the bytes of the mesh files it names; `validate` must then either accept it or give
+"""Fuzzing the scene checks: hypothesis mutates a valid scene (types, ranges, keys, paths, raw text;
+numbers far out of physical range, pattern options of every kind, YAML anchors, merges and complex
+keys) and corrupts the bytes of the mesh files it names or makes them a FIFO, a device or a folder; `validate` must then either accept it or give
 exit 2 with one line naming the scene file, never a traceback nor the last-resort exit 1.
 
 The character is not built: `load_character` is replaced by a stand-in that stops the command
@@ -89,8 +90,19 @@ def _delete(tree, path):
     del node[path[-1]]
 
 
+NUMBER_PATHS = [p for p in PATHS if isinstance(_leaf := functools.reduce(lambda n, k: n[k], p, BASE), (int, float))
+                and not isinstance(_leaf, bool)]
+numbers = (st.sampled_from([0, -0.0, -1, 1e-300, -1e-9, 1e300, -1e300, 2**63, 1e4, 50, 0.5])
+           | st.floats(-1e12, 1e12) | st.integers(-2**70, 2**70))
+from pipeline.scene import PATTERN_OPTIONS  # noqa: E402
+
 mutation = st.one_of(
     st.tuples(st.just("set"), st.sampled_from(PATHS), values),
+    st.tuples(st.just("set"), st.sampled_from(NUMBER_PATHS), numbers),
+    st.tuples(st.just("set"), st.just(("garments", 3, "kind")),
+              st.sampled_from(["tshirt", "short_skirt", "long_skirt", "shorts", "trousers", "cape", "square"])),
+    st.tuples(st.just("add key"), st.just(("garments", 3, "options")),
+              st.tuples(st.sampled_from(sorted(PATTERN_OPTIONS)), numbers | values)),
     st.tuples(st.just("delete"), st.sampled_from(PATHS), st.none()),
     st.tuples(st.just("add key"), st.sampled_from([p for p in PATHS if isinstance(p[-1], str)] + [("x",)]),
               st.tuples(st.text(min_size=1, max_size=10), values)),
@@ -113,12 +125,28 @@ def _corrupt(data: bytes, how, rnd: np.random.Generator) -> bytes:
 
 corruption = st.one_of(st.none(), st.tuples(st.sampled_from(["truncate", "flip", "garbage"]),
                                             st.floats(0.0, 1.0)))
+NOT_A_FILE = ("fifo", "device", "folder")   # in place of a mesh file: opened, a FIFO blocks, /dev/zero never ends
 
 
-def _run(tmp_path, capsys, monkeypatch, text: str, sheet: bytes, rock: bytes):
+def _place(path, data) -> None:
+    if path.is_dir() and not path.is_symlink():   # hypothesis reuses the folder between examples
+        path.rmdir()
+    elif path.is_symlink() or path.exists():
+        path.unlink()
+    if data == "fifo":
+        os.mkfifo(path)
+    elif data == "device":
+        os.symlink("/dev/zero", path)
+    elif data == "folder":
+        path.mkdir()
+    else:
+        path.write_bytes(data)
+
+
+def _run(tmp_path, capsys, monkeypatch, text: str, sheet, rock):
     (tmp_path / "scene.yaml").write_text(text, encoding="utf-8", errors="surrogatepass")
-    (tmp_path / "sheet.obj").write_bytes(sheet)
-    (tmp_path / "rock.obj").write_bytes(rock)
+    _place(tmp_path / "sheet.obj", sheet)
+    _place(tmp_path / "rock.obj", rock)
     before = sorted(p.name for p in tmp_path.rglob("*"))
     scene = str(tmp_path / "scene.yaml")
     try:
@@ -145,8 +173,8 @@ def stand_in(monkeypatch):
 
 
 @settings(max_examples=EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(mutations=st.lists(mutation, min_size=1, max_size=3), sheet=corruption, rock=corruption,
-       seed=st.integers(0, 2**32 - 1))
+@given(mutations=st.lists(mutation, min_size=1, max_size=3), sheet=corruption | st.sampled_from(NOT_A_FILE),
+       rock=corruption | st.sampled_from(NOT_A_FILE), seed=st.integers(0, 2**32 - 1))
 def test_mutated_scenes_and_corrupt_meshes_are_accepted_or_one_line(tmp_path, capsys, monkeypatch, stand_in,
                                                                     mutations, sheet, rock, seed):
     tree = copy.deepcopy(BASE)
@@ -167,14 +195,17 @@ def test_mutated_scenes_and_corrupt_meshes_are_accepted_or_one_line(tmp_path, ca
     monkeypatch.chdir(tmp_path)
     rnd = np.random.default_rng(seed)
     _run(tmp_path, capsys, monkeypatch, yaml.safe_dump(tree, allow_unicode=True),
-         _corrupt(SHEET_OBJ, sheet, rnd) if sheet else SHEET_OBJ,
-         _corrupt(SHEET_OBJ, rock, rnd) if rock else SHEET_OBJ)
+         *(f if f in NOT_A_FILE else _corrupt(SHEET_OBJ, f, rnd) if f else SHEET_OBJ for f in (sheet, rock)))
 
 
 @settings(max_examples=max(EXAMPLES // 2, 1), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(cut=st.integers(0, 10**6), insert=st.text(max_size=8), drop=st.integers(0, 6))
+@given(cut=st.integers(0, 10**6), drop=st.integers(0, 6),
+       insert=st.text(max_size=8) | st.sampled_from(["&a ", "*a", "&a [x, x]\n", "<<: *a\n", "{<<: *a}", "? [a]\n: b\n",
+                                                     "? {a: 1}\n", "!!python/object:os.system ", "[[[[[[[[", "{{{{{{",
+                                                     "*undefined", "!!binary ", "1e4", ".inf", "-.nan"]))
 def test_mangled_scene_text_is_accepted_or_one_line(tmp_path, capsys, monkeypatch, stand_in, cut, insert, drop):
-    """Raw text edits: characters inserted or removed anywhere (indentation, quotes, colons)."""
+    """Raw text edits: characters inserted or removed anywhere (indentation, quotes, colons), YAML
+    anchors, aliases, merges, complex keys and tags."""
     text = yaml.safe_dump(BASE)
     i = cut % (len(text) + 1)
     text = text[:i] + insert + text[i + drop:]

@@ -246,7 +246,8 @@ def test_measure_round_trips_through_a_garmentcode_body_file(tmp_path):
 
 def test_a_bad_pattern_file_stops_the_run_before_the_colliders(tmp_path):
     # read with the scene's other references, right after the rig (it was found at the garments stage)
-    from pipeline.run import check_references, load_character
+    from pipeline.preflight import check_references
+    from pipeline.run import load_character
     from pipeline.scene import load_scene
     from pipeline.schema import SceneError
     (tmp_path / "x_specification.json").write_text('{"pattern": {"panels": {}}}')

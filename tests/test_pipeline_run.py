@@ -268,8 +268,9 @@ def test_swept_hulls_run_hold_the_cloth_and_are_logged(tmp_path):
 def test_the_speed_limit_comes_from_the_clip_and_is_reported_where_it_acted():
     from types import SimpleNamespace
 
+    from pipeline.cloth_checks import speed_limit_note
     from pipeline.run import sim_params
-    from pipeline.scene_motion import motion_speed_limit, speed_limit_note
+    from pipeline.scene_motion import motion_speed_limit
     scene = parse_scene_text("name: s\ncharacter: {source: procedural}\n")
     times = np.arange(4) / 30.0
     skinned = np.zeros((4, 2, 3))

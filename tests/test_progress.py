@@ -79,6 +79,23 @@ def test_compile_note_until_the_cache_index_exists(tmp_path, monkeypatch):
         kernel_cache.kernel_modules.cache_clear()
 
 
+def test_a_stage_that_ran_to_the_end_is_not_compiling_again(tmp_path, monkeypatch):
+    """A module whose kernels the scene never calls keeps no numba index (cloth contact's CCD on a slow
+    clip): once the stage ran to the end, the note stops, until a kernel module is edited."""
+    pkg = _fake_stages(tmp_path, monkeypatch)
+    try:
+        assert kernel_cache.compile_note("simulation") is not None
+        kernel_cache.mark_ran("simulation")
+        assert kernel_cache.uncompiled("simulation") == (0, 1)
+        assert kernel_cache.compile_note("simulation") is None
+        assert kernel_cache.compile_note("garments") is not None      # stamps are per stage
+        stamp = kernel_cache._stamp("simulation").stat().st_mtime
+        os.utime(pkg / "kern.py", (stamp + 10, stamp + 10))             # edited after the run
+        assert kernel_cache.uncompiled("simulation") == (1, 1)
+    finally:
+        kernel_cache.kernel_modules.cache_clear()
+
+
 def test_compile_note_follows_numba_cache_dir(tmp_path, monkeypatch):
     pkg = _fake_stages(tmp_path, monkeypatch)
     try:

@@ -283,7 +283,7 @@ def test_malformed_file_raises_one_input_error(tmp_path, case):
 
 
 def test_missing_file_is_an_input_error(tmp_path):
-    with pytest.raises(InputError, match="cannot read"):
+    with pytest.raises(InputError, match="BVH file not found"):
         parse_bvh(tmp_path / "nope.bvh")
 
 

@@ -66,9 +66,9 @@ def test_the_joint_under_the_most_strained_edges_is_named():
 
 
 def test_the_run_names_the_joint_holding_the_strain(monkeypatch):
-    """pipeline.run.strain_source_notes on a small simulated sheet landing on joint 1's ball (the
+    """pipeline.cloth_checks.strain_source_notes on a small simulated sheet landing on joint 1's ball (the
     limit lowered so that its strain counts): one line naming 'hand'."""
-    import pipeline.run as run
+    import pipeline.cloth_checks as cloth_checks
     import stages.sim.audit as audit_module
     from stages.garments.simple import rectangle_cloth
     from stages.garments.types import build_garment
@@ -86,7 +86,7 @@ def test_the_run_names_the_joint_holding_the_strain(monkeypatch):
     result = simulate(ch, motion, cs, None, [g], SimParams(body_audit=False))
     audit = audit_cloth(result, [g])
     assert audit.garments[0].strain_p99.max() < audit_module.STRAIN_P99_LIMIT
-    assert run.strain_source_notes(audit, [g], result, cs, ch, motion) == ()    # under the limit: nothing
+    assert cloth_checks.strain_source_notes(audit, [g], result, cs, ch, motion) == ()    # under the limit: nothing
     monkeypatch.setattr(audit_module, "STRAIN_P99_LIMIT", 0.0)
-    notes = run.strain_source_notes(audit, [g], result, cs, ch, motion)
+    notes = cloth_checks.strain_source_notes(audit, [g], result, cs, ch, motion)
     assert len(notes) == 1 and "garment 'sheet'" in notes[0] and "the colliders of hand 100 %" in notes[0]

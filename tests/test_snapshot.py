@@ -98,8 +98,27 @@ def test_no_vulkan_driver_is_one_error_line_and_exit_2(tmp_path):
 
 def test_missing_recording_is_one_error_line(tmp_path):
     r = run_cli("snapshot", str(tmp_path / "nothing.rrd"), "-o", str(tmp_path / "o"))
-    assert r.returncode == 2 and r.stderr.startswith("error: ") and "no such recording" in r.stderr
+    assert r.returncode == 2 and r.stderr.startswith("error: ") and "recording not found" in r.stderr
     assert r.stderr.strip().count("\n") == 0
+
+
+def test_a_fifo_recording_and_a_viewer_timeout_are_one_error_line(tmp_path, monkeypatch, capsys):
+    from pipeline import snapshot
+    from pipeline.cli import main
+    fifo = tmp_path / "pipe.rrd"
+    os.mkfifo(fifo)
+    assert main(["snapshot", str(fifo), "-o", str(tmp_path / "o")]) == 2   # stat-checked: never opened
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "FIFO" in err, err
+
+    def times_out(*a, **k):
+        raise TimeoutError("the viewer did not answer")
+    rrd = tmp_path / "r.rrd"
+    rrd.write_bytes(b"x")
+    monkeypatch.setattr(snapshot, "snapshot", times_out)
+    assert main(["snapshot", str(rrd)]) == 2   # was AttributeError: 'Namespace' object has no attribute 'debug'
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "TimeoutError" in err and "Traceback" not in err, err
 
 
 def test_the_viewer_is_stopped_when_the_snapshot_fails(tmp_path):

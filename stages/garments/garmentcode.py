@@ -174,7 +174,11 @@ def _vec(x, n: int, where: str, src: str) -> np.ndarray:
 def read_pattern(path) -> GCPattern:
     """Read a GarmentCode `*_specification.json`. Every problem is an InputError naming the file
     and the JSON path of the bad value."""
+    from stages.input_files import MAX_TEXT_BYTES, file_problem
     src = str(path)
+    problem = file_problem(Path(path), "GarmentCode pattern file", 4 * MAX_TEXT_BYTES)
+    if problem:
+        raise InputError(src, problem)
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:

@@ -53,10 +53,17 @@ class GCBody:
 
 def read_body(path) -> GCBody:
     """A GarmentCode body_measurements.yaml (top key `body`); errors name the file and the key."""
+    from stages.input_files import read_text_file
+    from stages.safe_yaml import load_checked
     src = str(path)
-    try:
-        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as e:
+
+    def fail(message: str) -> InputError:   # the checks' line names the file (and line, column) already
+        err = InputError(src, message)
+        err.args = (message,)
+        return err
+    try:   # a regular file of bounded size, YAML that cannot expand or nest without bound
+        data, _ = load_checked(read_text_file(Path(path), "body measurements file", fail), src, fail)
+    except yaml.YAMLError as e:
         raise InputError(src, f"cannot read the body measurements ({e.__class__.__name__}: {e})") from None
     body = data.get("body") if isinstance(data, dict) else None
     if not isinstance(body, dict):

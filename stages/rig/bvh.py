@@ -325,10 +325,8 @@ def parse_bvh(path, *, scale: float = 1.0) -> BvhData:
     src = str(path)
     if not (np.isfinite(scale) and scale > 0):
         raise InputError(src, f"scale must be a positive number, got {scale}")
-    try:
-        text = Path(path).read_text(encoding="utf-8-sig", errors="replace")
-    except OSError as e:
-        raise InputError(src, f"cannot read file ({e.strerror or e})") from None
+    from stages.input_files import read_bytes
+    text = read_bytes(Path(path), "BVH file").decode("utf-8-sig", errors="replace")   # a FIFO: refused unopened
     lines = text.splitlines()
     if not text.strip():
         raise InputError(src, "empty file")

@@ -60,10 +60,8 @@ def _parse_glb(path: Path, data: bytes) -> tuple[str, bytes | None]:
 def load_document(path: Path):
     import pygltflib
 
-    try:
-        data = path.read_bytes()
-    except OSError as e:
-        raise InputError(path, f"cannot read file: {e.strerror or e}") from None
+    from stages.input_files import read_bytes
+    data = read_bytes(path, "glTF file")   # a FIFO or device is refused unopened
     if data[:4] == b"glTF":
         json_text, bin_chunk = _parse_glb(path, data)
     else:
@@ -133,9 +131,14 @@ class Reader:
             except ValueError:
                 self.fail(f"buffer {i}: corrupt base64 data URI")
         else:
+            from stages.input_files import MAX_ASSET_BYTES, file_problem
             file = self.path.parent / urllib.parse.unquote(uri)
+            problem = file_problem(file, "buffer file", MAX_ASSET_BYTES)
+            if problem:
+                self.fail(f"buffer {i}: external file {uri!r}: {problem}")
             try:
-                data = file.read_bytes()
+                with open(file, "rb") as f:   # no more than the buffer's length
+                    data = f.read(b.byteLength if b.byteLength is not None else -1)
             except OSError:
                 self.fail(f"buffer {i}: external file {uri!r} is missing or unreadable")
         if b.byteLength is not None and len(data) < b.byteLength:

@@ -1,55 +1,13 @@
-"""YAML for scene and sweep files that cannot hang or crash the pipeline: the file is checked to be a
-regular file of bounded size before it is read, and the composed node tree is checked before anything
-is built from it: nesting depth bounded, alias expansion bounded (a recursive alias refused), keys only
+"""YAML that cannot hang or crash the pipeline (scene and sweep files, GarmentCode body files): read
+with stages.input_files.read_text_file (a regular file of bounded size), the composed node tree is
+checked before anything is built from it: nesting depth bounded, alias expansion bounded (a recursive alias refused), keys only
 plain scalars. Every problem is one line naming the file, line and column (raised as `exc`)."""
 from __future__ import annotations
 
-import os
-import stat
-from pathlib import Path
-
 import yaml
 
-MAX_BYTES = 4 * 1024 * 1024      # a scene or sweep file is a few kB; 4 MB is far beyond any real one
 MAX_DEPTH = 64                   # the deepest real scene is ~6 levels
 MAX_NODES = 200_000              # values after alias expansion (a 1,000-job sweep file is ~10,000)
-
-
-def check_regular_file(path: Path, what: str, exc, *, max_bytes: int | None = None) -> None:
-    """Raise exc(one line) unless `path` is an existing regular file (not a folder, FIFO, device or
-    socket) of at most `max_bytes`. Uses stat, never open, so a FIFO cannot block."""
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        raise exc(f"{path}: {what} not found") from None
-    except OSError as e:
-        raise exc(f"{path}: cannot read {what} ({e.strerror or e})") from None
-    if stat.S_ISDIR(st.st_mode):
-        raise exc(f"{path}: is a folder, expected a {what}")
-    if not stat.S_ISREG(st.st_mode):
-        kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(st.st_mode) else
-                "a character device" if stat.S_ISCHR(st.st_mode) else
-                "a block device" if stat.S_ISBLK(st.st_mode) else
-                "a socket" if stat.S_ISSOCK(st.st_mode) else "not a regular file")
-        raise exc(f"{path}: is {kind}, expected a {what} (a regular file)")
-    if max_bytes is not None and st.st_size > max_bytes:
-        raise exc(f"{path}: the {what} is {st.st_size:,} bytes, more than the limit of {max_bytes:,} "
-                  f"(expected a small text file)")
-
-
-def read_text_file(path: Path, what: str, exc, *, max_bytes: int = MAX_BYTES) -> str:
-    """The text of a regular UTF-8 file of at most `max_bytes`, or exc(one line)."""
-    check_regular_file(path, what, exc, max_bytes=max_bytes)
-    try:
-        with open(path, "rb") as f:
-            raw = f.read(max_bytes + 1)
-        if len(raw) > max_bytes:
-            raise exc(f"{path}: the {what} is more than {max_bytes:,} bytes (expected a small text file)")
-        return raw.decode("utf-8")
-    except UnicodeDecodeError as e:
-        raise exc(f"{path}: cannot read {what}: not UTF-8 text (byte {e.start})") from None
-    except OSError as e:
-        raise exc(f"{path}: cannot read {what} ({e.strerror or e})") from None
 
 
 def _at(source: str, node) -> str:

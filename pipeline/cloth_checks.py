@@ -1,0 +1,98 @@
+"""What the simulated cloth says about itself: the speed limit's work (`speed_limit_note`), what holds
+its most strained edges (`strain_source_notes`), and whether it blew up (`check_blown_up`).
+
+Cloth that blew up without going fast: the simulation stops a particle faster than its speed
+limit (stages.sim), but with the limit on, a step far too long (dt: 1) stretches the cloth instead:
+17,832 % edge strain and 78 m below the floor, and the run ended 'ok'. After the simulation these
+bounds are checked per frame; past either, the run is labelled diverged exactly as a fast particle
+is (SimulationDiverged: exit 2, a sweep row 'diverged', the recording's meta/diverged).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from stages.sim import SimulationDiverged
+
+MAX_STRAIN = 5.0          # an edge 6 times its frame-0 length: cloth stretches by tens of per cent
+FAR_HEIGHTS = 5.0         # a particle this many body heights from the body's box (and at least FAR_MIN)
+FAR_MIN = 5.0             # m
+
+
+class ClothBlewUp(SimulationDiverged):
+    """SimulationDiverged by strain or distance (the message says which bound, where and by how much)."""
+
+    def __init__(self, frame: int, garment: str, particle: int, what: str, partial=None):
+        super().__init__(frame, [particle], [garment], float("nan"), partial=partial)
+        self.args = (f"simulation diverged at frame {frame}: garment {garment!r} {what}",)
+
+
+def _edges(triangles: np.ndarray) -> np.ndarray:
+    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    return np.unique(np.sort(e, axis=1), axis=0)
+
+
+def check_blown_up(result, body_world: np.ndarray, height: float) -> ClothBlewUp | None:
+    """The first frame where a garment's edge is more than MAX_STRAIN longer than at frame 0, or a
+    particle is farther than max(FAR_MIN, FAR_HEIGHTS x height) from the box of the body
+    (`body_world`: (F, V, 3) skinned vertices plus root translation) at that frame; else None."""
+    lo, hi = body_world.min(axis=1), body_world.max(axis=1)          # (F, 3) the body's box per frame
+    far = max(FAR_MIN, FAR_HEIGHTS * height)
+    worst = None
+    for track in result.garments:
+        x = np.asarray(track.positions, np.float64)                   # (F, N, 3)
+        e = _edges(np.asarray(track.triangles))
+        rest = np.linalg.norm(x[0, e[:, 0]] - x[0, e[:, 1]], axis=1)
+        ok = rest > 1e-9
+        n = min(len(x), len(lo))
+        for f in range(n):
+            length = np.linalg.norm(x[f, e[ok, 0]] - x[f, e[ok, 1]], axis=1)
+            strain = length / rest[ok] - 1.0
+            k = int(np.argmax(strain)) if strain.size else 0
+            out = np.maximum(np.maximum(lo[f] - x[f], x[f] - hi[f]), 0.0)
+            d = np.linalg.norm(out, axis=1)
+            j = int(np.argmax(d))
+            found = None
+            if strain.size and strain[k] > MAX_STRAIN:
+                found = (f, track.name, int(e[ok][k, 0]), f"has an edge stretched {strain[k] * 100:,.0f} % "
+                                                          f"(bound {MAX_STRAIN * 100:.0f} %)")
+            elif d[j] > far:
+                found = (f, track.name, j, f"particle {j} is {d[j]:.1f} m from the body (bound {far:.1f} m)")
+            if found:
+                if worst is None or found[0] < worst[0]:
+                    worst = found
+                break
+    return None if worst is None else ClothBlewUp(*worst, partial=result)
+
+
+def speed_limit_note(result) -> str | None:
+    """A warning naming the frames where the speed limit acted, or None."""
+    hit = np.flatnonzero(result.speed_limited[1:] > 0) + 1
+    if hit.size == 0:
+        return None
+    f = int(hit[np.argmax(result.speed_limited[hit])])
+    return (f"simulation: the speed limit ({result.params.speed_limit:.1f} m/s, simulation.speed_limit) capped cloth "
+            f"in {hit.size} frame(s), most at frame {f} ({int(result.speed_limited[f])} particles): cloth thrown "
+            "by a collider (a limb pressing it onto the body)")
+
+
+def strain_source_notes(audit, garments, result, colliders, character, motion) -> tuple[str, ...]:
+    """For each garment whose p99 strain goes over the limit: the joints whose colliders its most
+    strained edges touch at its worst frame (stages.sim.strain_sources), one line each."""
+    from stages.garments.types import STRETCH
+    from stages.sim.audit import STRAIN_P99_LIMIT, edge_strains
+    from stages.sim.strain_sources import TOP_SHARE, TOUCH, strain_sources
+    out = []
+    for g, track, ga in zip(garments, result.garments, audit.garments):
+        if ga.strain_p99.max(initial=0.0) <= STRAIN_P99_LIMIT:
+            continue
+        f = int(np.argmax(ga.strain_p99))
+        sel = g.kinds == STRETCH
+        x = track.positions[f].astype(np.float64) - motion.root_translation[f]     # the colliders' frame
+        strain = edge_strains(x[None], g.springs[sel], g.rest_lengths[sel])[0]
+        poses = colliders.frame_poses(character.inverse_bind, motion.joint_world[f]) if colliders is not None else None
+        shares = strain_sources(x, g.springs[sel], strain, colliders, poses)
+        if shares:
+            named = ", ".join(f"{character.joint_names[j]} {100 * s:.0f} %" for j, s in list(shares.items())[:4])
+            out.append(f"garment {g.name!r}: at frame {f} its {100 * TOP_SHARE:.0f} % most strained edges touch "
+                       f"(within {1000 * TOUCH:.0f} mm) the colliders of {named}")
+    return tuple(out)
