@@ -23,22 +23,18 @@ from pathlib import Path
 
 STAGES_DIR = Path(__file__).resolve().parent.parent / "stages"
 
-# stage (as run_scene announces it) -> the packages whose kernels it calls ('pkg/module': that
-# module only; '-pkg/module': not that one)
+# stage (as run_scene announces it) -> the packages whose kernels it calls ('pkg' or 'pkg/sub': that
+# folder's modules; 'pkg/module': that module only; '-pkg/module': not that one)
 STAGE_PACKAGES = {
     "rig": ("rig",),
     "colliders": ("hulls", "coverage"),             # skinning (rig) is compiled by the rig stage
     "collider coverage": ("coverage",),
     "obstacles": ("obstacles",),
-    # sewing runs the simulation, without the cloth audit or cloth collision
-    "garments": ("sim", "-sim/audit_kernels", "-sim/body_audit_kernels", "-sim/cloth_contact_kernels",
-                 "-sim/cloth_contact_ccd", "-sim/cloth_contact_pairs", "-sim/cloth_contact_cull",
-                 "-sim/cloth_contact_bench"),
-    "simulation": ("sim", "-sim/audit_kernels", "-sim/body_audit_kernels", "-sim/cloth_contact_kernels",
-                   "-sim/cloth_contact_ccd", "-sim/cloth_contact_pairs", "-sim/cloth_contact_cull",
-                   "-sim/cloth_contact_bench"),
-    "cloth collision": ("sim/cloth_contact_kernels", "sim/cloth_contact_ccd", "sim/cloth_contact_pairs",
-                        "sim/cloth_contact_cull"),   # only scenes that turn it on
+    # sewing runs the simulation, without the cloth audit or cloth collision (the package
+    # sim/cloth_contact: a package's entry covers its own modules, not its subpackages)
+    "garments": ("sim", "-sim/audit_kernels", "-sim/body_audit_kernels"),
+    "simulation": ("sim", "-sim/audit_kernels", "-sim/body_audit_kernels"),
+    "cloth collision": ("sim/cloth_contact", "-sim/cloth_contact/bench"),   # only scenes that turn it on
     "cloth audit": ("sim/audit_kernels",),
     "body audit": ("sim/body_audit_kernels",),
 }
@@ -75,7 +71,8 @@ def stage_modules(stage: str) -> set:
     """The modules with cached kernels that `stage` calls (STAGE_PACKAGES)."""
     mods, drop = set(), set()
     for entry in STAGE_PACKAGES.get(stage, ()):
-        pkg, _, stem = entry.lstrip("-").partition("/")
+        name = entry.lstrip("-")
+        pkg, _, stem = (name, "", "") if (STAGES_DIR / name).is_dir() else name.rpartition("/")
         found = {m for m in kernel_modules(pkg) if not stem or m.stem == stem}
         (drop if entry.startswith("-") else mods).update(found)
     return mods - drop

@@ -40,7 +40,7 @@ from stages.garments.types import BEND, STRETCH, Garment
 from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER
 from stages.maps.types import KIND_CYLINDER, MapArrays
 from stages.sim import body_collide, collider_grid, forces, integrate, simd, step, winding
-from stages.sim.cloth_contact import ClothPhase
+from stages.sim.cloth_contact.phase import ClothPhase
 from stages.sim.poses import chunk_poses
 from stages.sim.settle import settle
 from stages.sim.springs import pack_springs, partition_springs

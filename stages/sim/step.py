@@ -7,7 +7,7 @@ inv0 (J, 4, 4) the inverse at the START of the step (for friction relative to a 
 
 Phases, one module each: stages.sim.forces (aerodynamic forces), stages.sim.integrate (Verlet,
 gravity, attachments), stages.sim.springs (spring corrections and tethers), stages.sim.collider_grid
-(collider frames, broad phase), stages.sim.body_collide (colliders), stages.sim.cloth_contact_kernels
+(collider frames, broad phase), stages.sim.body_collide (colliders), stages.sim.cloth_contact.kernels
 (cloth x cloth: garment-garment and self collision, last, so a recorded frame is what it checked).
 
 Speed (issue 6): a whole chunk of frames runs in one call (`run_frames`): nothing is allocated and
@@ -33,12 +33,12 @@ Cloth-side argument tuples (built once by simulate.py, unpacked for free inside 
     flags = (corrected, inside, speed2, contact)
     cc    = None (no cloth-cloth phase: its kernels are then neither typed nor compiled: numba prunes
             the `cc is not None` branches for a None argument) or, built by simulate.py from
-            stages.sim.cloth_contact.ClothContact.kernel_args():
+            stages.sim.cloth_contact.setup.ClothContact.kernel_args():
             (x_start, x_before, cinv, topo, tree, work, cprm, counters, every, keep)
             x_start / x_before (N, 3) work arrays; cinv (N,) inverse masses with attached particles 0;
             every: sub-steps per cloth-contact call (1: every sub-step; k: one call swept over k
             sub-steps, its correction not turned into velocity, see contact_velocity); keep: the
-            contacts the last call found, projected in every step (cloth_contact_response.keep_contacts).
+            contacts the last call found, projected in every step (stages.sim.cloth_contact.response.keep_contacts).
 """
 from __future__ import annotations
 
@@ -48,7 +48,7 @@ from numba import njit
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.jit import opt_level, with_parallel_calls
 from stages.sim.body_collide import PINCHED, collide
-from stages.sim.cloth_contact_kernels import PUSH_OVER, SWEEPS, collide_cloth, contact_velocity, respond
+from stages.sim.cloth_contact.kernels import PUSH_OVER, SWEEPS, collide_cloth, contact_velocity, respond
 from stages.maps.kernels import METHOD_NEAREST_PLANE
 from stages.sim.collider_grid import build_grid, collider_frames, swept_spheres
 from stages.sim.forces import aero_forces
@@ -60,9 +60,9 @@ from stages.sim.springs import correct_springs
 NUMBA_CACHE_DEPENDS = ("stages.sim.body_collide", "stages.sim.body_escape", "stages.sim.collider_query",
                        "stages.sim.collider_grid", "stages.sim.forces",
                        "stages.sim.integrate", "stages.sim.simd", "stages.sim.springs", "stages.maps.kernels",
-                       "stages.maps.types", "stages.affine", "stages.fastmath", "stages.sim.cloth_contact_kernels",
-                       "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_cull",
-                       "stages.sim.cloth_contact_narrow", "stages.sim.cloth_contact_local", "stages.sim.cloth_contact_pairs", "stages.sim.cloth_contact_response", "stages.obstacles.kdop")
+                       "stages.maps.types", "stages.affine", "stages.fastmath", "stages.sim.cloth_contact.kernels",
+                       "stages.sim.cloth_contact.ccd", "stages.sim.cloth_contact.cull",
+                       "stages.sim.cloth_contact.narrow", "stages.sim.cloth_contact.local", "stages.sim.cloth_contact.pairs", "stages.sim.cloth_contact.response", "stages.obstacles.kdop")
 
 # Broad phase once per frame (the spheres swept through its steps, no query-frame boxes) from this
 # many colliders on; fewer, once per step (with the boxes). Measured one frame from the same state,

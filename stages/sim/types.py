@@ -94,7 +94,7 @@ class SimParams:
         (contact_steps).
     cloth_layer_depth0: m >= cloth_thickness, how deep garments may interpenetrate at frame 0 and be
         sorted by their layers during the settling frames before frame 1 (afterwards no pair is put
-        on the layers' side: each keeps its own, stages.sim.cloth_contact.ClothPhase). Deeper
+        on the layers' side: each keeps its own, stages.sim.cloth_contact.phase.ClothPhase). Deeper
         is not safer: at 3 cm the sorting found ~5,700 contacts a round in the shipped walk (each
         outer feature against inner triangles up to 3 cm off, pushing it several ways), its rounds
         never converged and the fail-safe undid the sorting (on the skinned balls 200-300 crossing
