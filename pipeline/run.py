@@ -104,7 +104,8 @@ def sim_params(scene: Scene):
     return SimParams.preset(sp["preset"], dt=sp["dt"], gravity=tuple(sp["gravity"]), wind=tuple(sp["wind"]),
                             drag=sp["drag"], lift=sp["lift"], aero_interval=sp["aero_interval"], friction=sp["friction"],
                             inertia_scale=sp["inertia_scale"], hull_response=scene["colliders"]["response"],
-                            body_audit=sp["body_audit"], cloth_thickness=sp["cloth_thickness"], **given)
+                            body_audit=sp["body_audit"], cloth_thickness=sp["cloth_thickness"],
+                            cloth_contact=sp["cloth_contact"], **given)
 
 
 # a sub-step moves the skin at most this share of the body's height; a faster clip gets more sub-steps

@@ -88,6 +88,10 @@ class SimParams:
         last in every step; garments keep the order of their layers (simulate's `layers`: sorted
         into it before frame 1, then kept, as no pair passes through another).
     cloth_thickness: m > 0, distance kept between cloth layers.
+    cloth_contact: how the cloth x cloth phase keeps cloth from passing through cloth: 'offset'
+        (default: one proximity query reused while every particle stays within a bound taken from its
+        distance to the nearest feature it is not part of, stages.sim.cloth_contact.offset) or 'swept'
+        (continuous collision tests of every step's motion, stages.sim.cloth_contact.kernels).
     cloth_contact_every: sub-steps per cloth-contact call (1: every sub-step; k > 1: one call swept
         over k sub-steps, the contacts it finds within two thicknesses projected again in every sub-step
         until the next: stages.sim.step.cloth_phase); the largest divisor of substeps up to it is used
@@ -131,6 +135,7 @@ class SimParams:
     body_audit: bool = True
     cloth_collision: bool = False
     cloth_thickness: float = 0.003
+    cloth_contact: str = "offset"
     cloth_contact_every: int = 1
     cloth_layer_depth0: float = 0.015
     settle_frames: int = 0
@@ -173,6 +178,8 @@ class SimParams:
         v = self.cloth_contact_every
         if not (isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_)) and v >= 1):
             raise ContractError(f"{o}.cloth_contact_every: expected an integer >= 1, got {v!r}")
+        if self.cloth_contact not in CLOTH_CONTACT_METHODS:
+            raise ContractError(f"{o}.cloth_contact: expected one of {', '.join(CLOTH_CONTACT_METHODS)}, got {self.cloth_contact!r}")
         if self.pinch not in PINCH_RULES:
             raise ContractError(f"{o}.pinch: expected one of {', '.join(PINCH_RULES)}, got {self.pinch!r}")
         if not isinstance(self.cloth_collision, (bool, np.bool_)):
@@ -234,6 +241,7 @@ class SimParams:
 # through each other and themselves without it) and 10 settling frames before frame 0. "paper": paper A's step (one Verlet step and 3 rounds
 # of spring correction per 1/30 s frame, no tethers, no cloth collision), whose figures it reproduces.
 PINCH_RULES = ("midpoint", "escape")
+CLOTH_CONTACT_METHODS = ("offset", "swept")
 SETTLE_DAMPING = 0.3     # share of the velocity lost per 1/30 s while a garment settles before frame 0
 PRESETS = {
     "default": {"cloth_collision": True, "cloth_contact_every": 5, "settle_frames": 10},

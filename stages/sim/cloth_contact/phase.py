@@ -1,12 +1,18 @@
-"""The cloth x cloth phase as the simulation's step loop runs it (stages.sim.step, its `cc` argument)."""
+"""The cloth x cloth phase as the simulation's step loop runs it (stages.sim.step, its `cc` argument):
+`offset` (stages.sim.cloth_contact.offset, the default) or `swept` (stages.sim.cloth_contact.kernels);
+garments that start interpenetrating are sorted by the swept phase's layer rule either way."""
 from __future__ import annotations
 
 import numpy as np
 
 from stages.checks import ContractError
 from stages.sim.cloth_contact import kernels as CK
+from stages.sim.cloth_contact import offset as OF
 from stages.sim.cloth_contact.setup import (DEFAULT_MOTION, DEFAULT_ROTATION, KEEP_REACH, SETTLE_FRAMES,
                                             build_cloth_contact, outward_signs)
+
+
+METHODS = ("offset", "swept")
 
 
 class ClothPhase:
@@ -19,11 +25,14 @@ class ClothPhase:
     layer_depth0 m: the sorting depth of `first`, the tuple simulate() runs SETTLE_FRAMES frames at
     the frame-0 pose with before frame 1 (garments that start interpenetrating, sorted by the
     layers' rule); `rest`: the tuple of every simulated frame, without the layers' rule (every
-    pair keeps its side: the settled order is kept).
+    pair keeps its side: the settled order is kept). method: 'offset' (`rest` is then the offset
+    phase's state, stages.sim.cloth_contact.offset) or 'swept'.
     """
 
     def __init__(self, x, triangles, offsets, cinv, layers, body_points, thickness: float, every: int,
-                 layer_depth0: float, motion_margin: float | None = None):
+                 layer_depth0: float, motion_margin: float | None = None, method: str = "offset"):
+        if method not in METHODS:
+            raise ContractError(f"ClothPhase: method: expected one of {', '.join(METHODS)}, got {method!r}")
         g = len(offsets) - 1
         tri_garment = (np.searchsorted(np.asarray(offsets), np.asarray(triangles)[:, 0], side="right") - 1)
         outward = (outward_signs(x, triangles, tri_garment, g, body_points) if body_points is not None
@@ -68,6 +77,18 @@ class ClothPhase:
         self.rest = (self.x_start, self.x_before, self.cinv, one_layer, tree, work, rest, self.counters, int(every),
                      self.keep)
         self.settle_frames = SETTLE_FRAMES
+        self.method = method
+        self.offset = None
+        if method == "offset":
+            self.offset = OF.offset_state(x, triangles, self.cinv, thickness, int(every))
+            self.rest = self.offset
+            self.offset_settled = np.zeros(OF.N_OFFSET_COUNTERS, np.int64)
+
+    def mark_settled(self) -> None:
+        """The counters so far belong to the settling frames (summary()'s `frames` leaves them out)."""
+        self.settled[:] = self.counters
+        if self.offset is not None:
+            self.offset_settled[:] = self.offset[4]
 
     @classmethod
     def for_simulation(cls, sysm, layers, params, character, motion) -> "ClothPhase":
@@ -84,16 +105,19 @@ class ClothPhase:
             body = skin(character, motion, frames=[0])[0]
         cinv = np.where(sysm.attach_joint >= 0, 0.0, sysm.inv_mass)
         return cls(sysm.x, sysm.tris, sysm.offsets, cinv, layers, body, params.cloth_thickness,
-                   params.contact_steps(), params.cloth_layer_depth0)
+                   params.contact_steps(), params.cloth_layer_depth0, method=params.cloth_contact)
 
     def settle(self, cloth, cols, m, prm, gravity, wind, fwd0, inv0, substeps, max_speed2, goff, flags) -> None:
         """SETTLE_FRAMES frames of the step loop at the frame-0 pose (fwd0 / inv0 (J, 4, 4)) with the
-        sorting depth (`first`), not recorded; then xp = x (the sorting moves are not velocity). The
-        other arguments are simulate()'s run_frames arguments."""
+        sorting depth (`first`), not recorded; then xp = x (the sorting moves are not velocity); the
+        offset phase's query reruns at the sorted positions. The other arguments are simulate()'s
+        run_frames arguments."""
         from stages.sim.settle import hold_pose
         hold_pose(cloth, cols, m, prm, self.settle_frames, gravity, wind, fwd0, inv0, substeps, max_speed2, goff,
                   flags, self.first)
-        self.settled[:] = self.counters
+        if self.offset is not None:
+            OF.query(cloth[0], self.offset)
+        self.mark_settled()
 
     def summary(self) -> dict:
         """Counters summed over the run, settling frames included (see stages.sim.cloth_contact.kernels
@@ -101,7 +125,7 @@ class ClothPhase:
         in-place updates; detect; respond; failsafe), and their builds."""
         c = self.counters
         f = c - self.settled
-        return {"contacts": int(c[CK.N_CONTACTS]), "corrected": int(c[CK.N_CORRECTED]),
+        out = {"contacts": int(c[CK.N_CONTACTS]), "corrected": int(c[CK.N_CORRECTED]),
                 "unresolved": int(c[CK.N_UNRESOLVED]), "reverted": int(c[CK.N_REVERTED]),
                 "left": int(c[CK.N_LEFT]), "rounds": int(c[CK.N_ROUNDS]), "node_pairs": int(c[CK.N_NODE_PAIRS]),
                 "tests": int(c[CK.N_TESTS]), "overflow": int(c[CK.N_OVERFLOW]),
@@ -114,4 +138,12 @@ class ClothPhase:
                            "cycles_respond": int(f[CK.N_CYC_RESPOND]), "cycles_failsafe": int(f[CK.N_CYC_FAILSAFE]),
                            "candidate_builds": int(f[CK.N_BUILDS]), "candidate_updates": int(f[CK.N_LOCAL])},
                 "layers": [int(v) for v in self.cc.garment_layer],
-                "outward": [int(v) for v in self.cc.garment_outward]}
+                "outward": [int(v) for v in self.cc.garment_outward], "method": self.method}
+        if self.offset is not None:    # the figures of the offset phase's calls (the swept one sorted only)
+            o = self.offset[4]
+            fo = o - self.offset_settled
+            out["offset"] = OF.offset_summary(o)
+            out["frames"] = {"cycles_build": int(fo[OF.O_CYC_QUERY]), "cycles_detect": int(fo[OF.O_CYC_CHECK]),
+                             "cycles_respond": int(fo[OF.O_CYC_RESPOND]), "cycles_failsafe": 0,
+                             "candidate_builds": int(fo[OF.O_QUERIES]), "candidate_updates": 0}
+        return out
