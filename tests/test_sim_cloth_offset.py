@@ -164,3 +164,22 @@ def test_folded_cloth_does_not_pass_through_itself():
         assert sim.crossings() == 0
     assert sim.og[4][OF.O_QUERIES] > 1
     assert sim.x[:, 1].max() < 0.1    # it fell and lies folded on the ground
+
+
+def test_simulation_with_the_offset_phase_is_the_same_for_any_thread_count():
+    """The drape (a 2,500-particle sheet onto a hull) with the offset phase: bit-identical frames on one
+    and two threads, its queries counted, and no cloth edge through the cloth."""
+    from dataclasses import replace
+
+    from stages.sim.audit import audit_cloth
+    from stages.sim.bench import drape_scene
+    from stages.sim.simulate import simulate
+    from stages.sim.types import SimParams
+
+    scene = drape_scene(14)
+    params = replace(SimParams.preset("default", body_audit=False), cloth_contact="offset")
+    one = simulate(*scene[:4], scene[4], params, threads=1)
+    two = simulate(*scene[:4], scene[4], params, threads=2)
+    np.testing.assert_array_equal(one.garments[0].positions, two.garments[0].positions)
+    assert one.cloth_contact["method"] == "offset" and one.cloth_contact["offset"]["queries"] >= 1
+    assert audit_cloth(one, scene[4]).garments[0].crossings_self.max() == 0

@@ -88,10 +88,11 @@ class SimParams:
         last in every step; garments keep the order of their layers (simulate's `layers`: sorted
         into it before frame 1, then kept, as no pair passes through another).
     cloth_thickness: m > 0, distance kept between cloth layers.
-    cloth_contact: how the cloth x cloth phase keeps cloth from passing through cloth: 'offset'
-        (default: one proximity query reused while every particle stays within a bound taken from its
-        distance to the nearest feature it is not part of, stages.sim.cloth_contact.offset) or 'swept'
-        (continuous collision tests of every step's motion, stages.sim.cloth_contact.kernels).
+    cloth_contact: how the cloth x cloth phase keeps cloth from passing through cloth: 'swept'
+        (default: continuous collision tests of every call's motion, stages.sim.cloth_contact.kernels)
+        or 'offset' (one proximity query reused while every particle stays within a bound taken from
+        its distance to the nearest feature it is not part of, stages.sim.cloth_contact.offset; slower
+        on the shipped scenes, docs/benchmarks.md).
     cloth_contact_every: sub-steps per cloth-contact call (1: every sub-step; k > 1: one call swept
         over k sub-steps, the contacts it finds within two thicknesses projected again in every sub-step
         until the next: stages.sim.step.cloth_phase); the largest divisor of substeps up to it is used
@@ -135,7 +136,7 @@ class SimParams:
     body_audit: bool = True
     cloth_collision: bool = False
     cloth_thickness: float = 0.003
-    cloth_contact: str = "offset"
+    cloth_contact: str = "swept"
     cloth_contact_every: int = 1
     cloth_layer_depth0: float = 0.015
     settle_frames: int = 0

@@ -1,5 +1,5 @@
 """The cloth x cloth phase as the simulation's step loop runs it (stages.sim.step, its `cc` argument):
-`offset` (stages.sim.cloth_contact.offset, the default) or `swept` (stages.sim.cloth_contact.kernels);
+`swept` (stages.sim.cloth_contact.kernels, the default) or `offset` (stages.sim.cloth_contact.offset);
 garments that start interpenetrating are sorted by the swept phase's layer rule either way."""
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from stages.sim.cloth_contact.setup import (DEFAULT_MOTION, DEFAULT_ROTATION, KE
                                             build_cloth_contact, outward_signs)
 
 
-METHODS = ("offset", "swept")
+METHODS = ("swept", "offset")
 
 
 class ClothPhase:
@@ -30,7 +30,7 @@ class ClothPhase:
     """
 
     def __init__(self, x, triangles, offsets, cinv, layers, body_points, thickness: float, every: int,
-                 layer_depth0: float, motion_margin: float | None = None, method: str = "offset"):
+                 layer_depth0: float, motion_margin: float | None = None, method: str = "swept"):
         if method not in METHODS:
             raise ContractError(f"ClothPhase: method: expected one of {', '.join(METHODS)}, got {method!r}")
         g = len(offsets) - 1
