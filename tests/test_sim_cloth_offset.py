@@ -90,10 +90,11 @@ def test_bounds_never_let_a_feature_pass_another(seed, move, pinned):
     OF.keep_apart(x, xq, topo[4], kind, idx, dist, dmin, vstart, vpair, m, flag, 0.5 * work[14][1], prm[2], counters)
     assert counters[OF.O_UNPROVEN] == 0
     edges = topo[1]
-    d0 = _min_distance(xq, t, edges)
+    # what the proof leaves: a listed pair d apart keeps 2 % of d + MIN_GAP, an unlisted one 2 % of r
+    floor = 0.9 * min(OF.MIN_GAP, (1.0 - OF.SAFE) * prm[0])
+    assert _min_distance(xq, t, edges) > floor
     for s in np.linspace(0.0, 1.0, 21):
-        xs = xq + s * (x - xq)
-        assert _min_distance(xs, t, edges) > 0.0
+        assert _min_distance(xq + s * (x - xq), t, edges) > floor
     assert count_edge_triangle_crossings(x, edges, t, np.ones(edges.shape[0], bool), np.ones(t.shape[0], bool)) == 0
 
 
