@@ -45,6 +45,7 @@ NUMBA_CACHE_DEPENDS = ("stages.sim.cloth_contact.proximity", "stages.sim.cloth_c
 
 GAMMA = 0.45          # a vertex held back keeps |D - c| <= GAMMA * its nearest pair's distance (< 1/2)
 RENEW = 0.6           # the query reruns once a vertex has used this share of r / 2
+HELD_REQUERY = 0.01   # ... or once a call held back more than this share of the particles (held ones lose motion)
 SAFE = 0.98           # strict inequalities kept with this margin (rounding)
 MIN_GAP = 1e-5        # m: pairs are kept this much apart beyond the proof (the recording is float32)
 MAX_PASSES = 16       # passes over the vertices over their bounds (each settles most of the rest)
@@ -341,7 +342,7 @@ def offset_call(x, xp, og):
     t2 = cycles()
     counters[O_CYC_RESPOND] += t1 - t0
     counters[O_CYC_CHECK] += t2 - t1
-    if held > 0 or mx > RENEW * half:
+    if held > HELD_REQUERY * n or mx > RENEW * half:
         query(x, og)
     for i in range(n):
         corrected[i] = (x[i, 0] != x_before[i, 0]) or (x[i, 1] != x_before[i, 1]) or (x[i, 2] != x_before[i, 2])
