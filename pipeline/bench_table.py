@@ -45,6 +45,10 @@ def rows(results: dict) -> list[tuple[str, str, str]]:
                             f"{r['frames_per_s']:,.0f} frames/s, {r['steps_per_s']:,.0f} sub-steps/s", target))
             elif isinstance(r, dict) and "skipped" in r:
                 out.append((f"sim: {key}", f"skipped: {r['skipped']}", "-"))
+        on, off = sim.get("walk_tshirt_skirt_default"), sim.get("walk_tshirt_skirt_default-off")
+        if isinstance(on, dict) and isinstance(off, dict) and off.get("frames_per_s"):
+            out.append(("sim: walk tshirt skirt, frames/s with cloth collision on / off",
+                        f"{on['frames_per_s'] / off['frames_per_s']:.2f}", ">= 0.5 (issue 41)"))
     ob = results.get("obstacles")
     if isinstance(ob, dict) and "steps_per_s_total" in ob:
         out.append(("obstacles: cloth on a table, steps/s", _num(ob["steps_per_s_total"]), "-"))

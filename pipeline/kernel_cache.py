@@ -26,9 +26,8 @@ STAGES_DIR = Path(__file__).resolve().parent.parent / "stages"
 # stage (as run_scene announces it) -> where its kernels are, as paths under stages/: a package
 # ('sim': its own modules, not its subpackages), a module ('geometry/kdop'), or '-' and a path: not that
 # one. tests/test_progress.py checks that every entry exists and every kernel module is named.
-_SIM_ONLY = ("sim", "-sim/audit_kernels", "-sim/body_audit_kernels", "-sim/cloth_contact_kernels",
-             "-sim/cloth_contact_ccd", "-sim/cloth_contact_pairs", "-sim/cloth_contact_cull",
-             "-sim/cloth_contact_bench")
+# a package's entry covers its own modules, not its subpackages (sim/cloth_contact)
+_SIM_ONLY = ("sim", "-sim/audit_kernels", "-sim/body_audit_kernels")
 STAGE_PACKAGES = {
     "rig": ("rig",),
     # skinning (rig) is compiled by the rig stage
@@ -38,8 +37,7 @@ STAGE_PACKAGES = {
     # sewing runs the simulation, without the cloth audit or cloth collision; placement and fit ask the skin
     "garments": _SIM_ONLY + ("geometry/winding", "geometry/skin_distance"),
     "simulation": _SIM_ONLY + ("geometry/winding",),          # the body audit's winding number
-    "cloth collision": ("sim/cloth_contact_kernels", "sim/cloth_contact_ccd", "sim/cloth_contact_pairs",
-                        "sim/cloth_contact_cull", "geometry/kdop"),   # only scenes that turn it on
+    "cloth collision": ("sim/cloth_contact", "-sim/cloth_contact/bench", "geometry/kdop"),   # only scenes that turn it on
     "cloth audit": ("sim/audit_kernels",),
     "body audit": ("sim/body_audit_kernels",),
 }

@@ -382,6 +382,11 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=Non
         out["cloth collision (layers; contacts / corrected / reverted / left over the run)"] = (
             f"on, thickness {1000 * p.cloth_thickness:.1f} mm (layers: {layers}); {cc['contacts']} / "
             f"{cc['corrected']} / {cc['reverted']} / {cc['left']}")
+        if "offset" in cc:    # the offset phase (the counts above: the layers' sorting before frame 1)
+            o = cc["offset"]
+            out["cloth collision (layers; contacts / corrected / reverted / left over the run)"] += (
+                f"; offset phase: {o['queries']} queries, {o['pairs']} pairs listed, {o['pushed']} pushed, "
+                f"{o['held']} particles held back")
     else:
         out["cloth collision (layers; contacts / corrected / reverted / left over the run)"] = "off"
     if audit is not None:

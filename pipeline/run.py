@@ -34,7 +34,8 @@ def sim_params(scene: Scene):
     return SimParams.preset(sp["preset"], dt=sp["dt"], gravity=tuple(sp["gravity"]), wind=tuple(sp["wind"]),
                             drag=sp["drag"], lift=sp["lift"], aero_interval=sp["aero_interval"], friction=sp["friction"],
                             inertia_scale=sp["inertia_scale"], hull_response=scene["colliders"]["response"],
-                            body_audit=sp["body_audit"], cloth_thickness=sp["cloth_thickness"], **given)
+                            body_audit=sp["body_audit"], cloth_thickness=sp["cloth_thickness"],
+                            cloth_contact=sp["cloth_contact"], **given)
 
 
 def garment_layers(scene: Scene) -> list[int]:

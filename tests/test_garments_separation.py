@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from stages.garments.separation import LEG_GAP, LEG_SQUEEZE, leg_plane, separate_legs
-from stages.sim.cloth_contact_ccd import count_edge_triangle_crossings
+from stages.sim.cloth_contact.ccd import count_edge_triangle_crossings
 from tests.test_garments_pants import rest_scene  # noqa: F401  (module fixture)
 
 

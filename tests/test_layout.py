@@ -15,10 +15,6 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 MAX_LINES = 600
-# Over the limit on this branch and being rewritten elsewhere (cloth contact becomes the subpackage
-# stages/sim/cloth_contact/, issue 40): the test below fails once the file is gone or short enough, so
-# the entry cannot outlive the rewrite.
-BEING_REWRITTEN = {"stages/sim/cloth_contact.py"}
 
 
 def module_files() -> dict[str, Path]:
@@ -139,11 +135,5 @@ def test_no_import_circle():
 def test_no_module_over_600_lines(top):
     long = {str(p.relative_to(REPO)): n for p in sorted((REPO / top).rglob("*.py"))
             if (n := len(p.read_text().splitlines())) > MAX_LINES}
-    assert {k: v for k, v in long.items() if k not in BEING_REWRITTEN} == {}
+    assert long == {}
 
-
-def test_the_files_being_rewritten_are_still_over_the_limit():
-    """Each BEING_REWRITTEN entry is still a long file; once it is not, drop it from the set."""
-    for rel in BEING_REWRITTEN:
-        path = REPO / rel
-        assert path.is_file() and len(path.read_text().splitlines()) > MAX_LINES, f"{rel}: remove it from BEING_REWRITTEN"

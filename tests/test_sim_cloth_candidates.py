@@ -1,4 +1,4 @@
-"""Cloth x cloth candidate lists (stages.sim.cloth_contact_kernels.find_contacts with motion_margin > 0):
+"""Cloth x cloth candidate lists (stages.sim.cloth_contact.kernels.find_contacts with motion_margin > 0):
 built once, kept over later steps while every particle stays within its motion radius of where it
 was, they must find every contact the brute force finds at each of those steps; moving farther must
 rebuild them (else contacts are missed: the control). Also the neighbouring-node culling on a curved
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from stages.sim import cloth_contact_kernels as CK
-from stages.sim.cloth_contact import DEFAULT_MOTION, build_cloth_contact
-from stages.sim.cloth_contact_bench import SheetSim, grid_sheet
+from stages.sim.cloth_contact import kernels as CK
+from stages.sim.cloth_contact.setup import DEFAULT_MOTION, build_cloth_contact
+from stages.sim.cloth_contact.bench import SheetSim, grid_sheet
 from tests.test_sim_cloth_contact import H, brute_force_reference, folded_sheet, two_sheets
 
 MOTION = 0.01
@@ -72,7 +72,7 @@ def test_moving_beyond_the_margin_rebuilds_the_lists():
     assert not CK.candidates_valid(x, xe, topo, tree, work, margin, MOTION, prm[6], counters)
     assert CK.narrow(x, xe, topo, tree, work, margin, H, 3 * H, False, counters, True) == 0
     # as collide_cloth does it: the check fails, the lists are rebuilt (or, 25 particles out of
-    # their boxes, updated in place: stages.sim.cloth_contact_local), every contact is found
+    # their boxes, updated in place: stages.sim.cloth_contact.local), every contact is found
     assert _same(cc, x, xe, counters) > 0
     assert counters[CK.N_BUILDS] + counters[CK.N_LOCAL] == 2
 

@@ -8,9 +8,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from stages.checks import ContractError
-from stages.sim import cloth_contact_kernels as CK
-from stages.sim.cloth_contact import build_cloth_contact, mesh_edges
-from stages.sim.cloth_contact_bench import SheetSim, grid_sheet
+from stages.sim.cloth_contact import kernels as CK
+from stages.sim.cloth_contact.setup import build_cloth_contact, mesh_edges
+from stages.sim.cloth_contact.bench import SheetSim, grid_sheet
 
 H = 0.004
 
@@ -409,7 +409,7 @@ def test_same_input_same_output():
 
 def test_outward_signs_from_the_body():
     # a tube around the y axis (body points on the axis), once as built and once with flipped triangles
-    from stages.sim.cloth_contact import outward_signs
+    from stages.sim.cloth_contact.setup import outward_signs
     x, t = grid_sheet(12, 5, 1.0, 0.3)
     ang = x[:, 0] * 2 * np.pi * 11 / 12
     tube = np.stack([0.2 * np.cos(ang), x[:, 2], 0.2 * np.sin(ang)], axis=1)

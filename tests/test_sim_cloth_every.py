@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from stages.sim import step
-from stages.sim import cloth_contact_kernels as CK
-from stages.sim.cloth_contact import ClothPhase
+from stages.sim.cloth_contact import kernels as CK
+from stages.sim.cloth_contact.phase import ClothPhase
 from tests.test_sim_cloth_contact import H, two_sheets
 
 EVERY = 4
@@ -82,7 +82,7 @@ def _contact_buffer(n, idx, w, d):
 
 
 def test_bounded_projection_is_respond_where_every_particle_moves():
-    from stages.sim.cloth_contact_response import respond
+    from stages.sim.cloth_contact.response import respond
     rng = np.random.default_rng(7)
     n, m = 40, 60
     x = rng.normal(scale=0.004, size=(n, 3))
@@ -101,7 +101,7 @@ def test_bounded_projection_is_respond_where_every_particle_moves():
 def test_a_held_contact_moves_no_particle_farther_than_its_depth():
     # a point against a triangle two of whose corners are pinned: the third, weight 0.01, is the only
     # one to move; respond moves it 100 depths, bounded (as the held contacts are projected) one
-    from stages.sim.cloth_contact_response import respond
+    from stages.sim.cloth_contact.response import respond
     x = np.array([[0.0, 0.001, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     inv_mass = np.array([0.0, 0.0, 0.0, 1.0])
     idx = np.array([[0, 1, 2, 3]])

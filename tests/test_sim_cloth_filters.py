@@ -1,5 +1,5 @@
-"""The cloth narrow phase's conservative filters (stages.sim.cloth_contact_narrow, the Bernstein and
-end-distance test of stages.sim.cloth_contact_ccd): each may only drop pairs the exact tests would
+"""The cloth narrow phase's conservative filters (stages.sim.cloth_contact.narrow, the Bernstein and
+end-distance test of stages.sim.cloth_contact.ccd): each may only drop pairs the exact tests would
 not report, checked against the exact tests and plain numpy. (That the accelerated detection finds
 exactly what brute force finds is tests/test_sim_cloth_candidates.py and test_sim_cloth_contact.py.)"""
 from __future__ import annotations
@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stages.sim import cloth_contact_ccd as CC
-from stages.sim import cloth_contact_narrow as CN
-from stages.sim.cloth_contact import build_cloth_contact
-from stages.sim.cloth_contact_bench import grid_sheet
+from stages.sim.cloth_contact import ccd as CC
+from stages.sim.cloth_contact import narrow as CN
+from stages.sim.cloth_contact.setup import build_cloth_contact
+from stages.sim.cloth_contact.bench import grid_sheet
 
 
 def _cubics(rng, n):

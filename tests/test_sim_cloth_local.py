@@ -1,4 +1,4 @@
-"""Cloth x cloth candidate lists updated in place (stages.sim.cloth_contact_local.update_candidates):
+"""Cloth x cloth candidate lists updated in place (stages.sim.cloth_contact.local.update_candidates):
 when a few particles leave their motion boxes, their pairs are dropped and searched again instead
 of a full build. The lists must then hold exactly the pairs a plain-Python enumeration over the
 lists' bounds finds (no culling: none missing, none twice), and detection over them must find
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from stages.sim import cloth_contact_kernels as CK
-from stages.sim.cloth_contact import build_cloth_contact
+from stages.sim.cloth_contact import kernels as CK
+from stages.sim.cloth_contact.setup import build_cloth_contact
 from tests.test_sim_cloth_contact import H, brute_force_reference, two_sheets
 
 MOTION = 0.01

@@ -136,7 +136,8 @@ from stages.garments.types import build_garment
 from stages.sim import simulate
 from stages.sim.scenes import toy_character, toy_motion
 from stages.sim.types import SimParams
-from stages.sim import cloth_contact_kernels as CK, step
+from stages.sim import step
+from stages.sim.cloth_contact import kernels as CK
 x, t = rectangle_cloth(0.2, 0.2, 5, 5, center=(0.0, 1.0, 0.0))
 ch = toy_character(np.zeros((0, 3)), np.zeros((0, 3), np.int32))
 simulate(ch, toy_motion(3), None, None, [build_garment("c", x, t)], SimParams(body_audit=False, substeps=2))

@@ -1,13 +1,13 @@
 """The simulation's cloth phase sorts layered garments only in its settling frames; from frame 1 on
-each pair keeps its side (stages.sim.cloth_contact.ClothPhase): forcing the layers' side then pushed
+each pair keeps its side (stages.sim.cloth_contact.phase.ClothPhase): forcing the layers' side then pushed
 a single vertex through the other garment where part of one had gone round the other."""
 from __future__ import annotations
 
 import numpy as np
 
-from stages.sim import cloth_contact_kernels as CK
-from stages.sim.cloth_contact import ClothPhase
-from stages.sim.cloth_contact_bench import grid_sheet
+from stages.sim.cloth_contact import kernels as CK
+from stages.sim.cloth_contact.phase import ClothPhase
+from stages.sim.cloth_contact.bench import grid_sheet
 
 H = 0.003
 

@@ -12,10 +12,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stages.sim import cloth_contact_kernels as CK
-from stages.sim.cloth_contact_bench import SheetSim, grid_sheet
-from stages.sim.cloth_contact_ccd import count_edge_triangle_crossings
-from stages.sim.cloth_contact import mesh_edges
+from stages.sim.cloth_contact import kernels as CK
+from stages.sim.cloth_contact.bench import SheetSim, grid_sheet
+from stages.sim.cloth_contact.ccd import count_edge_triangle_crossings
+from stages.sim.cloth_contact.setup import mesh_edges
 
 H = 0.003
 

@@ -65,6 +65,7 @@ def _figures(result, garments, wall: float) -> dict:
         if kernel else {},
         "cloth_collision": bool(result.params.cloth_collision),
         "cloth_contact_every": result.params.contact_steps(),
+        "cloth_contact": result.params.cloth_contact,
         "cloth_contact_per_step": {k: round(v / max(result.steps, 1), 1) for k, v in result.cloth_contact.items()
                                    if isinstance(v, int)},
         "cloth_phase_per_frame": cloth,
@@ -110,9 +111,11 @@ def drape_scene(frames: int = 150):
     return ch, toy_motion(frames), cs, maps, [build_garment("cloth", x, tri)]
 
 
-def drape(frames: int = 150, threads: int = 1, repeats: int = 3, preset: str = "default") -> dict:
+def drape(frames: int = 150, threads: int = 1, repeats: int = 3, preset: str = "default",
+          cloth_contact: str | None = None) -> dict:
+    """The drape at a preset; cloth_contact: the cloth x cloth phase (default: the preset's)."""
     scene = drape_scene(frames)
-    params = SimParams.preset(preset, body_audit=True)
+    params = SimParams.preset(preset, body_audit=True, **({"cloth_contact": cloth_contact} if cloth_contact else {}))
     simulate(*scene[:4], scene[4], replace(params, body_audit=False), threads=threads)  # compile / warm
     out = _run(scene, params, repeats, threads)
     out.update(hull_faces=int(scene[2].hulls[0].simplified.faces.shape[0]), threads=threads, preset=preset)
@@ -177,10 +180,11 @@ def walk(frames: int = 90, threads: int = 1, repeats: int = 3, colliders: str = 
 
 
 def shipped_walk(frames: int = 60, threads: int = 1, repeats: int = 1, preset: str = "default",
-                 cloth_collision: bool = True) -> dict:
+                 cloth_collision: bool = True, cloth_contact: str | None = None) -> dict:
     """scenes/walk_tshirt_skirt.yaml as `run` builds it (sewn T-shirt and skirt, its layers), simulated
     with the scene's settings (default: cloth x cloth collision on, as the scene sets it; off with
-    cloth_collision=False) or the paper preset (collision off); `frames` frames of the clip."""
+    cloth_collision=False) or the paper preset (collision off); `frames` frames of the clip;
+    cloth_contact: the cloth x cloth phase (default: the scene's)."""
     from pathlib import Path
 
     from pipeline.matrix import Prepared
@@ -193,6 +197,8 @@ def shipped_walk(frames: int = 60, threads: int = 1, repeats: int = 1, preset: s
     p = Prepared(scene)
     garments, _ = build_scene_garments(scene, p.character, p.motion, p.colliders, p.maps)
     params = replace(sim_params(scene), body_audit=True, cloth_collision=cloth_collision)
+    if cloth_contact:
+        params = replace(params, cloth_contact=cloth_contact)
     if preset != "default":
         params = SimParams.preset(preset, friction=params.friction, body_audit=True)
     sc = (p.character, p.motion, p.colliders, p.maps, garments)
@@ -230,7 +236,7 @@ def pinch_rules(frames: int = 60, repeats: int = 1) -> dict:
 def table(results: dict) -> str:
     """The comparison as a markdown table."""
     rows = ["| scene | preset | sub-steps x rounds | cloth collision (share of the step, sub-steps per call) "
-            "| cloth phase a frame (ms: lists / detection / response + fail-safe; list builds + updates) | frames/s | sub-steps/s "
+            "| cloth phase a frame (ms: lists or queries / detection or bound checks / response + fail-safe; list builds or queries + updates) | frames/s | sub-steps/s "
             "| strain mean / p99 (last frame, %) | p99 worst (%) | crossing edges (self / between, max after frame 0) "
             "| inside body (max) | body audit (ms a frame; body edges through the cloth, max) |",
             "| --- | --- | --- | --- | --- | ---: | ---: | --- | --- | --- | ---: | --- |"]
@@ -238,7 +244,7 @@ def table(results: dict) -> str:
         if not isinstance(r, dict) or "strain" not in r:
             continue
         st = r["strain"].values()
-        cc = (f"on ({100 * r['phase_share'].get('cloth', 0):.0f} %, {r.get('cloth_contact_every', 1)})"
+        cc = (f"on, {r.get('cloth_contact', 'swept')} ({100 * r['phase_share'].get('cloth', 0):.0f} %, {r.get('cloth_contact_every', 1)})"
               if r.get("cloth_collision") else "off")
         ph = r.get("cloth_phase_per_frame") or {}
         phase = (f"{ph['lists_ms']:.1f} / {ph['detect_ms']:.1f} / {ph['respond_ms'] + ph['failsafe_ms']:.1f}; "
@@ -256,8 +262,10 @@ def run_benchmark(frames_drape: int = 150, frames_walk: int = 90, repeats: int =
     """Both scenes at the default settings and the paper preset, one thread, in one run. Targets on
     the 2-core machine: drape >= 500 frames/s at the defaults (issue 15)."""
     out = {"machine": {"cpus": os.cpu_count(), "load_avg_1min": os.getloadavg()[0]}}
+    other = "swept" if SimParams().cloth_contact == "offset" else "offset"   # the cloth phase the defaults do not use
     for preset in ("default", "paper"):
         out[f"drape_{preset}"] = drape(frames_drape, 1, repeats, preset)
+    out[f"drape_default-{other}"] = drape(frames_drape, 1, 1, "default", cloth_contact=other)
     for preset in ("default", "paper"):
         try:
             out[f"walk_{preset}"] = walk(frames_walk, 1, repeats, preset=preset)
@@ -266,6 +274,7 @@ def run_benchmark(frames_drape: int = 150, frames_walk: int = 90, repeats: int =
     # the shipped scene: cloth x cloth collision on (as the scene sets it), off, and the paper preset
     fw = frames_walk // 3 * 2
     out["walk_tshirt_skirt_default"] = shipped_walk(fw, 1, 1)
+    out[f"walk_tshirt_skirt_default-{other}"] = shipped_walk(fw, 1, 1, cloth_contact=other)
     out["walk_tshirt_skirt_default-off"] = shipped_walk(fw, 1, repeats, cloth_collision=False)
     out["walk_tshirt_skirt_paper"] = shipped_walk(fw, 1, repeats, preset="paper")
     try:

@@ -41,7 +41,7 @@ from stages.geometry.winding import WindingTree
 from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER
 from stages.maps.types import KIND_CYLINDER, MapArrays
 from stages.sim import body_collide, collider_grid, forces, integrate, simd, step
-from stages.sim.cloth_contact import ClothPhase
+from stages.sim.cloth_contact.phase import ClothPhase
 from stages.sim.poses import chunk_poses
 from stages.sim.settle import settle
 from stages.sim.springs import pack_springs, partition_springs
@@ -493,7 +493,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
                       cphase.rest if cphase is not None else None):
             raise diverged(0)
         if cphase is not None:
-            cphase.settled[:] = cphase.counters
+            cphase.mark_settled()
     collider_grid.collider_frames(fwd0, inv_0, inv_0, col.m, col.joint, col.kind, col.index, col.bcenter, col.bradius,
                       col.sph_center, col.tq, col.tq0, col.fq, col.cw)
     body_collide.count_inside(sysm.x, sysm.inv_mass, col.m, method, col.kind, col.index, col.sph_radius, col.tq, col.cw,
@@ -529,7 +529,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
             sysm.corrected[:] = 0
             c0 = simd.read_cycles()
             for k in range(ss):
-                if cc is not None and k % cc[8] == 0:   # x_start: the start of the phase's sweep (as run_steps)
+                if cc is not None and len(cc) == 10 and k % cc[8] == 0:   # the swept phase's x_start: the start of the phase's sweep (as run_steps)
                     cc[0][:] = sysm.x
                 run_steps(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, k, k + 1,
                           flags, timers, None)

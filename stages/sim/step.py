@@ -7,7 +7,7 @@ inv0 (J, 4, 4) the inverse at the START of the step (for friction relative to a 
 
 Phases, one module each: stages.sim.forces (aerodynamic forces), stages.sim.integrate (Verlet,
 gravity, attachments), stages.sim.springs (spring corrections and tethers), stages.sim.collider_grid
-(collider frames, broad phase), stages.sim.body_collide (colliders), stages.sim.cloth_contact_kernels
+(collider frames, broad phase), stages.sim.body_collide (colliders), stages.sim.cloth_contact.kernels
 (cloth x cloth: garment-garment and self collision, last, so a recorded frame is what it checked).
 
 Speed (issue 6): a whole chunk of frames runs in one call (`run_frames`): nothing is allocated and
@@ -34,13 +34,14 @@ Cloth-side argument tuples (built once by simulate.py, unpacked for free inside 
             into vertex_force (N + 1, 4) once (integrate then reads it through vt_eye, (N, 1)).
     flags = (corrected, inside, speed2, contact)
     cc    = None (no cloth-cloth phase: its kernels are then neither typed nor compiled: numba prunes
-            the `cc is not None` branches for a None argument) or, built by simulate.py from
-            stages.sim.cloth_contact.ClothContact.kernel_args():
+            the `cc is not None` branches for a None argument), the offset phase's 5-tuple
+            (stages.sim.cloth_contact.offset.offset_state; numba prunes on the tuple's length too) or, built by simulate.py from
+            stages.sim.cloth_contact.setup.ClothContact.kernel_args():
             (x_start, x_before, cinv, topo, tree, work, cprm, counters, every, keep)
             x_start / x_before (N, 3) work arrays; cinv (N,) inverse masses with attached particles 0;
             every: sub-steps per cloth-contact call (1: every sub-step; k: one call swept over k
             sub-steps, its correction not turned into velocity, see contact_velocity); keep: the
-            contacts the last call found, projected in every step (cloth_contact_response.keep_contacts).
+            contacts the last call found, projected in every step (stages.sim.cloth_contact.response.keep_contacts).
 """
 from __future__ import annotations
 
@@ -50,7 +51,8 @@ from numba import njit
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.jit import opt_level, with_parallel_calls
 from stages.sim.body_collide import PINCHED, collide
-from stages.sim.cloth_contact_kernels import PUSH_OVER, SWEEPS, collide_cloth, contact_velocity, respond
+from stages.sim.cloth_contact.kernels import PUSH_OVER, SWEEPS, collide_cloth, contact_velocity, respond
+from stages.sim.cloth_contact.offset import offset_call
 from stages.maps.kernels import METHOD_NEAREST_PLANE
 from stages.sim.collider_grid import build_grid, collider_frames, swept_spheres
 from stages.sim.forces import aero_forces
@@ -62,9 +64,10 @@ from stages.sim.springs import correct_springs
 NUMBA_CACHE_DEPENDS = ("stages.sim.body_collide", "stages.sim.body_escape", "stages.sim.collider_query",
                        "stages.sim.collider_grid", "stages.sim.forces",
                        "stages.sim.integrate", "stages.sim.simd", "stages.sim.springs", "stages.maps.kernels",
-                       "stages.maps.types", "stages.affine", "stages.fastmath", "stages.sim.cloth_contact_kernels",
-                       "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_cull",
-                       "stages.sim.cloth_contact_narrow", "stages.sim.cloth_contact_local", "stages.sim.cloth_contact_pairs", "stages.sim.cloth_contact_response", "stages.geometry.kdop")
+                       "stages.maps.types", "stages.affine", "stages.fastmath", "stages.sim.cloth_contact.kernels",
+                       "stages.sim.cloth_contact.ccd", "stages.sim.cloth_contact.cull",
+                       "stages.sim.cloth_contact.narrow", "stages.sim.cloth_contact.local", "stages.sim.cloth_contact.pairs", "stages.sim.cloth_contact.response",
+                       "stages.sim.cloth_contact.offset", "stages.sim.cloth_contact.proximity", "stages.geometry.kdop")
 
 # Broad phase once per frame (the spheres swept through its steps, no query-frame boxes) from this
 # many colliders on; fewer, once per step (with the boxes). Measured one frame from the same state,
@@ -97,7 +100,7 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
     h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method, aero_every, pinch, speed_h, entry = prm
     corrected, inside, speed2, contact = flags
     for k in range(k0, k1):
-        if cc is not None:
+        if cc is not None and len(cc) == 10:     # the swept phase (a 5-tuple: the offset phase)
             if k % cc[8] == 0:
                 copy_rows(cc[0], x)     # x_start: the start of the swept interval (free of crossings)
         t0 = cycles()
@@ -149,13 +152,18 @@ def copy_rows(dst, src):
 
 @njit(cache=True, _nrt=False)
 def cloth_phase(x, xp, k, cc):
-    """The cloth x cloth phase after step k: every `every` steps, one collide_cloth over the
+    """The cloth x cloth phase after step k. The offset phase (cc a 5-tuple,
+    stages.sim.cloth_contact.offset): one offset_call every `every` steps. The swept phase: every `every` steps, one collide_cloth over the
     interval since x_start; when that interval is longer than one step, the correction is not
     turned into Verlet velocity (contact_velocity: only the approach along it is dropped), and every
     step first projects the contacts the last call found (kept: a layer resting on another is held
     in the steps between calls instead of falling through the gap and being caught by the next),
     no particle farther than its contact's depth (respond's `bound` 1: a stale held contact whose
     only movable particle had a small weight diverged against a collider pushing it back)."""
+    if len(cc) == 5:    # the offset phase (stages.sim.cloth_contact.offset)
+        if (k + 1) % cc[3][3] == 0:
+            offset_call(x, xp, cc)
+        return
     x_start, x_before, cinv, topo, tree, work, cprm, counters, every, keep = cc
     if every > 1 and keep[7][0] > 0:
         target = PUSH_OVER * cprm[0]

@@ -96,13 +96,18 @@ class SimParams:
         last in every step; garments keep the order of their layers (simulate's `layers`: sorted
         into it before frame 1, then kept, as no pair passes through another).
     cloth_thickness: m > 0, distance kept between cloth layers.
+    cloth_contact: how the cloth x cloth phase keeps cloth from passing through cloth: 'swept'
+        (default: continuous collision tests of every call's motion, stages.sim.cloth_contact.kernels)
+        or 'offset' (one proximity query reused while every particle stays within a bound taken from
+        its distance to the nearest feature it is not part of, stages.sim.cloth_contact.offset; slower
+        on the shipped scenes, docs/benchmarks.md).
     cloth_contact_every: sub-steps per cloth-contact call (1: every sub-step; k > 1: one call swept
         over k sub-steps, the contacts it finds within two thicknesses projected again in every sub-step
         until the next: stages.sim.step.cloth_phase); the largest divisor of substeps up to it is used
         (contact_steps).
     cloth_layer_depth0: m >= cloth_thickness, how deep garments may interpenetrate at frame 0 and be
         sorted by their layers during the settling frames before frame 1 (afterwards no pair is put
-        on the layers' side: each keeps its own, stages.sim.cloth_contact.ClothPhase). Deeper
+        on the layers' side: each keeps its own, stages.sim.cloth_contact.phase.ClothPhase). Deeper
         is not safer: at 3 cm the sorting found ~5,700 contacts a round in the shipped walk (each
         outer feature against inner triangles up to 3 cm off, pushing it several ways), its rounds
         never converged and the fail-safe undid the sorting (on the skinned balls 200-300 crossing
@@ -139,6 +144,7 @@ class SimParams:
     body_audit: bool = True
     cloth_collision: bool = False
     cloth_thickness: float = 0.003
+    cloth_contact: str = "swept"
     cloth_contact_every: int = 1
     cloth_layer_depth0: float = 0.015
     settle_frames: int = 0
@@ -181,6 +187,8 @@ class SimParams:
         v = self.cloth_contact_every
         if not (isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_)) and v >= 1):
             raise ContractError(f"{o}.cloth_contact_every: expected an integer >= 1, got {v!r}")
+        if self.cloth_contact not in CLOTH_CONTACT_METHODS:
+            raise ContractError(f"{o}.cloth_contact: expected one of {', '.join(CLOTH_CONTACT_METHODS)}, got {self.cloth_contact!r}")
         if self.pinch not in PINCH_RULES:
             raise ContractError(f"{o}.pinch: expected one of {', '.join(PINCH_RULES)}, got {self.pinch!r}")
         if not isinstance(self.cloth_collision, (bool, np.bool_)):
@@ -242,6 +250,7 @@ class SimParams:
 # through each other and themselves without it) and 10 settling frames before frame 0. "paper": paper A's step (one Verlet step and 3 rounds
 # of spring correction per 1/30 s frame, no tethers, no cloth collision), whose figures it reproduces.
 PINCH_RULES = ("escape", "midpoint", "limb")    # the index is collide's code (body_collide.PINCH_*)
+CLOTH_CONTACT_METHODS = ("offset", "swept")
 SETTLE_DAMPING = 0.3     # share of the velocity lost per 1/30 s while a garment settles before frame 0
 PRESETS = {
     "default": {"cloth_collision": True, "cloth_contact_every": 5, "settle_frames": 10},

@@ -1,9 +1,9 @@
 """Cloth x cloth feature pairs: the exact test of one vertex-face or edge-edge pair with the layer
-rule (stages.sim.cloth_contact_ccd does the geometry), the contact buffer, the features two
+rule (stages.sim.cloth_contact.ccd does the geometry), the contact buffer, the features two
 triangles own (each vertex and edge is owned by one incident triangle, `tri_owns`, so each feature
 pair is tested once), and the brute-force reference over all pairs.
 
-Arrays as in stages.sim.cloth_contact.ClothContact; `topo`, `tree`, `work` are its kernel_args tuples.
+Arrays as in stages.sim.cloth_contact.setup.ClothContact; `topo`, `tree`, `work` are its kernel_args tuples.
 """
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.affine import triangle_cross
-from stages.sim.cloth_contact_ccd import (EE_CROSS, VF_CROSS, ee_apart, ee_clear, test_edge_edge, test_vertex_face,
+from stages.sim.cloth_contact.ccd import (EE_CROSS, VF_CROSS, ee_apart, ee_clear, test_edge_edge, test_vertex_face,
                                           vf_apart)
 
-NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.sim.cloth_contact_ccd")
+NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.sim.cloth_contact.ccd")
 
 # counters (int64, accumulated with +=; the caller zeroes them)
 N_CONTACTS = 0     # contacts found over all rounds
@@ -28,7 +28,7 @@ N_ROUNDS = 5       # response rounds run
 N_NODE_PAIRS = 6   # tree node pairs visited
 N_TESTS = 7        # exact feature-pair tests
 N_OVERFLOW = 8     # contacts dropped because the contact buffer was full
-N_BUILDS = 9       # candidate lists built (stages.sim.cloth_contact_kernels.build_candidates)
+N_BUILDS = 9       # candidate lists built (stages.sim.cloth_contact.kernels.build_candidates)
 N_CAND_OVERFLOW = 10  # candidate lists that overflowed their buffers (the tree search ran instead)
 N_CYC_BUILD = 11   # CPU cycles in candidate list builds (the tree search that collects the pairs)
 N_CYC_DETECT = 12  # CPU cycles in the response rounds' detections (lists checked, pairs tested), builds excluded
@@ -36,7 +36,7 @@ N_CYC_RESPOND = 13  # CPU cycles in the responses
 N_CYC_FAILSAFE = 14  # CPU cycles in the fail-safe (its detections and reverts), builds excluded
 N_INVALID_MOVE = 15  # candidate lists invalidated by a particle beyond its motion radius
 N_INVALID_TURN = 16  # ... by a triangle normal beyond its allowed turn
-N_LOCAL = 17       # candidate lists updated in place (stages.sim.cloth_contact_local), not built afresh
+N_LOCAL = 17       # candidate lists updated in place (stages.sim.cloth_contact.local), not built afresh
 N_COUNTERS = 18
 
 # ---------------------------------------------------------------------------------------------
@@ -227,7 +227,7 @@ def test_triangle_pair(xs, xe, t1, t2, topo, tree, pt_min, pt_max, h, layer_dept
     module doc), after a k-DOP check of the two features' own bounds (pt_min / pt_max per particle,
     the triangles' in tree[8:10]): tested, or with `collect` appended to the candidate lists (the
     bounds then span the lists' lifetime). flagged_only: only the feature pairs with a particle
-    flagged in tree[36] (the in-place list updates, stages.sim.cloth_contact_local: the others are
+    flagged in tree[36] (the in-place list updates, stages.sim.cloth_contact.local: the others are
     listed already)."""
     triangles = topo[0]
     edges = topo[1]

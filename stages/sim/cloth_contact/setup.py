@@ -3,7 +3,7 @@
 Setup (Python, once per scene) builds a `ClothContact`: topology (edges, feature ownership), one k-DOP
 tree per garment over its triangles (paper B; stages.geometry.kdop builds and refits it), work
 buffers. The phase itself is one numba call over flat arrays, `collide_cloth` in
-stages.sim.cloth_contact_kernels (exact tests in stages.sim.cloth_contact_ccd).
+stages.sim.cloth_contact.kernels (exact tests in stages.sim.cloth_contact.ccd).
 
 How the step loop uses it (stages.sim.step.run_steps / run_frames; `ClothPhase` below builds the tuples)
 --------------------------------------------------------------------
@@ -45,9 +45,9 @@ import numpy as np
 
 from stages.checks import ContractError, check_array, check_index, check_positive
 from stages.geometry.kdop import DEFAULT_K, KdopTree, build_tree, kdop_directions, merge_forest, triangle_bounds
-from stages.sim import cloth_contact_kernels as CK
-from stages.sim import cloth_contact_narrow as CN
-from stages.sim.cloth_contact_cull import node_borders, patch_nodes
+from stages.sim.cloth_contact import kernels as CK
+from stages.sim.cloth_contact import narrow as CN
+from stages.sim.cloth_contact.cull import node_borders, patch_nodes
 
 DEFAULT_THICKNESS = 0.003  # m: about two layers of shirt fabric
 DEFAULT_MOTION = 0.003     # m: how far particles may move before the candidate lists are rebuilt (0.005 -> 0.003:
@@ -97,7 +97,7 @@ class ClothContact:
     rounds: >= 1 response rounds; failsafe_rounds: >= 1 revert rounds.
     cull: normal-cone culling of flat patches in the self test (off: every pair is tested, as the
       brute-force reference does).
-    Candidate lists (motion_margin > 0; stages.sim.cloth_contact_kernels.find_contacts): the tree
+    Candidate lists (motion_margin > 0; stages.sim.cloth_contact.kernels.find_contacts): the tree
       search runs once for as many steps as every particle stays within motion_margin (m) of the
       box it spanned at the build and every normal within what keeps the culled patches flat (at
       most `rotation` rad) of its direction then;
@@ -107,12 +107,12 @@ class ClothContact:
       cand_f (2,) float64 (margin, motion built with), box_lo / box_hi (N, 4) (the boxes, and in
       box_lo[:, 3] how far each particle may move: motion_margin or more when it moves fast), nrm_ref
       (T, 4) (unit normals, cosine of the allowed turn), node_slack (n,) (the culled nodes' turn margins).
-    The narrow phase's filter over the lists (stages.sim.cloth_contact_narrow): pbox (N, 8), ebox (E, 8),
+    The narrow phase's filter over the lists (stages.sim.cloth_contact.narrow): pbox (N, 8), ebox (E, 8),
       tbox (T, 8) float32 (min x y z, 0, max x y z, 0): each particle's, edge's and
       triangle's swept box, inflated, rounded outwards; p_move (N,) float64: each particle's move;
       feat_moved (E + T,) uint8: the edges' then the triangles' moved flags; pdiag (N, 2 D) float32
       (D = DIAG_LANES: the k-DOP's directions beyond the axes, minima then maxima, padded with 0).
-    Lists updated in place when a few particles leave their boxes (stages.sim.cloth_contact_local):
+    Lists updated in place when a few particles leave their boxes (stages.sim.cloth_contact.local):
       loc_list (L,) int32 those particles, loc_n (2,) int64 (their count, 1: a full build instead),
       vt_start (N + 1,) int64 / vt_tri (3T,) int32 each particle's triangles, ring (T,) int32 and
       flag (N + T,) uint8 work arrays (flags zero between calls), bld_min / bld_max (N, h) the
@@ -497,111 +497,3 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
         parent=_parents(tree.children), tri_leaf=_tri_leaves(tree.leaf_prim, tris.shape[0]),
         self_cull=np.zeros(tree.node_min.shape[0], np.uint8), pdiag=np.zeros((n, 2 * CN.DIAG_LANES), np.float32),
         motion_margin=float(motion_margin), rotation=float(rotation))
-
-
-class ClothPhase:
-    """The cloth x cloth phase as the simulation's step loop runs it (stages.sim.step, `cc` argument).
-
-    Built once per simulate() call from the concatenated garments (relative frame at frame 0):
-    x (N, 3), triangles (T, 3) global ids, offsets (G + 1,), cinv (N,) inverse masses with attached
-    particles 0 (never moved by this phase), layers (G,) 0 = innermost, body_points (V, 3) the skin at
-    frame 0 (which way each garment faces), thickness m, every: sub-steps per call,
-    layer_depth0 m: the sorting depth of `first`, the tuple simulate() runs SETTLE_FRAMES frames at
-    the frame-0 pose with before frame 1 (garments that start interpenetrating, sorted by the
-    layers' rule); `rest`: the tuple of every simulated frame, without the layers' rule (every
-    pair keeps its side: the settled order is kept).
-    """
-
-    def __init__(self, x, triangles, offsets, cinv, layers, body_points, thickness: float, every: int,
-                 layer_depth0: float, motion_margin: float | None = None):
-        g = len(offsets) - 1
-        tri_garment = (np.searchsorted(np.asarray(offsets), np.asarray(triangles)[:, 0], side="right") - 1)
-        outward = (outward_signs(x, triangles, tri_garment, g, body_points) if body_points is not None
-                   and body_points.shape[0] else np.ones(g))
-        self.cc = build_cloth_contact(x, triangles, offsets, layers=layers, outward=outward, thickness=thickness,
-                                      layer_depth=max(layer_depth0, thickness),
-                                      motion_margin=DEFAULT_MOTION if motion_margin is None else motion_margin,
-                                      rotation=DEFAULT_ROTATION)
-        topo, tree, work, prm = self.cc.kernel_args()
-        self.counters = np.zeros(CK.N_COUNTERS, np.int64)
-        self.settled = np.zeros(CK.N_COUNTERS, np.int64)   # the counters after the settling frames
-        n = x.shape[0]
-        self.x_start = np.zeros((n, 3))
-        self.x_before = np.zeros((n, 3))
-        self.cinv = np.ascontiguousarray(cinv, np.float64)
-        # sorting garments that start interpenetrating: the tree search (candidate lists as deep
-        # as layer_depth0 would hold most of the two garments), without the normal-cone culling:
-        # the sorting pushes slide parts of one garment over others (its free hem), which a cone
-        # test without Volino's contour test misses (settling frames left 2-6 skirt edges through
-        # the skirt on the skinned balls, kept ever after by the fail-safe)
-        first = (prm[0], prm[1], prm[2], prm[3], False, 0.0, prm[6])
-        # culling only with a call every sub-step: the cone test has no contour test, and over sweeps of
-        # several sub-steps it missed folds (bvh_walk at 5: 3 + 6 crossing edges left unseen, 0 without it)
-        rest = (prm[0], float(thickness), prm[2], prm[3], prm[4] and int(every) == 1, prm[5], prm[6])
-        # the layers' rule (a pair ending within the layer depth of the side the layers prescribe is
-        # put on that side, stages.sim.cloth_contact_ccd) sorts garments that start interpenetrating:
-        # the settling frames only. From frame 1 on every pair keeps the side it starts the step on
-        # (`rest` sees one layer), so the order the settling made is kept by the continuous test
-        # alone. Forcing a side there pushed single vertices through the other garment wherever part
-        # of one had gone round the other's edge (a T-shirt fold over the shorts' waistband, a hand
-        # pressing the T-shirt into the trousers), crossings the phase then guarded as if right and
-        # its fail-safe fought (2026-11-24: bvh_walk 665 -> 0 particles reverted, 7 -> 0 crossings
-        # left; CesiumMan's outfit 20,669 -> 251 and 39 -> 0, 44 -> 0 edges through the other garment)
-        one_layer = topo[:8] + (np.zeros_like(topo[8]),) + topo[9:]
-        cap = work[2].shape[0]
-        self.keep = (np.zeros(n, np.uint8), np.zeros(n, np.uint8), np.zeros(0, np.int8), np.zeros((0, 2), np.int32),
-                     np.zeros((cap, 4), np.int32), np.zeros((cap, 4)), np.zeros((cap, 3)), np.zeros(1, np.int64),
-                     np.array([KEEP_REACH * thickness]))
-        # the settling frames call the phase every sub-step whatever `every` (sorting garments that start
-        # through each other takes many calls; CesiumMan's outfit at every 5: 5 edges between them left)
-        self.first = (self.x_start, self.x_before, self.cinv, topo, tree, work, first, self.counters, 1, self.keep)
-        self.rest = (self.x_start, self.x_before, self.cinv, one_layer, tree, work, rest, self.counters, int(every),
-                     self.keep)
-        self.settle_frames = SETTLE_FRAMES
-
-    @classmethod
-    def for_simulation(cls, sysm, layers, params, character, motion) -> "ClothPhase":
-        """The phase of simulate()'s particle system `sysm` (stages.sim.simulate._System); layers
-        (G,) or None (the garments' order); params: SimParams (cloth_thickness, cloth_contact_every,
-        cloth_layer_depth0)."""
-        g = len(sysm.names)
-        layers = np.arange(g) if layers is None else np.asarray(layers)
-        if layers.shape != (g,):
-            raise ContractError(f"simulate: layers: expected one per garment ({g}), got {layers.tolist()}")
-        body = None
-        if character.triangles.shape[0] > 0:
-            from stages.rig.skinning import skin
-            body = skin(character, motion, frames=[0])[0]
-        cinv = np.where(sysm.attach_joint >= 0, 0.0, sysm.inv_mass)
-        return cls(sysm.x, sysm.tris, sysm.offsets, cinv, layers, body, params.cloth_thickness,
-                   params.contact_steps(), params.cloth_layer_depth0)
-
-    def settle(self, cloth, cols, m, prm, gravity, wind, fwd0, inv0, substeps, max_speed2, goff, flags) -> None:
-        """SETTLE_FRAMES frames of the step loop at the frame-0 pose (fwd0 / inv0 (J, 4, 4)) with the
-        sorting depth (`first`), not recorded; then xp = x (the sorting moves are not velocity). The
-        other arguments are simulate()'s run_frames arguments."""
-        from stages.sim.settle import hold_pose
-        hold_pose(cloth, cols, m, prm, self.settle_frames, gravity, wind, fwd0, inv0, substeps, max_speed2, goff,
-                  flags, self.first)
-        self.settled[:] = self.counters
-
-    def summary(self) -> dict:
-        """Counters summed over the run, settling frames included (see stages.sim.cloth_contact_kernels
-        N_*); `frames`: the CPU cycles of the recorded frames' calls alone (builds: full list builds and
-        in-place updates; detect; respond; failsafe), and their builds."""
-        c = self.counters
-        f = c - self.settled
-        return {"contacts": int(c[CK.N_CONTACTS]), "corrected": int(c[CK.N_CORRECTED]),
-                "unresolved": int(c[CK.N_UNRESOLVED]), "reverted": int(c[CK.N_REVERTED]),
-                "left": int(c[CK.N_LEFT]), "rounds": int(c[CK.N_ROUNDS]), "node_pairs": int(c[CK.N_NODE_PAIRS]),
-                "tests": int(c[CK.N_TESTS]), "overflow": int(c[CK.N_OVERFLOW]),
-                "candidate_builds": int(c[CK.N_BUILDS]), "candidate_overflow": int(c[CK.N_CAND_OVERFLOW]),
-                "cycles_build": int(c[CK.N_CYC_BUILD]), "cycles_detect": int(c[CK.N_CYC_DETECT]),
-                "cycles_respond": int(c[CK.N_CYC_RESPOND]), "cycles_failsafe": int(c[CK.N_CYC_FAILSAFE]),
-                "candidate_updates": int(c[CK.N_LOCAL]),
-                "invalid_move": int(c[CK.N_INVALID_MOVE]), "invalid_turn": int(c[CK.N_INVALID_TURN]),
-                "frames": {"cycles_build": int(f[CK.N_CYC_BUILD]), "cycles_detect": int(f[CK.N_CYC_DETECT]),
-                           "cycles_respond": int(f[CK.N_CYC_RESPOND]), "cycles_failsafe": int(f[CK.N_CYC_FAILSAFE]),
-                           "candidate_builds": int(f[CK.N_BUILDS]), "candidate_updates": int(f[CK.N_LOCAL])},
-                "layers": [int(v) for v in self.cc.garment_layer],
-                "outward": [int(v) for v in self.cc.garment_outward]}

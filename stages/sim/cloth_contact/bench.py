@@ -1,7 +1,7 @@
 """A small Verlet mass-spring cloth that calls the cloth contact phase every step, for the tests and
 the benchmark (not the production step loop, which is stages.sim.step).
 
-    python -m stages.sim.cloth_contact_bench            # time collide_cloth on two layered 40 x 40 sheets
+    python -m stages.sim.cloth_contact.bench            # time collide_cloth on two layered 40 x 40 sheets
 """
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import time
 import numpy as np
 from numba import njit
 
-from stages.sim import cloth_contact_kernels as CK
-from stages.sim.cloth_contact import ClothContact, build_cloth_contact, mesh_edges
+from stages.sim.cloth_contact import kernels as CK
+from stages.sim.cloth_contact.setup import ClothContact, build_cloth_contact, mesh_edges
 
 
 def grid_sheet(nx: int, nz: int, size_x: float, size_z: float, origin=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:

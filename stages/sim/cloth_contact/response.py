@@ -1,9 +1,9 @@
-"""Cloth x cloth collision: the response to a detection's contacts (stages.sim.cloth_contact_kernels
+"""Cloth x cloth collision: the response to a detection's contacts (stages.sim.cloth_contact.kernels
 finds them), when a round needs none (`settled`), the fail-safe's revert, and the Verlet velocity
 after a call swept over several sub-steps.
 
 Every contact is the constraint C = dir . sum_k w_k x_k - h >= 0 over its 4 particles (the contact
-buffer `work` of stages.sim.cloth_contact.ClothContact.kernel_args), projected by inverse mass (PBD);
+buffer `work` of stages.sim.cloth_contact.setup.ClothContact.kernel_args), projected by inverse mass (PBD);
 pinned particles (inv_mass 0) never move.
 """
 from __future__ import annotations
@@ -11,9 +11,9 @@ from __future__ import annotations
 from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
-from stages.sim.cloth_contact_ccd import EE_CROSS, VF_CROSS
+from stages.sim.cloth_contact.ccd import EE_CROSS, VF_CROSS
 
-NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.sim.cloth_contact_ccd")
+NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.sim.cloth_contact.ccd")
 
 SETTLED = 0.25       # a round that finds no crossing and no pair closer than (1 - SETTLED) h ends the call
 

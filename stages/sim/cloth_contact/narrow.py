@@ -1,6 +1,6 @@
-"""Cloth x cloth narrow phase over the candidate lists (stages.sim.cloth_contact_kernels builds them):
+"""Cloth x cloth narrow phase over the candidate lists (stages.sim.cloth_contact.kernels builds them):
 every listed vertex-face and edge-edge pair with a particle moved since the last detection is
-filtered by its features' swept bounds and then tested exactly (stages.sim.cloth_contact_pairs).
+filtered by its features' swept bounds and then tested exactly (stages.sim.cloth_contact.pairs).
 
 The filter, cheapest first (each conservative; together they pass the pairs the tree search's own
 filter passes, and a few more at float32's rounding):
@@ -12,12 +12,12 @@ filter passes, and a few more at float32's rounding):
      rounded outwards, one 64-byte row per particle (pdiag: 8 lanes of minima, 8 of maxima, the
      unused lanes 0, which separate nothing): the float64 rows (pt_min / pt_max, 2 x 72 bytes a
      particle) cost 3-4 cache lines per particle gathered, and their writes a third of the bounds;
-  3. for edge pairs, the conservative separation of stages.sim.cloth_contact_ccd (ee_apart, with each
+  3. for edge pairs, the conservative separation of stages.sim.cloth_contact.ccd (ee_apart, with each
      particle's move over the step computed once per detection, p_move; it drops about half of the
      edge pairs left, while vf_apart dropped none of the vertex-face pairs on the shipped walk: the
      VF test itself is cheaper than the edge-edge one).
 
-Arrays: `tree` of stages.sim.cloth_contact.ClothContact.kernel_args; tree[26:31] = (pbox (N, 8) f4,
+Arrays: `tree` of stages.sim.cloth_contact.setup.ClothContact.kernel_args; tree[26:31] = (pbox (N, 8) f4,
 ebox (E, 8) f4, tbox (T, 8) f4, p_move (N,) f8, feat_moved (E + T,) u1: the edges' then the triangles'
 moved flags (the rounds after the first test only pairs with a moved feature: compact flags, whose
 reads stay in the L1 cache)); tree[42] = pdiag (N, 2 D) f4 (D = DIAG_LANES lanes per half).
@@ -28,10 +28,10 @@ import numpy as np
 from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
-from stages.sim.cloth_contact_ccd import APART_SLACK, segment_distance
-from stages.sim.cloth_contact_pairs import test_ee_pair, test_vf_pair
+from stages.sim.cloth_contact.ccd import APART_SLACK, segment_distance
+from stages.sim.cloth_contact.pairs import test_ee_pair, test_vf_pair
 
-NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_pairs")
+NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.sim.cloth_contact.ccd", "stages.sim.cloth_contact.pairs")
 
 ROUND32 = 1e-6   # relative widening of the float32 boxes: float32 rounds by at most 6e-8 of the value
 DIAG_LANES = 8   # lanes per half of a pdiag row (k-DOP directions beyond the 3 axes, padded with 0)
@@ -175,7 +175,7 @@ def _edges_apart_diag(pdiag, a, b, c, d):
 
 @njit(cache=True)
 def ee_apart_moves(xs, p_move, a, b, c, d, reach):
-    """stages.sim.cloth_contact_ccd.ee_apart with the particles' moves precomputed (p_move)."""
+    """stages.sim.cloth_contact.ccd.ee_apart with the particles' moves precomputed (p_move)."""
     room = reach + APART_SLACK
     d0 = segment_distance(xs, a, b, c, d)
     if d0 <= room:

@@ -1,5 +1,5 @@
 """Cloth x cloth collision kernels (garment-garment and self): a k-DOP forest over the cloth's
-triangles (paper B; one tree per garment), the exact tests of `stages.sim.cloth_contact_ccd`, a
+triangles (paper B; one tree per garment), the exact tests of `stages.sim.cloth_contact.ccd`, a
 position response and a fail-safe.
 
 Everything is numba over flat arrays, world frame, metres; the arrays are built once per scene by
@@ -23,17 +23,17 @@ from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
 from stages.geometry.kdop import refit_range
-from stages.sim.cloth_contact_narrow import narrow
-from stages.sim.cloth_contact_local import (LOCAL_MAX, MAX_MOTION_STEPS, STEPS_AHEAD, box_bounds,  # noqa: F401
+from stages.sim.cloth_contact.narrow import narrow
+from stages.sim.cloth_contact.local import (LOCAL_MAX, MAX_MOTION_STEPS, STEPS_AHEAD, box_bounds,  # noqa: F401
                                             particle_box, tri_bounds, update_candidates)
-from stages.sim.cloth_contact_response import contact_velocity, keep_contacts, respond, revert, settled  # noqa: F401
+from stages.sim.cloth_contact.response import contact_velocity, keep_contacts, respond, revert, settled  # noqa: F401
 from stages.sim.simd import cycles
-from stages.sim.cloth_contact_cull import FLAT_COS, UNION_COS, flat_patch, flat_union, patch_nodes  # noqa: F401
-from stages.sim.cloth_contact_ccd import (EE_CROSS, EE_NEAR, VF_CROSS, VF_NEAR,  # noqa: F401
+from stages.sim.cloth_contact.cull import FLAT_COS, UNION_COS, flat_patch, flat_union, patch_nodes  # noqa: F401
+from stages.sim.cloth_contact.ccd import (EE_CROSS, EE_NEAR, VF_CROSS, VF_NEAR,  # noqa: F401
                                           count_edge_triangle_crossings, cubic_roots01,
                                           segment_crosses_triangle, test_edge_edge, test_vertex_face,
                                           triple_cubic)
-from stages.sim.cloth_contact_pairs import (N_BUILDS, N_CAND_OVERFLOW, N_CONTACTS, N_CORRECTED,  # noqa: F401
+from stages.sim.cloth_contact.pairs import (N_BUILDS, N_CAND_OVERFLOW, N_CONTACTS, N_CORRECTED,  # noqa: F401
                                             N_COUNTERS, N_CYC_BUILD, N_CYC_DETECT, N_CYC_FAILSAFE, N_CYC_RESPOND, N_INVALID_MOVE, N_INVALID_TURN, N_LEFT, N_LOCAL, N_NODE_PAIRS, N_OVERFLOW, N_REVERTED, N_ROUNDS,
                                             N_TESTS, N_UNRESOLVED, brute_force_contacts, edges_apart_bounds,
                                             ee_candidate, point_off_triangle, test_ee_pair, test_triangle_pair, test_vf_pair,
@@ -41,10 +41,10 @@ from stages.sim.cloth_contact_pairs import (N_BUILDS, N_CAND_OVERFLOW, N_CONTACT
                                             vf_candidate)
 
 # kernels below compile in code from these modules: their edits must invalidate the disk cache
-NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.geometry.kdop", "stages.sim.cloth_contact_ccd", "stages.sim.cloth_contact_cull",
-                       "stages.sim.cloth_contact_local",
-                       "stages.sim.cloth_contact_narrow", "stages.sim.cloth_contact_pairs",
-                       "stages.sim.cloth_contact_response", "stages.sim.simd")
+NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.geometry.kdop", "stages.sim.cloth_contact.ccd", "stages.sim.cloth_contact.cull",
+                       "stages.sim.cloth_contact.local",
+                       "stages.sim.cloth_contact.narrow", "stages.sim.cloth_contact.pairs",
+                       "stages.sim.cloth_contact.response", "stages.sim.simd")
 
 MIN_TURN = 0.5       # rad: a candidate list culls only patches whose normals can turn this far and stay flat
 # A culled list a normal's turn undoes within YOUNG_LIST detections of its build: the next PLAIN_BUILDS
@@ -55,7 +55,7 @@ YOUNG_LIST = 4
 PLAIN_BUILDS = 8
 PUSH_OVER = 1.02     # responses push to 1.02 h so a contact just resolved is not found again at h
 SWEEPS = 3           # Gauss-Seidel sweeps over a round's contacts before the next detection
-# (the response, the settled test and the fail-safe's revert: stages.sim.cloth_contact_response)
+# (the response, the settled test and the fail-safe's revert: stages.sim.cloth_contact.response)
 
 # ---------------------------------------------------------------------------------------------
 # tree: refit and self-traversal
@@ -74,7 +74,7 @@ def _segment_bounds(xs, xe, directions, margin, pt_min, pt_max):
 
 @njit(cache=True, _nrt=False)
 def _triangle_bounds(triangles, pt_min, pt_max, tri_min, tri_max):
-    """Every triangle's bounds from its corners' (cloth_contact_local.tri_bounds)."""
+    """Every triangle's bounds from its corners' (stages.sim.cloth_contact.local.tri_bounds)."""
     for t in range(triangles.shape[0]):
         tri_bounds(triangles, t, pt_min, pt_max, tri_min, tri_max)
 
@@ -187,7 +187,7 @@ def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters,
     """Self-traversal of the (refit) cloth tree: every pair of overlapping leaves with at least one
     dirty side is tested exactly (`test_triangle_pair`); with `cull`, a subtree that is a flat
     patch (`flat_patch`) is not tested against itself, nor two neighbouring nodes that together are one
-    (`flat_union`, stages.sim.cloth_contact_cull; with room for the normals to turn by `turn` rad).
+    (`flat_union`, stages.sim.cloth_contact.cull; with room for the normals to turn by `turn` rad).
     Returns the number of contacts stored; with
     `collect`, the feature pairs are appended to the candidate lists instead and each culled node
     notes how far its normals may turn and keep it flat (`_note_cull`)."""
@@ -277,8 +277,8 @@ def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters,
 # (margin, motion built with), box_lo / box_hi (N, 4) each particle's box
 # at the build (box_lo[:, 3]: how far it may move from it), nrm_ref (T, 4) unit normals at the build
 # and the cosine of how far each may turn, node_slack (n,) f8 the culled nodes' turn margins);
-# tree[31:42]: the in-place updates' arrays (stages.sim.cloth_contact_local); tree[42]: pdiag
-# (stages.sim.cloth_contact_narrow)
+# tree[31:42]: the in-place updates' arrays (stages.sim.cloth_contact.local); tree[42]: pdiag
+# (stages.sim.cloth_contact.narrow)
 
 @njit(cache=True, _nrt=False)
 def build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, counters):
@@ -411,7 +411,7 @@ def candidates_valid(xs, xe, topo, tree, work, margin, motion, rotation, counter
 def find_contacts(xs, xe, topo, tree, work, prm, only_cross, counters):
     """One detection over xs -> xe into the contact buffer: over the candidate lists (rebuilt when
     they no longer cover the step; updated in place when only up to LOCAL_MAX particles left their
-    boxes, stages.sim.cloth_contact_local) when prm's motion margin is > 0, else by the tree search."""
+    boxes, stages.sim.cloth_contact.local) when prm's motion margin is > 0, else by the tree search."""
     thickness, layer_depth, rounds, failsafe_rounds, cull, motion, rotation = prm
     margin = 0.5 * max(thickness, layer_depth)
     if motion > 0.0:
@@ -449,15 +449,15 @@ def collide_cloth(x_prev, x, inv_mass, topo, tree, work, prm, counters, keep=Non
     x      (N, 3) f8: predicted positions at its end; corrected so no particle passes through a
            cloth triangle and no cloth edge through a cloth edge on the way x_prev -> x.
     inv_mass (N,) f8: 0 = pinned, never moved here.
-    topo, tree, work: tuples of arrays from `ClothContact.kernel_args()` (stages.sim.cloth_contact).
+    topo, tree, work: tuples of arrays from `ClothContact.kernel_args()` (stages.sim.cloth_contact.setup).
     prm: (thickness m, layer_depth m, rounds, failsafe_rounds, cull, motion m, rotation rad): cull =
-           normal-cone culling of flat patches in the self test (stages.sim.cloth_contact_cull);
+           normal-cone culling of flat patches in the self test (stages.sim.cloth_contact.cull);
            motion > 0: detection over candidate lists kept while particles stay within `motion`
            and normals within what keeps the culled patches flat (at most `rotation`) of where the
            lists were built (`find_contacts`).
     counters (N_COUNTERS,) i8: accumulated (+=), see N_* above.
     keep: None, or a kept-contact buffer (work's 7 arrays, a count (1,) i8 and a reach (1,) f8 m, see
-           stages.sim.cloth_contact_response.keep_contacts): emptied, then every round's contacts
+           stages.sim.cloth_contact.response.keep_contacts): emptied, then every round's contacts
            are appended, for the sub-steps until the next call (stages.sim.step.cloth_phase). The
            detection then lists the pairs within `reach` (> thickness): those between the thickness
            and it need no response now (their constraint holds) but may close in before the next call.

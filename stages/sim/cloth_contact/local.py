@@ -1,5 +1,5 @@
 """Cloth x cloth candidate lists updated in place when a few particles leave their motion boxes
-(stages.sim.cloth_contact_kernels.find_contacts): instead of a full build (a tree search over every
+(stages.sim.cloth_contact.kernels.find_contacts): instead of a full build (a tree search over every
 triangle, ~10 M cycles on the shipped walk), the particles that left (`loc_list`) get new boxes,
 every listed pair with one of their features is dropped, and the triangles around them are searched
 against the tree alone for their pairs again.
@@ -9,7 +9,7 @@ listed (or culled) with; a pair with one is searched afresh over the new boxes, 
 (the result is a superset of what a build would list: culling only drops pairs). The tree's node
 bounds are refit from the updated triangle bounds first.
 
-Arrays: `tree` of stages.sim.cloth_contact.ClothContact.kernel_args; tree[31:37] = (loc_list (L,)
+Arrays: `tree` of stages.sim.cloth_contact.setup.ClothContact.kernel_args; tree[31:37] = (loc_list (L,)
 int32 the particles that left, loc_n (2,) int64 (how many, 1 if a normal turned too far: a full
 build), vt_start (N + 1,) int64 / vt_tri (3T,) int32 each particle's triangles, ring (T,) int32 a
 work list, flag (N + T,) uint8 work flags: the particles that left, then their triangles, bld_min /
@@ -25,10 +25,10 @@ import numpy as np
 from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
-from stages.sim.cloth_contact_pairs import test_triangle_pair
+from stages.sim.cloth_contact.pairs import test_triangle_pair
 
-NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.geometry.kdop", "stages.sim.cloth_contact_ccd",
-                       "stages.sim.cloth_contact_pairs")
+NUMBA_CACHE_DEPENDS = ("stages.affine", "stages.geometry.kdop", "stages.sim.cloth_contact.ccd",
+                       "stages.sim.cloth_contact.pairs")
 
 STEPS_AHEAD = 8       # a particle's box is wide enough for this many steps at its speed,
 MAX_MOTION_STEPS = 4  # but at most this many times the motion margin
@@ -194,7 +194,7 @@ def update_candidates(xs, xe, topo, tree, work, margin, motion, counters):
             t2 = leaf_prim[a]
             if t2 >= 0:
                 if t2 != t and not (flag[n + t2] and t2 < t):
-                    # the tree search's collection (cloth_contact_pairs), for the new pairs only
+                    # the tree search's collection (stages.sim.cloth_contact.pairs), for the new pairs only
                     test_triangle_pair(xs, xe, t, t2, topo, tree, bld_min, bld_max, 0.0, 0.0, False, work, 0,
                                        counters, True, True)
                 continue
