@@ -297,3 +297,19 @@ def test_an_output_file_flag_naming_a_fifo_is_one_line(argv, tmp_path, monkeypat
     assert main(argv) == 2   # checked before any work: opened for writing, the FIFO would block
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "'p' is a FIFO" in err, err
+
+
+def test_more_sweep_workers_than_the_memory_holds_are_capped_with_a_warning(monkeypatch):
+    import warnings
+    from types import SimpleNamespace
+
+    from pipeline import preflight, sweep
+    monkeypatch.setattr(preflight, "available_memory", lambda: 3 * sweep.WORKER_BYTES + 1)
+    sw = SimpleNamespace(path="s.yaml")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert sweep.memory_capped_workers(64, sw) == 3
+        assert sweep.memory_capped_workers(2, sw) == 2
+    assert len(caught) == 1 and "64 workers" in str(caught[0].message) and "running 3 workers" in str(caught[0].message)
+    monkeypatch.setattr(preflight, "available_memory", lambda: None)
+    assert sweep.memory_capped_workers(64, sw) == 64
