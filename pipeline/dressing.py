@@ -205,7 +205,7 @@ def build_garmentcode_garment(scene: Scene, index: int, character, motion, colli
     from stages.errors import InputError
     from stages.garments.garmentcode import read_pattern
     from pipeline.assets import assets_dir
-    from stages.garments.garmentcode_place import DEFAULT_BODY, body_of, make_gc_garment, place_gc_garment
+    from stages.garments.garmentcode_place import DEFAULT_BODY, body_of, gathered_note, make_gc_garment, place_gc_garment
     from stages.garments.sewing import SewParams
     g = scene["garments"][index]
     where = f"{scene.path or '<scene>'}: garments[{index}] ({g['name']!r}, GarmentCode {g['path']}) on {character.name!r}"
@@ -232,7 +232,13 @@ def build_garmentcode_garment(scene: Scene, index: int, character, motion, colli
         raise SceneError(f"{where}: cannot place and sew the pattern: {err}") from None
     if warn:
         warnings.warn(warn, stacklevel=1)
-    check_sewn(where, index, sw, garment, log, build)
+    try:
+        check_sewn(where, index, sw, garment, log, build)
+    except SewingError as err:
+        note = gathered_note(gc, build.worst_seam()[0])
+        if not note:
+            raise
+        raise SewingError(f"{err}; {note}", partial=err.partial) from None
     return garment, log, build
 
 

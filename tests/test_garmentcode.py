@@ -14,7 +14,7 @@ from pipeline.assets import assets_dir
 from stages.errors import InputError
 from stages.garments.garmentcode import (arc_center, edge_length, edge_points, euler_xyz_to_R,
                                          parse_pattern, read_pattern)
-from stages.garments.garmentcode_place import (DEFAULT_BODY, grade, mismatch_warning, read_body, stitch_lengths,
+from stages.garments.garmentcode_place import (DEFAULT_BODY, GATHER_NOTED, gathered_note, grade, mismatch_warning, read_body, stitch_lengths,
                                                to_pattern)
 from stages.garments.garmentcode_wrap import cone_apex, wrap_ring
 from stages.garments.triangulate import triangulate_pattern
@@ -77,6 +77,21 @@ def _first_pair(flat, k):
     """The global vertex indices of seam k's first pair (pairs of a seam are in side A's order)."""
     i = int(np.flatnonzero(flat.seam_index == k)[0])
     return flat.seam_pairs[i]
+
+
+def test_an_open_seam_of_unequal_sides_is_explained_as_gathered():
+    # panel a's edge 0 is 40 cm, panel b's 20 cm (the sampled tee's armholes: 37.6 vs 22.2 cm)
+    a = _panel([[0, 0], [40, 0], [40, 30], [0, 30]])
+    b = _panel([[0, 0], [20, 0], [20, 30], [0, 30]])
+    c = _panel([[0, 0], [40, 0], [40, 30], [0, 30]])
+    gc = parse_pattern(_spec({"a": a, "b": b, "c": c},
+                             [[{"panel": "a", "edge": 0}, {"panel": "b", "edge": 0}],
+                              [{"panel": "a", "edge": 2}, {"panel": "c", "edge": 0}]]))
+    note = gathered_note(gc, "a.e0 / b.e0")
+    assert "40.0 cm and 20.0 cm" in note and "gathers" in note
+    assert gathered_note(gc, "a.e2 / c.e0") == ""           # equal sides: no explanation
+    assert gathered_note(gc, "a.e1 / b.e1") == ""           # not a stitch of the pattern
+    assert 1.0 < GATHER_NOTED < 40 / 20
 
 
 @needs_assets

@@ -198,6 +198,21 @@ def stitch_lengths(gc: GCPattern) -> list[tuple[float, float]]:
     return [tuple(edge_length(gc.panel(pn), gc.panel(pn).edges[k]) for pn, k in (st.a, st.b)) for st in gc.stitches]
 
 
+GATHER_NOTED = 1.25   # sides' length ratio from which a seam left open is explained as gathered
+
+
+def gathered_note(gc: GCPattern, seam: str) -> str:
+    """Why the seam labelled 'panel.eA / panel.eB' may stay open: '' or a sentence giving its sides'
+    lengths when they differ by GATHER_NOTED or more (GarmentCode gathers the longer side into the
+    shorter; this sewing pulls them together as stiff sheets, which stalls at such ratios: the sampled
+    tee's armholes, 37.6 vs 22.2 cm, stay 19-26 mm open with the body's colliders or without them)."""
+    for st, (la, lb) in zip(gc.stitches, stitch_lengths(gc)):
+        if f"{st.a[0]}.e{st.a[1]} / {st.b[0]}.e{st.b[1]}" == seam and max(la, lb) >= GATHER_NOTED * min(la, lb):
+            return (f"its sides are {la * 100:.1f} cm and {lb * 100:.1f} cm long: GarmentCode gathers the longer "
+                    f"side; this sewing does not gather sides {GATHER_NOTED:.2f}x apart or more")
+    return ""
+
+
 @dataclass(frozen=True)
 class BodyMap:
     """From the pattern body's frame (m, GarmentCode) to the character's relative frame at frame 0.
