@@ -169,6 +169,15 @@ def cmd_inspect(args) -> int:
     from pipeline import where
     from pipeline.inspect import describe, text
     where.stage(f"inspect {args.asset}")
+    if str(args.asset).lower().endswith(".json"):     # a GarmentCode pattern (issue 39)
+        from pathlib import Path
+
+        from pipeline.pattern_inspect import describe_pattern, pattern_png, pattern_text
+        facts = describe_pattern(args.asset)
+        png = Path(args.png or f"{facts['name']}_panels.png")
+        facts["png"] = str(pattern_png(args.asset, png))
+        print(json.dumps(facts, indent=1) if args.json else f"{pattern_text(facts)}\n  panels drawn: {png}")
+        return 0
     facts = describe(args.asset)
     print(json.dumps(facts, indent=1) if args.json else text(facts))
     return 0
@@ -268,9 +277,13 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("-q", "--quiet", action="store_true", help="no progress; only the summary")
     sw.set_defaults(func=cmd_sweep)
     ins = sub.add_parser("inspect", parents=[common], help="a character file as the pipeline reads it: joints, "
-                                                           "clips, mesh size, up axis, garment anchors")
-    ins.add_argument("asset", help="a .glb / .gltf / .bvh file, or 'builtin' (the procedural character)")
+                                                           "clips, mesh size, up axis, garment anchors; or a "
+                                                           "GarmentCode pattern: panels, stitches, edge kinds, size, "
+                                                           "the body it was made for, and a PNG of the panels")
+    ins.add_argument("asset", help="a .glb / .gltf / .bvh file, 'builtin' (the procedural character), or a "
+                                   "GarmentCode *_specification.json")
     ins.add_argument("--json", action="store_true", help="print the facts as JSON")
+    ins.add_argument("--png", help="a pattern's panels drawing (default: NAME_panels.png in the current folder)")
     ins.set_defaults(func=cmd_inspect)
     me = sub.add_parser("measure", parents=[common], help="a character's measurements as a GarmentCode body file "
                                                          "(body_measurements.yaml: cm, degrees)")
