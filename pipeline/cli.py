@@ -116,9 +116,10 @@ def cmd_corpus(args) -> int:
 
     from pipeline.corpus import default_folder, run_corpus, table
     echo = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr, flush=True))
+    kinds = [] if args.only_patterns else (args.garment or None)
     rows = run_corpus(Path(args.output) if args.output else default_folder(), frames=args.frames,
-                      characters=args.character or None, kinds=args.garment or None, full=args.full,
-                      jobs=args.jobs, echo=echo)
+                      characters=args.character or None, kinds=kinds, full=args.full, jobs=args.jobs,
+                      patterns=args.pattern or None, with_patterns=not args.no_patterns, echo=echo)
     print(table(rows))
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1, default=str))
@@ -253,6 +254,13 @@ def build_parser() -> argparse.ArgumentParser:
                                                         "every clip once and every kind once, round-robin)")
     m.add_argument("-o", "--output", help="--corpus: folder for the sweep, its recordings and table (default sweeps/corpus)")
     m.add_argument("--jobs", type=int, help="--corpus: worker processes (default: every core)")
+    m.add_argument("--pattern", action="append", help="--corpus: only this GarmentCode pattern of the assets' "
+                                                      "garmentcode/ folder (file name without _specification.json; "
+                                                      "repeatable; default: every one)")
+    m.add_argument("--only-patterns", action="store_true", help="--corpus: the GarmentCode patterns, not the "
+                                                                "built-in kinds")
+    m.add_argument("--no-patterns", action="store_true", help="--corpus: the built-in kinds, not the GarmentCode "
+                                                              "patterns")
     m.set_defaults(func=cmd_matrix)
     ex = sub.add_parser("export", parents=[common], help="write a recording's (or a scene run's) garments and body "
                                                          "as npz, pc2 (+ obj rest mesh), obj, glb or usd files")
