@@ -151,9 +151,10 @@ def cmd_corpus(args) -> int:
 
     from pipeline.corpus import default_folder, run_corpus, table
     echo = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr, flush=True))
+    kinds = [] if args.only_patterns else (args.garment or None)
     rows = run_corpus(Path(args.output) if args.output else default_folder(), frames=args.frames,
-                      characters=args.character or None, kinds=args.garment or None, full=args.full,
-                      jobs=args.jobs, echo=echo)
+                      characters=args.character or None, kinds=kinds, full=args.full, jobs=args.jobs,
+                      patterns=args.pattern or None, with_patterns=not args.no_patterns, echo=echo)
     print(table(rows))
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1, default=str))
@@ -204,6 +205,15 @@ def cmd_inspect(args) -> int:
     from pipeline import where
     from pipeline.inspect import describe, text
     where.stage(f"inspect {args.asset}")
+    if str(args.asset).lower().endswith(".json"):     # a GarmentCode pattern (issue 39)
+        from pathlib import Path
+
+        from pipeline.pattern_inspect import describe_pattern, pattern_png, pattern_text
+        facts = describe_pattern(args.asset)
+        png = Path(args.png or f"{facts['name']}_panels.png")
+        facts["png"] = str(pattern_png(args.asset, png))
+        print(json.dumps(facts, indent=1) if args.json else f"{pattern_text(facts)}\n  panels drawn: {png}")
+        return 0
     facts = describe(args.asset)
     print(json.dumps(facts, indent=1) if args.json else text(facts))
     return 0
@@ -280,6 +290,13 @@ def build_parser() -> argparse.ArgumentParser:
                                                         "every clip once and every kind once, round-robin)")
     m.add_argument("-o", "--output", help="--corpus: folder for the sweep, its recordings and table (default sweeps/corpus)")
     m.add_argument("--jobs", type=int, help="--corpus: worker processes (default: every core)")
+    m.add_argument("--pattern", action="append", help="--corpus: only this GarmentCode pattern of the assets' "
+                                                      "garmentcode/ folder (file name without _specification.json; "
+                                                      "repeatable; default: every one)")
+    m.add_argument("--only-patterns", action="store_true", help="--corpus: the GarmentCode patterns, not the "
+                                                                "built-in kinds")
+    m.add_argument("--no-patterns", action="store_true", help="--corpus: the built-in kinds, not the GarmentCode "
+                                                              "patterns")
     m.set_defaults(func=cmd_matrix)
     ex = sub.add_parser("export", parents=[common], help="write a recording's (or a scene run's) garments and body "
                                                          "as npz, pc2 (+ obj rest mesh), obj, glb or usd files")
@@ -304,9 +321,13 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("-q", "--quiet", action="store_true", help="no progress; only the summary")
     sw.set_defaults(func=cmd_sweep)
     ins = sub.add_parser("inspect", parents=[common], help="a character file as the pipeline reads it: joints, "
-                                                           "clips, mesh size, up axis, garment anchors")
-    ins.add_argument("asset", help="a .glb / .gltf / .bvh file, or 'builtin' (the procedural character)")
+                                                           "clips, mesh size, up axis, garment anchors; or a "
+                                                           "GarmentCode pattern: panels, stitches, edge kinds, size, "
+                                                           "the body it was made for, and a PNG of the panels")
+    ins.add_argument("asset", help="a .glb / .gltf / .bvh file, 'builtin' (the procedural character), or a "
+                                   "GarmentCode *_specification.json")
     ins.add_argument("--json", action="store_true", help="print the facts as JSON")
+    ins.add_argument("--png", help="a pattern's panels drawing (default: NAME_panels.png in the current folder)")
     ins.set_defaults(func=cmd_inspect)
     me = sub.add_parser("measure", parents=[common], help="a character's measurements as a GarmentCode body file "
                                                          "(body_measurements.yaml: cm, degrees)")

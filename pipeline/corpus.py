@@ -11,6 +11,11 @@ every kind), plus one layered outfit (a T-shirt over shorts) per character that 
 kind the character cannot wear is a row with the one line `run` would print. Each scene starts at
 START_SHARE of its clip.
 
+GarmentCode patterns (issue 39): every `*_specification.json` under the assets folder's
+garmentcode/ (examples and sampled designs) is dressed on every character, one scene each, its clip
+dealt round-robin, as a `type: garmentcode` garment with nothing but its path (`patterns`: only
+these names; `kinds=[]`: the patterns alone).
+
 A pair passes when the run exits 0 and, after frame 0: at most IN_BODY_MAX of the particles inside
 the body at every frame, no cloth edge through cloth, no body-mesh edge through the cloth at any
 frame after the blend-in (pipeline.body_report; the dressing matrix reports that figure without
@@ -85,6 +90,33 @@ def _slug(text: str) -> str:
     return sweep_slug(text, 40).rstrip("-.") or "x"
 
 
+def pattern_files(assets: Path, names=None) -> list[Path]:
+    """The GarmentCode patterns of the assets folder (garmentcode/**/*_specification.json), sorted;
+    names: only these (the file name without _specification.json)."""
+    root = assets / "garmentcode"
+    found = sorted(root.rglob("*_specification.json")) if root.is_dir() else []
+    if names:
+        unknown = [n for n in names if n not in {pattern_name(p) for p in found}]
+        if unknown:
+            from pipeline.schema import SceneError
+            raise SceneError(f"matrix --corpus --pattern: {', '.join(map(repr, unknown))} not found in {root}; "
+                             f"patterns: {', '.join(pattern_name(p) for p in found)}")
+        found = [p for p in found if pattern_name(p) in names]
+    return found
+
+
+def pattern_name(path: Path) -> str:
+    return path.name[:-len("_specification.json")]
+
+
+def pattern_cases(c: CorpusCharacter, patterns: list[Path]) -> list[dict]:
+    """One scene per GarmentCode pattern on the character, its clips dealt round-robin."""
+    clips = c.clips or [("rest", 0.0)]
+    return [_case(c, *clips[i % len(clips)], [{"type": "garmentcode", "name": _slug(pattern_name(p)),
+                                               "path": str(p.resolve())}], f"gc-{pattern_name(p)}")
+            for i, p in enumerate(patterns)]
+
+
 def cases_of(c: CorpusCharacter, *, full: bool = False) -> list[dict]:
     """The sweep cases of one character: (clip, kind) pairs and the layered outfit."""
     clips = c.clips or [("rest", 0.0)]
@@ -143,12 +175,15 @@ def verdict(row: dict) -> list[str]:
 
 def run_corpus(folder: Path, *, frames: int = 30, characters: list[str] | None = None,
                kinds: list[str] | None = None, full: bool = False, jobs: int | None = None,
-               timeout: float = 900.0, echo=print) -> list[dict]:
+               timeout: float = 900.0, patterns: list[str] | None = None, with_patterns: bool = True,
+               echo=print) -> list[dict]:
     """Survey the characters, run their pairs as a sweep in `folder`; rows (the sweep's, plus
-    `character`, `pair`, `verdict`), the refused pairs included."""
+    `character`, `pair`, `verdict`), the refused pairs included. kinds: the built-in kinds (None:
+    all, []: none); patterns: only these GarmentCode patterns; with_patterns False: none of them."""
     from pipeline.matrix import KINDS
     from pipeline.sweep import run_sweep
-    kinds = list(kinds or KINDS)
+    kinds = list(KINDS if kinds is None else kinds)
+    gc_files = pattern_files(assets_dir(), patterns) if with_patterns else []
     specs = character_specs(assets_dir())
     if characters:
         unknown = [n for n in characters if n not in {label for label, _ in specs}]
@@ -165,8 +200,9 @@ def run_corpus(folder: Path, *, frames: int = 30, characters: list[str] | None =
             refused.append({"character": label, "pair": "(loading)", "status": "refused",
                             "verdict": [" ".join(str(err).split())]})
             continue
-        echo(f"{label}: {len(c.clips)} clip(s), wears {', '.join(c.wears) or 'nothing'}")
-        cases += [dict(k, _character=label) for k in cases_of(c, full=full)]
+        echo(f"{label}: {len(c.clips)} clip(s), wears {', '.join(c.wears) or 'no built-in kind'}"
+             f"{f' and {len(gc_files)} GarmentCode pattern(s)' if gc_files else ''}")
+        cases += [dict(k, _character=label) for k in cases_of(c, full=full) + pattern_cases(c, gc_files)]
         refused += [{"character": label, "pair": kind, "status": "refused", "verdict": [why]}
                     for kind, why in c.refused.items()]
     by_label = {k["label"]: k.pop("_character") for k in cases}

@@ -3,6 +3,7 @@ mesh garments and obstacles read and checked, and the fit figures of what was si
 pipeline (pipeline.run) calls these; `validate` and the dressing matrix use them too."""
 from __future__ import annotations
 
+import dataclasses
 
 import numpy as np
 
@@ -125,7 +126,7 @@ def scene_pattern(scene: Scene, index: int, character, motion, colliders, under=
         raise SceneError(f"{_garment_where(scene, index, character)}: the pattern cannot be sized for this body: "
                          f"{err}") from None
     check_pattern_size(scene, index, character, pattern)
-    return pattern
+    return dataclasses.replace(pattern, density=g["density"])
 
 
 MAX_PATTERN_PARTICLES = 100_000   # ~10x the largest shipped garment; memory and time grow with it
@@ -285,7 +286,9 @@ def build_scene_garments(scene: Scene, character, motion, colliders, maps, meshe
                                                       under=under)
             except (ContractError, InputError) as err:
                 raise _garment_build_error(scene, i, err) from None
-        out[i] = garment
+        # the fabric's stiffnesses (None: the simulation's); the density is already in the masses
+        out[i] = dataclasses.replace(garment, stretch_stiffness=g["stretch_stiffness"],
+                                     bend_stiffness=g["bend_stiffness"])
         if built is not None:
             builds[g["name"]] = built
     return out, {g["name"]: builds[g["name"]] for g in scene["garments"] if g["name"] in builds}

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import yaml
 
+from pipeline.fabric import check_material, resolve_fabrics
 from pipeline.schema import REQUIRED, Field, SceneError, plausible, validate
 
 # bounds of positions, speeds and angles: far past any scene, short of sizes that overflow the kernels
@@ -43,8 +44,16 @@ PIN = Field("section", None, "particles with inverse mass 0, attached to a bone"
 
 _GARMENT_COMMON = {
     "name": Field("str", REQUIRED, "garment name (entity path sim/<name>)"),
-    "density": Field("float", 0.2, "area density, kg/m^2", lo=0.0, lo_open=True, hi=100.0,
-                     warn=plausible(0.02, 2.0, "cloth weighs 0.05-0.6 kg/m^2")),
+    "density": Field("float", None, "area density, kg/m^2 (default: the material's, else 0.2)", lo=0.0, lo_open=True,
+                     hi=100.0, warn=plausible(0.02, 2.0, "cloth weighs 0.05-0.6 kg/m^2")),
+    "material": Field("any", None, "fabric: cotton, denim, jersey, silk, wool or leather, or {file: a GarmentCode "
+                      "simulator settings file}; sets density, stretch_stiffness and bend_stiffness unless the "
+                      "garment gives them", check=check_material),
+    "stretch_stiffness": Field("float", None, "this garment's share of a stretch correction per round at 300 "
+                               "rounds/s (default: the material's, else simulation.stretch_stiffness)",
+                               lo=0.0, lo_open=True, hi=1.0),
+    "bend_stiffness": Field("float", None, "this garment's share of a bend correction per round at 300 rounds/s "
+                            "(default: the material's, else simulation.bend_stiffness)", lo=0.0, hi=1.0),
     "pin": PIN,
     "layer": Field("int", None, "cloth collision layer, 0 = innermost; default: the garment's place in the "
                    "list (earlier = inner); garments of a higher layer are kept outside lower ones", lo=0, hi=1000),
@@ -125,11 +134,9 @@ def _check_garment(g):
     return None
 
 
+_FABRIC = ("density", "material", "stretch_stiffness", "bend_stiffness")
 GARMENT.variants["pattern"] = {
-    "name": _GARMENT_COMMON["name"],
-    "density": _GARMENT_COMMON["density"],
-    "layer": _GARMENT_COMMON["layer"],
-    "ignore_colliders": _GARMENT_COMMON["ignore_colliders"],
+    **{k: _GARMENT_COMMON[k] for k in ("name", *_FABRIC, "layer", "ignore_colliders")},
     "kind": Field("str", REQUIRED, "a built-in sewing pattern, sized from the character's measurements",
                   choices=_PATTERN_KINDS),
     "edge_length": Field("float", 0.025, "target mean edge length of the flat panels, m", lo=0.005, hi=0.2),
@@ -144,7 +151,7 @@ GARMENT.variants["pattern"] = {
     }),
 }
 GARMENT.variants["garmentcode"] = {   # issue 39: a GarmentCode sewing pattern
-    **{k: _GARMENT_COMMON[k] for k in ("name", "density", "layer", "ignore_colliders")},
+    **{k: _GARMENT_COMMON[k] for k in ("name", *_FABRIC, "layer", "ignore_colliders")},
     "path": Field("path", REQUIRED, "GarmentCode *_specification.json, relative to the scene file; the body it was "
                   "made for: body_measurements.yaml beside it, else GarmentCode's default body (mean_all)"),
     "edge_length": Field("float", 0.025, "target mean edge length of the flat panels, m", lo=0.005, hi=0.2),
@@ -457,6 +464,7 @@ def scene_from_data(data, *, text: str, source: str = "<scene>", base_dir: Path 
                 raise SceneError(f"{at}: {section}[{i}].name: {item['name']!r} is already the name of "
                                  f"{section}[{j}]; names must be unique")
     _check_frames(settings, source, marks)
+    resolve_fabrics(settings, source, base_dir)
     name = settings["name"] or default_name
     if not re.fullmatch(r"[A-Za-z0-9_.-]+", name):
         raise SceneError(f"{source}: name: {name!r} must use only letters, digits, '_', '-' and '.'")

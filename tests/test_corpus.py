@@ -66,7 +66,7 @@ def test_every_character_file_of_the_assets_is_listed(assets_dir):
 
 def test_a_small_corpus_runs_end_to_end(tmp_path):
     """The built-in character's clips in a short skirt, 2 frames each: a row per clip with its verdict."""
-    rows = run_corpus(tmp_path, frames=2, characters=["builtin"], kinds=["short_skirt"], jobs=1,
+    rows = run_corpus(tmp_path, frames=2, characters=["builtin"], kinds=["short_skirt"], jobs=1, with_patterns=False,
                       echo=lambda *a: None)
     assert len(rows) >= 2 and all(r["character"] == "builtin" for r in rows)
     assert all(r["status"] == "ok" for r in rows)
@@ -74,3 +74,32 @@ def test_a_small_corpus_runs_end_to_end(tmp_path):
     text = table(rows)
     assert text.count("| builtin |") == len(rows) and f"of {len(rows)} pairs pass" in text
     assert (tmp_path / "table.csv").is_file()
+
+
+def test_every_garmentcode_pattern_is_a_scene_on_every_character(tmp_path):
+    import pytest
+
+    from pipeline.corpus import pattern_cases, pattern_files
+    from pipeline.schema import SceneError
+    for sub in ("examples/a_specification.json", "sampled/b_s1/b_s1_specification.json", "sampled/b_s1/other.json"):
+        (tmp_path / "garmentcode" / sub).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / "garmentcode" / sub).write_text("{}")
+    files = pattern_files(tmp_path)
+    assert [f.name for f in files] == ["a_specification.json", "b_s1_specification.json"]
+    assert [f.name for f in pattern_files(tmp_path, ["b_s1"])] == ["b_s1_specification.json"]
+    with pytest.raises(SceneError, match="'nope' not found"):
+        pattern_files(tmp_path, ["nope"])
+    for n_clips in (1, 3):
+        c = _character(n_clips, [])
+        cases = pattern_cases(c, files)
+        assert len(cases) == 2 and len({k["label"] for k in cases}) == 2
+        for k, f in zip(cases, files):
+            assert k["garments"] == [{"type": "garmentcode", "name": f.name[:-len("_specification.json")],
+                                      "path": str(f.resolve())}]           # nothing but the path: no tuning
+            duration = dict(c.clips)[k["character"]["clip"]]
+            assert 0 < k["frames.start"] < duration
+        assert {k["character"]["clip"] for k in cases} == {name for name, _ in c.clips[:2]}
+    # the sweep file takes them as they are
+    from pipeline.sweep_file import load_sweep
+    c = CorpusCharacter("builtin", {"source": "procedural"}, [("walk", 1.2)], [])
+    assert len(load_sweep(write_sweep(tmp_path / "s", pattern_cases(c, files), frames=5, timeout=10.0)).jobs) == 2

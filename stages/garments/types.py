@@ -1,22 +1,18 @@
 """The garment contract: a triangle mesh turned into a mass-spring particle system (paper A §1).
 
-Frames: garment positions are in the *relative frame* at frame 0 (world with the root translation
-of frame 0 removed, which is world itself at frame 0; see stages/rig/types.py). Attached particles
-store their position in the bone-local frame of the joint they follow, so that at frame t their
-relative-frame position is `Motion.joint_world[t, j] @ attach_local`.
+Frames: garment positions are in the *relative frame* at frame 0 (world itself at frame 0; see
+stages/rig/types.py). Attached particles store their position in the bone-local frame of the joint
+they follow (at frame t: `Motion.joint_world[t, j] @ attach_local`).
 
 `build_garment` makes a Garment from any triangle mesh:
 - particles = vertices; stretch/shear springs (kind 0) = unique mesh edges; bend springs (kind 1)
-  = the two opposite vertices of each pair of triangles sharing an edge;
-- rest lengths from the rest shape, lumped masses from an area density;
-- attachment selectors (`attach_indices`, `attach_near`, `attach_top_loop`) resolved against the
-  bind pose (frame 0 of the motion, `BindPose`);
+  = the two opposite vertices of each pair of triangles sharing an edge; rest lengths from the
+  rest shape, lumped masses from an area density;
+- attachment selectors (`attach_indices`, `attach_near`, `attach_top_loop`) resolved at the bind pose;
 - attached particles that a collider of another bone passes through during the motion (an arm
-  swinging through a waistband) yield to collisions, with a warning: rigid, they would sit inside
-  that limb for those frames (`swept_attachments`).
-Degenerate input is repaired with a `warnings.warn` (zero-area / repeated triangles dropped,
-coincident vertices welded, unused vertices removed) or refused with `InputError` (non-manifold
-edges, nothing left, non-finite positions).
+  swinging through a waistband) yield to collisions, with a warning (`swept_attachments`).
+Degenerate input is repaired with a warning (zero-area / repeated triangles dropped, coincident
+vertices welded, unused ones removed) or refused (InputError: non-manifold, empty, non-finite).
 """
 from __future__ import annotations
 
@@ -54,7 +50,8 @@ class Garment:
         yields to the collision response: a collider may push it off its bone for the rest of the
         step (`swept_attachments`).
     attach_local: (N, 3) float64, metres, bone-local position of attached particles (0 for others).
-    density: area density used for the masses, kg/m^2.
+    density: area density used for the masses, kg/m^2. stretch_stiffness, bend_stiffness: share of a
+        correction per round at 300/s (SimParams, the garment's fabric), None: the simulation's.
     """
 
     name: str
@@ -68,9 +65,13 @@ class Garment:
     attach_joint: np.ndarray
     attach_local: np.ndarray
     density: float = 0.2
+    stretch_stiffness: float | None = None
+    bend_stiffness: float | None = None
 
     def __post_init__(self):
         o = f"Garment[{self.name!r}]"
+        if any(v is not None and not 0.0 <= v <= 1.0 for v in (self.stretch_stiffness, self.bend_stiffness)):
+            raise ContractError(f"{o}: stretch_stiffness / bend_stiffness: expected a share in [0, 1]")
         x = check_array(o, "positions", self.positions, (None, 3), np.float64)
         n = x.shape[0]
         if n == 0:

@@ -130,14 +130,18 @@ class _System:
         springs = np.concatenate([g.springs + o for g, o in zip(garments, self.offsets)])
         rest = np.concatenate([g.rest_lengths for g in garments])
         kinds = np.concatenate([g.kinds for g in garments])
+        # each garment's fabric may set its own stiffness (None: the simulation's)
+        k_stretch = np.concatenate([np.full(len(g.kinds), params.round_stiffness(
+            params.stretch_stiffness if g.stretch_stiffness is None else g.stretch_stiffness)) for g in garments])
+        k_bend = np.concatenate([np.full(len(g.kinds), params.round_stiffness(
+            params.bend_stiffness if g.bend_stiffness is None else g.bend_stiffness)) for g in garments])
         # springs, tethers and the aerodynamic force see every attached particle as pinned (yielding
         # ones too: they yield to the collision response only, see Garment.attach_joint)
         w = np.where(self.attach_joint >= 0, 0.0, self.inv_mass)
         wsum = w[springs[:, 0]] + w[springs[:, 1]]
         live = wsum > 0
         springs, rest, kinds, wsum = springs[live], rest[live], kinds[live], wsum[live]
-        stiff = np.where(kinds == BEND, params.round_stiffness(params.bend_stiffness),
-                         params.round_stiffness(params.stretch_stiffness))
+        stiff = np.where(kinds == BEND, k_bend[live], k_stretch[live])
         order, part_start = partition_springs(self.x, springs, n_parts=2)
         springs, rest, stiff, wsum = springs[order], rest[order], stiff[order], wsum[order]
         self.si = np.ascontiguousarray(springs[:, 0], dtype=np.int32)
