@@ -28,13 +28,16 @@ def check_material(v) -> str | None:
 def read_sim_props(path: Path, where: str) -> Fabric:
     """The Fabric of a GarmentCode simulator settings file (YAML or JSON): its sim.config.material
     section, or a top-level `material` mapping."""
-    from pipeline.safe_yaml import read_text_file
+    from stages.input_files import read_text_file
+    from stages.safe_yaml import load_checked
     try:
         text = read_text_file(path, "material file", SceneError)
     except SceneError as err:
         raise SceneError(f"{where}: {err}") from None
     try:
-        data = yaml.safe_load(text)
+        data, _ = load_checked(text, str(path), SceneError)    # no alias bomb, no endless nesting
+    except SceneError as err:
+        raise SceneError(f"{where}: {err}") from None
     except yaml.YAMLError as err:
         raise SceneError(f"{where}: {path}: cannot parse the material file: {str(err).splitlines()[0]}") from None
     sim = data.get("sim") if isinstance(data, dict) else None
