@@ -24,6 +24,7 @@ from stages.checks import ContractError, check_array
 from stages.geometry.mesh import mesh_edges
 from stages.geometry.winding import winding_numbers_brute
 from stages.jit import threaded
+from stages.rig.skinning import vertex_normals
 from stages.sim import audit_kernels as AK
 from stages.sim import body_audit_kernels as BK
 from stages.sim.audit import crosses_exact
@@ -269,16 +270,6 @@ def frame_crossings(cloth: np.ndarray, cloth_tris: np.ndarray, cloth_edges: np.n
 def _unit(v: np.ndarray) -> np.ndarray:
     n = np.linalg.norm(v, axis=1, keepdims=True)
     return v / np.where(n > 0.0, n, 1.0)
-
-
-def vertex_normals(x: np.ndarray, tris: np.ndarray) -> np.ndarray:
-    """(V, 3) unit area-weighted vertex normals of a mesh (zero for a vertex no triangle uses)."""
-    a, b, c = (x[tris[:, k]] for k in range(3))
-    fn = np.cross(b - a, c - a)
-    out = np.zeros_like(x, dtype=np.float64)
-    for k in range(3):
-        np.add.at(out, tris[:, k], fn)
-    return _unit(out)
 
 
 def in_self_overlap(body: np.ndarray, body_tris: np.ndarray, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
