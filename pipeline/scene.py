@@ -43,7 +43,8 @@ def _check_pin(p):
 PIN = Field("section", None, "particles with inverse mass 0, attached to a bone", fields=_pin_fields(), check=_check_pin)
 
 _GARMENT_COMMON = {
-    "name": Field("str", REQUIRED, "garment name (entity path sim/<name>)"),
+    "name": Field("str", None, "garment name (entity path sim/<name>); default: the pattern's kind, else the file's "
+                  "name, else the type, numbered from _2 when repeated"),
     "density": Field("float", None, "area density, kg/m^2 (default: the material's, else 0.2)", lo=0.0, lo_open=True,
                      hi=100.0, warn=plausible(0.02, 2.0, "cloth weighs 0.05-0.6 kg/m^2")),
     "material": Field("any", None, "fabric: cotton, denim, jersey, silk, wool or leather, or {file: a GarmentCode "
@@ -85,6 +86,7 @@ GARMENT = Field("union", REQUIRED, "a garment", check=lambda g: _check_garment(g
 })
 
 _PATTERN_KINDS = ("tshirt", "short_skirt", "long_skirt", "shorts", "trousers", "cape", "square")
+GARMENT.tag_hints.update({k: f"{k!r} is a pattern kind: write type: pattern, kind: {k}" for k in _PATTERN_KINDS})
 
 # the size options of the built-in patterns (stages/garments/library.py: each generator's keyword
 # arguments; tests/test_scene_ranges.py holds the two in step), one range for each name whatever the kind
@@ -183,7 +185,8 @@ def _nonzero(v):
 
 
 _OBSTACLE_COMMON = {
-    "name": Field("str", REQUIRED, "obstacle name (entity path obstacles/<name>)"),
+    "name": Field("str", None, "obstacle name (entity path obstacles/<name>); default: the file's name, else the "
+                  "type, numbered from _2 when repeated"),
     "thickness": Field("float", 0.005, "contact thickness, m", lo=0.0, hi=1.0,
                        warn=plausible(None, 0.05, "cloth is held this far off the surface")),
     "friction": Field("float", 0.3, "tangential friction coefficient", lo=0.0, hi=1.0),
@@ -455,6 +458,7 @@ def scene_from_data(data, *, text: str, source: str = "<scene>", base_dir: Path 
         data = {**data, "output": export["path"]}
     settings = validate(SCENE_SPEC, data, source=source, marks=marks, base_dir=base_dir, notes=notes)
     for section in ("garments", "obstacles"):   # names are entity paths: sim/<name>, obstacles/<name>
+        _default_names(settings[section])
         first: dict = {}
         for i, item in enumerate(settings[section]):
             j = first.setdefault(item["name"], i)
@@ -470,6 +474,28 @@ def scene_from_data(data, *, text: str, source: str = "<scene>", base_dir: Path 
         raise SceneError(f"{source}: name: {name!r} must use only letters, digits, '_', '-' and '.'")
     return Scene(path=None, name=name, text=text, settings=settings,
                  export={"formats": list(export["export"]), "dir": export["export_dir"]}, notes=tuple(notes))
+
+
+def _default_names(items: list) -> None:
+    """In place: a name for every item that has none, from what it is (a pattern's kind, a file's
+    stem without GarmentCode's '_specification', else the type), numbered from _2 where it repeats a
+    name already taken (a name the scene gives wins)."""
+    taken = {it["name"] for it in items if it["name"]}
+    for it in items:
+        if it["name"]:
+            continue
+        if it.get("kind"):
+            base = it["kind"]
+        elif it.get("path"):
+            base = re.sub(r"_specification$", "", Path(it["path"]).stem)
+        else:
+            base = it["type"]
+        base = re.sub(r"[^A-Za-z0-9_.-]+", "_", base).strip("_") or it["type"]
+        name, k = base, 2
+        while name in taken:
+            name, k = f"{base}_{k}", k + 1
+        it["name"] = name
+        taken.add(name)
 
 
 def warn_notes(scene: Scene) -> None:

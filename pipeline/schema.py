@@ -41,6 +41,7 @@ class Field:
     item: "Field | None" = None                        # list
     tag: str = "type"                                  # union
     variants: dict = field(default_factory=dict)      # union: tag value -> fields dict
+    tag_hints: dict = field(default_factory=dict)     # union: a tag value users write by mistake -> the fix
     length: int | None = None                          # fixed-length number lists ('vec3' is 3)
     # extra check: returns a problem, or (sub-key, problem) to name a key inside this one, or None
     check: Callable[[Any], "str | tuple[str, str] | None"] | None = None
@@ -210,6 +211,8 @@ def _value(f: Field, v, path: str, ctx: _Ctx):
         if not isinstance(tag, str) or tag not in f.variants:
             near = difflib.get_close_matches(str(tag), list(f.variants), n=1, cutoff=0.5)
             hint = f" (did you mean {near[0]!r}?)" if near else ""
+            if isinstance(tag, str) and tag in f.tag_hints:
+                hint = f" ({f.tag_hints[tag]})"
             ctx.fail(_join(path, f.tag), f"{_describe(tag)} is not one of {', '.join(f.variants)}{hint}")
         out = _section(f.variants[tag], v, path, ctx, skip=(f.tag,))
         out[f.tag] = tag

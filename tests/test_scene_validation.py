@@ -129,6 +129,24 @@ def test_bad_scene_name():
     assert "name" in error_of("name: 'a b/c'")
 
 
+def test_garments_and_obstacles_are_named_from_what_they_are():
+    s = parse_scene_text("garments: [{type: pattern, kind: tshirt}, {type: pattern, kind: tshirt, name: tshirt_2}, "
+                         "{type: pattern, kind: tshirt}, {type: garmentcode, path: /x/tee_specification.json}, "
+                         "{type: mesh, path: 'my dress.obj'}, {type: rectangle}]\n"
+                         "obstacles: [{type: sphere, radius: 1}, {type: sphere, radius: 2, name: sphere_2}, "
+                         "{type: sphere, radius: 3}]", source="s.yaml")
+    assert [g["name"] for g in s.settings["garments"]] == ["tshirt", "tshirt_2", "tshirt_3", "tee", "my_dress",
+                                                           "rectangle"]
+    assert [o["name"] for o in s.settings["obstacles"]] == ["sphere", "sphere_2", "sphere_3"]
+    # a name given twice is still refused
+    assert "already the name" in error_of("garments: [{type: rectangle, name: a}, {type: tube, name: a}]")
+
+
+def test_a_pattern_kind_written_as_the_type_says_how_to_write_it():
+    msg = error_of("garments: [{type: short_skirt}]")
+    assert "garments[0].type" in msg and "write type: pattern, kind: short_skirt" in msg
+
+
 def test_shipped_scenes_validate_against_the_schema():
     from pathlib import Path
 
