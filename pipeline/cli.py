@@ -341,6 +341,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                         "(default 0,45,-1)")
     sn.add_argument("-o", "--out", default="snapshots", help="folder for the PNGs (default snapshots/)")
     sn.add_argument("--tab", help="a tab other than the opening one (rig, colliders, maps, garments, obstacles)")
+    sn.add_argument("--turn", type=float, default=0.0, help="turn every 3D view's camera this many degrees about "
+                    "its up axis round what it looks at (180: from behind; default 0)")
     sn.add_argument("--timeline", default="frame", help=argparse.SUPPRESS)
     sn.set_defaults(func=cmd_snapshot)
     return p

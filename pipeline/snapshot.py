@@ -1,5 +1,5 @@
-"""`python -m pipeline snapshot RECORDING.rrd [--frames 0,45,-1] [-o DIR] [--tab NAME]`: PNGs of a
-recording's 3D views at chosen frames, through the real Rerun viewer.
+"""`python -m pipeline snapshot RECORDING.rrd [--frames 0,45,-1] [-o DIR] [--tab NAME] [--turn DEG]`: PNGs
+of a recording's 3D views at chosen frames, through the real Rerun viewer.
 
 The viewer binary shipped with rerun-sdk runs headless (it needs no display; on a machine without a
 GPU it renders through software Vulkan: Debian packages `mesa-vulkan-drivers` and `libvulkan1`,
@@ -12,7 +12,8 @@ Files, for a recording `NAME.rrd` (TAB is the opening tab unless `--tab` names a
 - `NAME_fNNN.png`: the tab's first 3D view (the overview's scene view) paused at frame NNN, and
   `NAME_fNNN_v2.png` ... for the tab's further 3D views (the rig tab has two);
 - `NAME_fNNN_viewer.png`: the whole viewer at that frame.
-With `--tab TAB` the names are `NAME_TAB_...`.
+With `--tab TAB` the names are `NAME_TAB_...`; with `--turn DEG` (every 3D view's camera turned DEG
+degrees about its up axis through what it looks at: 180 looks from behind) `NAME_turnDEG_...`.
 
 Something missing (the viewer binary, a Vulkan loader or driver, a viewer that does not start)
 is one line `error: ...` and exit 2.
@@ -181,8 +182,21 @@ def _tab_views(bp: dict, tab: str | None) -> tuple[str | None, list[str], str | 
     return tabs, out, chosen
 
 
+def turned(eye: dict, degrees: float) -> dict:
+    """An EyeControls3D blueprint entry ({position, look_target, eye_up}) with its position turned
+    `degrees` about eye_up through look_target (Rodrigues' formula; counter-clockwise seen from above)."""
+    import numpy as np
+    up = np.asarray(eye["eye_up"], float)
+    up = up / max(np.linalg.norm(up), 1e-12)
+    c = np.asarray(eye["look_target"], float)
+    r = np.asarray(eye["position"], float) - c
+    a = np.radians(degrees)
+    r = r * np.cos(a) + np.cross(up, r) * np.sin(a) + up * (up @ r) * (1.0 - np.cos(a))
+    return {**eye, "position": [float(v) for v in c + r]}
+
+
 def snapshot(rrd: Path, frames: list[int], out: Path, *, tab: str | None = None, timeline: str = "frame",
-             echo=print) -> list[Path]:
+             turn: float = 0.0, echo=print) -> list[Path]:
     """Write the PNGs (see the module docstring); returns their paths."""
     from stages.input_files import check_regular_file
     rrd = Path(rrd).resolve()
@@ -190,7 +204,7 @@ def snapshot(rrd: Path, frames: list[int], out: Path, *, tab: str | None = None,
     viewer = Viewer()   # checks the binary and Vulkan before anything is written
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    stem = rrd.stem + (f"_{tab}" if tab else "")
+    stem = rrd.stem + (f"_{tab}" if tab else "") + (f"_turn{turn:g}" if turn else "")
     written = []
     with viewer:
         v = viewer.client
@@ -211,6 +225,11 @@ def snapshot(rrd: Path, frames: list[int], out: Path, *, tab: str | None = None,
         tabs, view_ids, chosen = _tab_views(bp, tab)
         if tab is not None and tabs is not None:
             bp[tabs]["ContainerBlueprint"]["active_tab"] = chosen
+        if turn:
+            for key, entry in bp.items():
+                if "EyeControls3D" in entry and {"position", "look_target", "eye_up"} <= set(entry["EyeControls3D"]):
+                    entry["EyeControls3D"] = turned(entry["EyeControls3D"], turn)
+        if turn or (tab is not None and tabs is not None):
             v.set_blueprint(bp, of="recording")
         if tab is None:
             p = out / f"{stem}_open.png"
@@ -242,7 +261,7 @@ def snapshot(rrd: Path, frames: list[int], out: Path, *, tab: str | None = None,
 def main(args) -> int:
     try:
         snapshot(Path(args.recording), parse_frames(args.frames), Path(args.out), tab=args.tab,
-                 timeline=args.timeline)
+                 timeline=args.timeline, turn=args.turn)
     except SnapshotError as err:
         print(f"error: {err}", file=sys.stderr)
         return EXIT_MISSING

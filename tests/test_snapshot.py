@@ -133,3 +133,14 @@ def test_the_viewer_is_stopped_when_the_snapshot_fails(tmp_path):
             raise RuntimeError("a failure while shooting")
     assert viewer.proc.poll() is not None          # stopped, not left running
     assert not Path(viewer.scratch.name).exists()  # its scratch config removed
+
+
+def test_turned_camera_keeps_its_distance_height_and_target():
+    from pipeline.snapshot import turned
+    eye = {"position": [0.0, 1.5, 3.0], "look_target": [0.0, 1.0, 0.0], "eye_up": [0.0, 1.0, 0.0]}
+    back = turned(eye, 180.0)
+    assert np.allclose(back["position"], [0.0, 1.5, -3.0])          # from behind
+    side = turned(eye, 90.0)                                          # counter-clockwise from above
+    assert np.allclose(side["position"], [3.0, 1.5, 0.0])
+    assert back["look_target"] == eye["look_target"] and back["eye_up"] == eye["eye_up"]
+    assert np.allclose(turned(eye, 360.0)["position"], eye["position"])
