@@ -115,8 +115,10 @@ def cmd_run(args) -> int:
         if not args.quiet:
             print(f"{stage} ...", file=sys.stderr, flush=True)
 
+    out = Path(args.output) if args.output is not None else scene.output
     summary = run_scene(scene, output=Path(args.output) if args.output is not None else None, frames=args.frames,
                         progress=not args.quiet, on_stage=announce, deterministic=args.deterministic,
+                        keep_diverged=out.with_name(out.stem + ".diverged.rrd") if out.name else None,
                         background_compile=True)
     print(summary.text())
     return 0

@@ -116,13 +116,15 @@ def is_complete(path: Path) -> bool:
 
 
 @contextlib.contextmanager
-def atomic_recording(path: Path, *, scene_name: str, scene_text: str, seed: int, keep_failed: Path | None = None):
+def atomic_recording(path: Path, *, scene_name: str, scene_text: str, seed: int, keep_failed: Path | None = None,
+                     keep_on: tuple = (BaseException,)):
     """Yield a RecordingStream saving to a temporary file; rename it to `path` on success.
 
     On any exception (including KeyboardInterrupt, and a failed rename) the temporary file is
     removed and the exception propagates; an earlier file at `path` is left untouched.
     keep_failed: on an exception, the temporary file (what was logged before it) is renamed to
-    this path instead (a sweep keeps a failed job's partial recording).
+    this path instead (a sweep keeps a failed job's partial recording), when the exception is one
+    of `keep_on` (`run` keeps the recording of a simulation that diverged, nothing else).
     """
     from pipeline.disk import DiskFull, DiskWatch, remove_stale_temporaries, temporary_path
     from stages.errors import InputError
@@ -138,6 +140,7 @@ def atomic_recording(path: Path, *, scene_name: str, scene_text: str, seed: int,
                              send_properties=False, batcher_config=batcher)
     rec.set_log_time_enabled(False)  # no wall clock: identical runs give identical recordings
     ok = False
+    failure = None
     watch = DiskWatch(path.parent)
     try:
         with watch:
@@ -152,6 +155,9 @@ def atomic_recording(path: Path, *, scene_name: str, scene_text: str, seed: int,
         ok = watch.low is None
     except DiskFull:
         pass
+    except BaseException as exc:
+        failure = exc
+        raise
     finally:
         try:
             rec.disconnect()  # writes the footer; flushes everything
@@ -160,7 +166,7 @@ def atomic_recording(path: Path, *, scene_name: str, scene_text: str, seed: int,
                     raise InputError(str(path), "the recording could not be written completely (is the disk "
                                                 "full?); the earlier file there is kept")
                 os.replace(tmp, path)
-            elif keep_failed is not None and tmp.exists() and watch.low is None:
+            elif keep_failed is not None and tmp.exists() and watch.low is None and isinstance(failure, keep_on):
                 os.replace(tmp, keep_failed)
         finally:
             with contextlib.suppress(OSError):

@@ -152,7 +152,8 @@ def background_warmup(scene: Scene, enabled: bool):
 def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = None,
               progress: bool = True, on_stage=None, deterministic: bool = False,
               export: tuple | None = None, state: dict | None = None,
-              keep_partial: Path | None = None, background_compile: bool = False) -> RunSummary:
+              keep_partial: Path | None = None, keep_diverged: Path | None = None,
+              background_compile: bool = False) -> RunSummary:
     """Check the inputs that need no character (`preflight`), run every stage the scene needs and
     write the recording atomically.
 
@@ -168,15 +169,15 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     (pipeline.sweep) can measure the run and keep what exists when it fails.
     keep_partial: where a failed run's recording goes (whatever was logged before the failure)
     instead of being deleted.
+    keep_diverged: where the recording of a run whose cloth diverged goes (every stage logged, the
+    simulation up to the end when the cloth blew up by strain or distance, the blueprint; the message
+    names the file); other failures leave no file.
     background_compile: on a first run (empty numba cache), compile the sewing, simulation and
     cloth audit kernels in a second process while the earlier stages run (pipeline.kernel_warmup).
     """
-    from pipeline import logs, style, where
-    from pipeline.kernel_cache import compile_note, mark_ran
+    from pipeline import where
+    from pipeline.kernel_cache import compile_note
     from pipeline.progress import Progress
-    from pipeline.recording import atomic_recording
-    from stages.jit import numba_threads
-    from stages.rig.skinning import skin
 
     out = Path(output) if output is not None else scene.output
     times = frame_times(scene, frames)
@@ -204,12 +205,33 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
     def bar(label: str, unit: str) -> Progress:   # a stage's progress(done, total) callback
         return Progress(1, label, unit=unit, enabled=progress)
 
+    warm = background_warmup(scene, background_compile)
+    from stages.sim import SimulationDiverged
+    keep, keep_on = (keep_partial, (BaseException,)) if keep_partial is not None else (keep_diverged, (SimulationDiverged,))
+    try:
+        return _run_stages(scene, out, times, meshes, formats, export_dir, summary, announce, state, ran, say, bar,
+                           warm, keep, keep_on, progress, deterministic)
+    except SimulationDiverged as exc:
+        if keep is not None and keep_partial is None and Path(keep).is_file():
+            exc.args = (f"{exc.args[0] if exc.args else exc}; the recording of what was simulated: {keep}",)
+        raise
+
+
+def _run_stages(scene, out, times, meshes, formats, export_dir, summary, announce, state, ran, say, bar, warm, keep,
+                keep_on, progress, deterministic):
+    """run_scene's stages inside the recording (see run_scene)."""
+    from pipeline import logs, style, where
+    from pipeline.kernel_cache import mark_ran
+    from pipeline.progress import Progress
+    from pipeline.recording import atomic_recording
+    from stages.jit import numba_threads
+    from stages.rig.skinning import skin
     s = scene.settings
+    blown = None
     # every stage's parallel kernels run on simulation.threads threads (1: their serial variants,
     # compiled several times faster: stages.jit)
-    warm = background_warmup(scene, background_compile)
     with atomic_recording(out, scene_name=scene.name, scene_text=scene.text, seed=s["seed"],
-                          keep_failed=keep_partial) as rec, numba_threads(s["simulation"]["threads"]), warm:
+                          keep_failed=keep, keep_on=keep_on) as rec, numba_threads(s["simulation"]["threads"]), warm:
         if warm.started:
             announce(f"simulation kernels (compiling in a second process, first run only: about "
                      f"{warm.estimate_s:.0f} s on 2 cores)")
@@ -350,9 +372,8 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                 r.sizes.update(steps=result.steps)
             # strain and distance: a fast particle is caught in the step
             blown = check_blown_up(result, skinned + motion.root_translation[:, None, :], height)
-            if blown is not None:
-                logs.log_text(rec, "meta/diverged", str(blown))   # a sweep keeps this partial recording
-                raise blown
+            if blown is not None:   # logged to the end (what tore it is in the recording), then raised
+                logs.log_text(rec, "meta/diverged", str(blown))
             note = speed_limit_note(result)
             if note:
                 import warnings
@@ -398,6 +419,9 @@ def run_scene(scene: Scene, *, output: Path | None = None, frames: int | None = 
                                        color=(60, 160, 90))
         rec.send_blueprint(blueprint_of(scene, character, motion, skinned, colliders, coverage_ran,
                                         obstacles, garments, builds, result), make_active=True, make_default=True)
+        if blown is not None:
+            where.stage("simulation")
+            raise blown
     summary.output = out
     mark_ran(*ran)
     if formats:

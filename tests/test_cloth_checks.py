@@ -44,3 +44,34 @@ def test_a_particle_far_from_the_body_is_diverged():
     near = SHEET.copy()
     near[:, 1] -= FAR_MIN * 0.5     # under the bound (max(5 m, 5 heights))
     assert check_blown_up(_result([SHEET, near, near, near]), BODY, 1.7) is None
+
+
+def test_run_keeps_the_recording_of_cloth_that_blew_up_and_names_it(tmp_path, monkeypatch, capsys):
+    # a torn garment (a limb dragging a waistband: one edge 602 %) ended in exit 2 and no file to look at
+    import pipeline.cloth_checks as checks
+    from pipeline.cli import main
+    from tests.rrd_read import entity_paths, rows
+    monkeypatch.setattr(checks, "MAX_STRAIN", -1.0)        # every frame "blows up": the check is what is tested
+    scene = tmp_path / "torn.yaml"
+    scene.write_text("character: {clip: rest}\nframes: {count: 3}\noutput: out.rrd\n"
+                     "garments: [{type: rectangle, resolution: [6, 6], width: 0.4, height: 0.4, center: [0, 2, 0]}]\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", str(scene), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "simulation diverged at frame 0" in err[0] and "out.diverged.rrd" in err[0]
+    assert not (tmp_path / "out.rrd").exists()           # the output itself is never a failed run
+    kept = tmp_path / "out.diverged.rrd"
+    paths = entity_paths(kept)
+    assert "/meta/diverged" in paths and "/meta/summary" in paths      # logged to the end
+    assert any(p.startswith("/sim/") for p in paths)
+    assert len(rows(kept, "sim/rectangle/mesh", "Mesh3D:vertex_positions")) == 3   # every frame simulated
+
+
+def test_run_keeps_no_file_for_bad_input(tmp_path, monkeypatch, capsys):
+    from pipeline.cli import main
+    scene = tmp_path / "bad.yaml"
+    scene.write_text("character: {clip: rest}\nframes: {count: 3}\noutput: out.rrd\n"
+                     "garments: [{type: mesh, path: missing.obj}]\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", str(scene), "-q"]) == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.yaml"]
