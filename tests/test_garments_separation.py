@@ -88,31 +88,46 @@ def test_leg_plane_lies_between_the_thighs(rest_scene):
 @pytest.fixture(scope="module")
 def dressed(rest_scene):
     """Shorts on the built-in character's bind pose and a T-shirt dressed over them; then shorts
-    without the legs' separation (monkeypatched out) and a T-shirt dressed independently."""
+    without the legs' separation (monkeypatched out) and a T-shirt dressed independently; all without
+    the untangling after sewing (stages.garments.untangle), which would hide what the separation does.
+    Last: shorts without the separation but with the untangling."""
     import stages.garments.separation as sep
+    import stages.garments.untangle as unt
     from stages.garments.library import library_pattern, make_garment
     from stages.garments.measurements import garment_measurements
     c, m, cols, maps, _ = rest_scene
     meas = garment_measurements(c, cols, m)
-    shorts, _, _ = make_garment(library_pattern("shorts", meas), c, m, cols, maps)
-    shirt, _, _ = make_garment(library_pattern("tshirt", meas), c, m, cols, maps, under=[shorts], under_gap=0.007)
     mp = pytest.MonkeyPatch()
-    mp.setattr(sep, "separate_legs", lambda pos, *a, **k: pos)
+    mp.setattr(unt, "untangle", lambda pos, tri, **k: (pos, 0, 0))
     try:
+        shorts, _, _ = make_garment(library_pattern("shorts", meas), c, m, cols, maps)
+        shirt, _, _ = make_garment(library_pattern("tshirt", meas), c, m, cols, maps, under=[shorts], under_gap=0.007)
+        mp.setattr(sep, "separate_legs", lambda pos, *a, **k: pos)
         plain_shorts, _, _ = make_garment(library_pattern("shorts", meas), c, m, cols, maps)
+        mp.undo()
+        mp.setattr(sep, "separate_legs", lambda pos, *a, **k: pos)
+        untangled, log, _ = make_garment(library_pattern("shorts", meas), c, m, cols, maps)
     finally:
         mp.undo()
     plain_shirt, _, _ = make_garment(library_pattern("tshirt", meas), c, m, cols, maps)
-    return (shorts, shirt), (plain_shorts, plain_shirt)
+    return (shorts, shirt), (plain_shorts, plain_shirt), (untangled, log)
 
 
 def test_shorts_legs_start_apart(dressed):
-    (shorts, _), (plain, _) = dressed
+    (shorts, _), (plain, _), _ = dressed
     assert self_crossings(plain) > 0        # the legs' inner sides through each other (main: 38)
     assert self_crossings(shorts) == 0
 
 
+def test_legs_through_each_other_are_untangled_after_sewing(dressed):
+    # without the separation, the untangling alone moves the 38 edges of the legs' inner sides back out
+    _, (plain, _), (untangled, log) = dressed
+    assert self_crossings(plain) > 0
+    assert self_crossings(untangled) == 0
+    assert any(n.startswith("untangled") for n in log.notes)
+
+
 def test_tshirt_over_shorts_starts_outside_them(dressed):
-    (shorts, shirt), (plain_shorts, plain_shirt) = dressed
+    (shorts, shirt), (plain_shorts, plain_shirt), _ = dressed
     assert crossings_between(plain_shorts, plain_shirt) > 0
     assert crossings_between(shorts, shirt) == 0
