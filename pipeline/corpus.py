@@ -68,7 +68,7 @@ def survey(label: str, spec: dict, kinds) -> CorpusCharacter:
     from pipeline.run import load_character
     from pipeline.scene import parse_scene_text
     from stages.errors import InputError
-    from stages.garments.library import ANCHORS
+    from stages.garments.anchors import require_anchors
     from stages.rig.humanoid import humanoid_joints
     out = CorpusCharacter(label, dict(spec))
     scene = parse_scene_text(yaml.safe_dump({"character": {**spec, "clip": "rest"}}), source=f"corpus:{label}")
@@ -77,7 +77,7 @@ def survey(label: str, spec: dict, kinds) -> CorpusCharacter:
     joints = humanoid_joints(character)
     for kind in kinds:
         try:
-            joints.require(ANCHORS.get(kind, ()), f"garment {kind!r}")
+            require_anchors(kind, character, f"garment {kind!r}", joints)
             out.wears.append(kind)
         except InputError as err:
             out.refused[kind] = f"{kind!r} cannot be dressed on {character.name!r}: {' '.join(err.problem.split())}"

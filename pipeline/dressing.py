@@ -108,13 +108,13 @@ def scene_pattern(scene: Scene, index: int, character, motion, colliders, under=
     file and the garment."""
     from stages.checks import ContractError
     from stages.errors import InputError
-    from stages.garments.library import ANCHORS, library_pattern
+    from stages.garments.anchors import require_anchors
+    from stages.garments.library import library_pattern
     from stages.garments.measurements import garment_measurements
-    from stages.rig.humanoid import humanoid_joints
     g = scene["garments"][index]
     check_pattern(scene, index)
     try:
-        humanoid_joints(character).require(ANCHORS.get(g["kind"], ()), f"garment {g['name']!r}")
+        require_anchors(g["kind"], character, f"garment {g['name']!r}")
     except InputError as err:
         raise SceneError(f"{_garment_where(scene, index, character)}: {err.problem}") from None
     try:

@@ -52,7 +52,7 @@ def _tree(names, parents) -> list:
 def bone_mapping(character) -> dict:
     """Each humanoid part -> {"joints": [names] or None, "found": 'name' | 'shape' | 'missing'};
     plus "needs": garment kind -> the parts it anchors on that are missing."""
-    from stages.garments.library import ANCHORS
+    from stages.garments.anchors import ANCHORS, QUADRUPED_KINDS
     from stages.rig.humanoid import humanoid_joints
     h = humanoid_joints(character)
     names = character.joint_names
@@ -76,6 +76,11 @@ def bone_mapping(character) -> dict:
                      "found": "missing" if h.hips < 0 else "shape", "why": h._why("hips")}
     missing = {p for p, v in parts.items() if v["found"] == "missing"}
     needs = {kind: sorted(set(anchors) & missing) for kind, anchors in ANCHORS.items() if set(anchors) & missing}
+    from stages.garments.quadruped import front_legs
+    legs = front_legs(character, h)
+    if legs:   # four legs: a cape is a blanket over the back, the biped kinds are refused
+        needs = {kind: ["a biped"] for kind in ANCHORS if kind not in QUADRUPED_KINDS}
+        parts["front legs"] = {"joints": [", ".join(names[j] for j in legs)], "found": "shape", "why": ""}
     return {"parts": parts, "missing": sorted(missing), "garments_blocked": needs,
             "anchors": {k: list(v) for k, v in ANCHORS.items()}}
 
@@ -143,8 +148,13 @@ def text(facts: dict) -> str:
         lines.append(f"  {part:<6} {what}  ({how})")
         if p.get("why") and p["found"] == "missing":
             lines.append(f"         {p['why']}")
+    if "front legs" in h["parts"]:
+        lines.append("  four legs: a cape is dressed as a blanket over the back, pinned along the spine")
     if h["garments_blocked"]:
         for kind, parts in h["garments_blocked"].items():
+            if parts == ["a biped"]:
+                lines.append(f"  garment {kind!r} cannot be dressed: needs a biped")
+                continue
             lines.append(f"  garment {kind!r} cannot be dressed: needs {', '.join(h['anchors'][kind])}; "
                          f"missing {', '.join(parts)}")
     else:

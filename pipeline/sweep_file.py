@@ -392,7 +392,7 @@ def validate_jobs(sw: Sweep, echo=None) -> None:
 
 def _check_anchors(scene, character) -> None:
     from stages.errors import InputError
-    from stages.garments.library import ANCHORS
+    from stages.garments.anchors import ANCHORS, require_anchors
     from stages.rig.humanoid import humanoid_joints
     joints = None
     for i, g in enumerate(scene["garments"]):
@@ -400,7 +400,7 @@ def _check_anchors(scene, character) -> None:
             continue
         joints = joints or humanoid_joints(character)
         try:
-            joints.require(ANCHORS[g["kind"]], f"garment {g['name']!r}")
+            require_anchors(g["kind"], character, f"garment {g['name']!r}", joints)
         except InputError as err:
             raise SceneError(f"{scene.path}: garments[{i}].kind: {g['kind']!r} cannot be dressed on "
                              f"{character.name!r}: {err.problem}") from None

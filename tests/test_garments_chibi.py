@@ -52,7 +52,7 @@ def test_hems_stay_off_the_floor(chibi, kind):
 
 def test_skirts_need_legs_of_any_joint_count(chibi, assets_dir):
     from stages.errors import InputError
-    from stages.garments.library import ANCHORS
+    from stages.garments.anchors import ANCHORS
     from stages.rig.gltf import load_gltf
     from stages.rig.humanoid import humanoid_joints
     humanoid_joints(chibi).require(ANCHORS["short_skirt"], "garment 'skirt'")     # one-joint legs: hips found

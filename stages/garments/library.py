@@ -21,8 +21,6 @@ from stages.garments.types import COMMON_BONE
 
 _WAISTBAND = (SeamSide("front", "waist"), SeamSide("back", "waist"))
 # the humanoid parts (stages.rig.humanoid.HumanoidJoints) each kind is placed on
-ANCHORS = {"tshirt": ("arm_l", "arm_r", "neck"), "shorts": ("leg_l", "leg_r"), "trousers": ("leg_l", "leg_r"),
-           "cape": ("neck",), "short_skirt": ("hips",), "long_skirt": ("hips",)}
 WAIST_EASE = 0.05   # share added to the hugged waist loop (band_top) of shorts and trousers
 # a sleeve cap up to this much longer than its scooped armhole is eased in by the sewing; beyond it
 # the armhole is deepened to the cap's length (CesiumMan's cap was 27 % longer and its seam stayed
@@ -371,7 +369,8 @@ def library_pattern(kind: str, measurements: dict, **overrides) -> Pattern:
     if kind == "trousers":
         return trousers(measurements, **overrides)
     if kind == "cape":
-        return cape(measurements, **overrides)
+        from stages.garments.quadruped import blanket
+        return (blanket if measurements.get("quadruped") else cape)(measurements, **overrides)
     if kind == "square":
         return square(measurements, **overrides)
     raise InputError("garment library", f"unknown kind {kind!r}; kinds: {', '.join(KINDS)}")
