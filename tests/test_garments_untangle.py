@@ -3,7 +3,6 @@ moved back out by intersection contour minimisation, against the exact crossing 
 from __future__ import annotations
 
 import numpy as np
-import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -93,24 +92,3 @@ def test_a_vertex_poked_through_a_sheet_is_moved_back_out(depth, ax, az):
     assert left == crossing_count(y, tris) == 0
     edge = np.median(np.linalg.norm(x[mesh_edges(tris)[:, 1]] - x[mesh_edges(tris)[:, 0]], axis=1))
     assert np.linalg.norm(y - x, axis=1).max() <= edge + 1e-12      # a local repair, never a tear
-
-
-@pytest.mark.assets
-def test_cesium_shorts_leave_the_sewing_without_crossings(assets_dir, tmp_path):
-    # the scene from 0.5 s into the walk: 3 edges of the right leg's inseam through the leg at the
-    # hem after sewing, kept by the simulation to the last frame
-    from pipeline.dressing import build_pattern_garment
-    from pipeline.run import frame_times, load_character, split_and_fit
-    from pipeline.scene import load_scene
-    from pipeline.scene_motion import sample_scene_motion
-    from stages.maps.build import build_maps
-    p = tmp_path / "shorts.yaml"
-    p.write_text(f"character: {{source: gltf, path: {assets_dir / 'CesiumMan.glb'}, clip: 0}}\n"
-                 "frames: {start: 0.5, count: 30}\ngarments: [{type: pattern, kind: shorts}]\n")
-    scene = load_scene(p)
-    c = load_character(scene)
-    m = sample_scene_motion(scene, c, frame_times(scene, None))
-    _, cols = split_and_fit(scene, c, m)
-    g, log, _ = build_pattern_garment(scene, 0, c, m, cols, build_maps(cols))
-    assert crossing_count(g.positions, g.triangles) == 0
-    assert any(n.startswith("untangled") for n in log.notes)
