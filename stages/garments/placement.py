@@ -171,14 +171,15 @@ def _collider_joints(character, part: str, joint_origins: np.ndarray, with_arms:
     """Joints whose colliders a panel on `part` must clear (torso: the upper arms' roots too
     when with_arms)."""
     if part in ("torso", "hips"):
-        arms = set()
+        # the arms found as chains and as limbs of fewer joints (a chibi's one-joint arm is a whole
+        # arm as thick as a leg, not a root: kept, it spread a cape's top out to the hands)
+        limbs = limb_joint_sets(character)
+        arms = limbs["arm_l"] | limbs["arm_r"]
         keep = set()
         for side in ("l", "r"):
             ch = limb_chain(character, "arm", side)
-            if ch is not None:
-                arms |= subtree(np.asarray(character.parents), ch[0])
-                if part == "torso" and with_arms:
-                    keep.add(ch[0])
+            if ch is not None and part == "torso" and with_arms:
+                keep.add(ch[0])
         return (set(range(character.n_joints)) - arms) | keep
     return part_joints(character, part, joint_origins)
 
