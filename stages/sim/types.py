@@ -139,6 +139,7 @@ class SimParams:
     collision_passes: int = 4
     pinch: str = "midpoint"
     entry_side: bool = False
+    face_contact: bool = False
     max_speed: float = 100.0
     speed_limit: float = 0.0
     body_audit: bool = True
@@ -193,6 +194,8 @@ class SimParams:
             raise ContractError(f"{o}.pinch: expected one of {', '.join(PINCH_RULES)}, got {self.pinch!r}")
         if not isinstance(self.cloth_collision, (bool, np.bool_)):
             raise ContractError(f"{o}.cloth_collision: expected a bool, got {self.cloth_collision!r}")
+        if not isinstance(self.face_contact, (bool, np.bool_)):
+            raise ContractError(f"{o}.face_contact: expected a bool, got {self.face_contact!r}")
         if not isinstance(self.entry_side, (bool, np.bool_)):
             raise ContractError(f"{o}.entry_side: expected a bool, got {self.entry_side!r}")
         if not isinstance(self.tethers, (bool, np.bool_)):
