@@ -5,13 +5,15 @@ triangle between particles can still cut a limb: cloth stretched across a forear
 frame 48 the crossed triangles' edges were 5.2 cm long against 2.5 cm at rest, their corners on the
 colliders' surface ~1 cm off the skin, the skin 0.3 cm past the triangle), or a limb thinner than a
 triangle passing between its corners. Here each triangle is sampled at its centre and its edges'
-midpoints (no point of a triangle is then farther than about a quarter of its longest edge from a
-sample or a corner); a sample inside a collider moves the triangle's corners (the edge's two for an
-edge midpoint) by the collider's push of the sample, weighted by their inverse masses so that the
-sample lands on the push's point (x_k += d w_k m_k^-1 / sum_j w_j^2 m_j^-1, w the sample's weights),
-inelastic along the push (body_escape._settle). One pass, serial (triangles share corners: a fixed
-order gives the same result on every run), before the particle collision of the same step, which
-then has the last word on the particles (none is left inside a collider by this pass).
+midpoints; a sample inside a collider moves the triangle's corners (the edge's two for an edge
+midpoint) by the collider's push of the sample (the map's response, as the particles get), weighted by
+their inverse masses so that the sample lands on the push's point (x_k += d w_k m_k^-1 / sum_j w_j^2
+m_j^-1, w the sample's weights), inelastic along the push (body_escape._settle). Only a new contact
+with one collider is pushed: a sample that was inside that collider at the step's start is a limb
+through the triangle (pushing it out sideways hooks the cloth on the limb), and one inside two
+colliders, or that the push would put into another, is in a pinch (SimParams.pinch decides there).
+Serial passes over the triangles (they share corners: a fixed order gives the same result on every
+run), after the particle collision of the step, up to FACE_PASSES while a pass pushes.
 """
 from __future__ import annotations
 
@@ -50,9 +52,10 @@ def collide_faces(x, xp, inv_mass, tris, m, method, col_kind, col_index, sph_rad
     x, xp (N, 3) current / previous positions (relative frame), moved in place; tris (T, 3) int32;
     the collider arrays as stages.sim.body_collide.collide's; contact[i, c] == IGNORED: particle i's
     garment ignores collider c (a triangle is pushed by c only if none of its corners ignores it).
-    Per sample, the colliders of its grid cell whose world bounding sphere holds it are visited in
-    the cell's order; each one holding it pushes it (the triangle moves) before the next is tested.
-    corrected[i] |= 1 for every particle moved. Returns the number of pushes."""
+    tq0: the colliders' query frames at the step's start (a sample's start point, from xp as the pass
+    has left it, is tested there). Per sample, the colliders of its grid cell are tested; a sample held
+    by exactly one is pushed as the module docstring says. corrected[i] |= 1 for every particle moved.
+    Returns the number of pushes."""
     (half, mkind, n_theta, n_second, second_lo, second_hi, face_start, planes, cell_base, cell_start, cell_tris,
      loc_base, loc_x, loc_start, loc_y, loc_face) = query_arrays(m)
     pushes = 0

@@ -7,8 +7,8 @@ inv0 (J, 4, 4) the inverse at the START of the step (for friction relative to a 
 
 Phases, one module each: stages.sim.forces (aerodynamic forces), stages.sim.integrate (Verlet,
 gravity, attachments), stages.sim.springs (spring corrections and tethers), stages.sim.collider_grid
-(collider frames, broad phase), stages.sim.body_collide (colliders; stages.sim.face_collide
-first, the colliders against the cloth's triangles), stages.sim.cloth_contact.kernels
+(collider frames, broad phase), stages.sim.body_collide (colliders; then stages.sim.face_collide,
+the colliders against the cloth's triangles, SimParams.face_contact), stages.sim.cloth_contact.kernels
 (cloth x cloth: garment-garment and self collision, last, so a recorded frame is what it checked).
 
 Speed (issue 6): a whole chunk of frames runs in one call (`run_frames`): nothing is allocated and
@@ -29,7 +29,7 @@ Cloth-side argument tuples (built once by simulate.py, unpacked for free inside 
     prm   = (h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method, aero_every, pinch,
              speed_h, entry, faces)
             entry: SimParams.entry_side (body_collide.collide's `entry`); pinch: body_collide.PINCH_* code.
-            faces: SimParams.face_contact (face_collide.collide_faces before the particles' collisions).
+            faces: SimParams.face_contact (face_collide.collide_faces after the particles' collisions).
             speed_h: the speed limit times h (m per step; 0: no limit, see integrate.limit_speed).
             aero_every: steps per aerodynamic force computation (SimParams.aero_steps): the forces of
             step k with k % aero_every == 0 are held over the next aero_every steps, summed per vertex
