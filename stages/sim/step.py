@@ -56,7 +56,7 @@ from stages.sim.body_collide import PINCHED, collide
 from stages.sim.cloth_contact.kernels import PUSH_OVER, SWEEPS, collide_cloth, contact_velocity, respond
 from stages.sim.cloth_contact.offset import offset_call
 from stages.maps.kernels import METHOD_NEAREST_PLANE
-from stages.sim.face_collide import FACE_PASSES, collide_faces
+from stages.sim.face_collide import collide_faces
 from stages.sim.collider_grid import build_grid, collider_frames, swept_spheres
 from stages.sim.forces import aero_forces
 from stages.sim.integrate import LIMITED, gather_forces, integrate, limit_speed
@@ -135,10 +135,8 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
                 grid_start, grid_items, grid_box, grid_dims, face_edges, src_range, friction, passes, corrected, inside,
                 speed2, contact, h, col_joint, pinch, entry, family)
         if faces:
-            for _ in range(FACE_PASSES):
-                if collide_faces(x, xp, inv_mass, tris, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
-                                 grid_start, grid_items, grid_box, grid_dims, contact, corrected) == 0:
-                    break
+            collide_faces(x, xp, inv_mass, tris, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
+                          grid_start, grid_items, grid_box, grid_dims, contact, corrected)
         t3 = cycles()
         if cc is not None:
             cloth_phase(x, xp, k, cc)
