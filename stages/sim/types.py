@@ -97,7 +97,7 @@ class SimParams:
         through the cloth or the strain beyond run-to-run differences (free body edges after the
         blend-in, worst frame, without -> with: cesium_skirt 48 -> 36, bvh_walk T-shirt 83 -> 92,
         cesium_outfit trousers 41 -> 48, T-shirt 44 -> 35; worst p99 strain 127 -> 95, 129 -> 136,
-        53 -> 68, 74 -> 70 %), and the collisions take 3-10 times as long.
+        53 -> 68, 74 -> 70 %), and the collisions take 2.5-5 times as long.
     max_speed: m/s; a particle faster than this (or NaN / inf) stops the run as diverged.
     speed_limit: m/s (relative frame), 0 = none: at the end of every step a free particle's Verlet
         velocity is capped at this (stages.sim.integrate.limit_speed; counted per frame in
