@@ -209,8 +209,9 @@ def shipped_walk(frames: int = 60, threads: int = 1, repeats: int = 1, preset: s
 
 def pinch_rules(frames: int = 60, repeats: int = 1) -> dict:
     """scenes/cesium_skirt.yaml (CesiumMan's left hand swings into the skirt at the hip) with each
-    simulation.pinch rule, in one run: what pinch handling costs and what it changes (strain, particles
-    inside the body, body edges through the cloth). Skipped without the asset."""
+    simulation.pinch rule, and 'midpoint' with simulation.face_contact on, in one run: what pinch
+    handling and face contact cost and what they change (strain, particles inside the body, body edges
+    through the cloth). Skipped without the asset."""
     from pathlib import Path
 
     from pipeline.dressing import build_scene_garments
@@ -225,11 +226,12 @@ def pinch_rules(frames: int = 60, repeats: int = 1) -> dict:
     garments, _ = build_scene_garments(scene, p.character, p.motion, p.colliders, p.maps)
     sc = (p.character, p.motion, p.colliders, p.maps, garments)
     out = {}
-    for rule in PINCH_RULES:
-        params = replace(sim_params(scene), body_audit=True, pinch=rule)
+    # each rule, then the default rule with the colliders also against the cloth's triangles
+    for rule, faces in [(rule, False) for rule in PINCH_RULES] + [("midpoint", True)]:
+        params = replace(sim_params(scene), body_audit=True, pinch=rule, face_contact=faces)
         r = _run(sc, params, repeats, 1, layers=garment_layers(scene))
-        r.update(threads=1, preset=f"pinch {rule}", frames=frames)
-        out[rule] = r
+        r.update(threads=1, preset=f"pinch {rule}" + (", face contact" if faces else ""), frames=frames)
+        out[rule + ("-faces" if faces else "")] = r
     return out
 
 

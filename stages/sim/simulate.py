@@ -441,7 +441,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     obst_points = [np.zeros((0, 3), np.float32) for _ in range(nf)]
     prm = (h, params.step_damping(), s, k_drag, k_lift, float(params.friction), use_aero, int(params.iterations),
            int(params.collision_passes), method, int(params.aero_steps()), PINCH_RULES.index(params.pinch),
-           float(params.speed_limit) * h, bool(params.entry_side))
+           float(params.speed_limit) * h, bool(params.entry_side), bool(params.face_contact))
     cloth, cols, flags = sysm.cloth(), col.cols(), sysm.flags()
     # one thread: the serial kernels (compiled several times faster than the parallel ones)
     import numba
