@@ -24,11 +24,11 @@ velocity beyond dropping the approach (stages.sim.cloth_contact.response.contact
 State tuple (`OffsetContact.state()`; its length, 5, tells the step loop which phase it is):
     (x_q, topo, work, prm, counters)
     topo = (tris (T, 3) i4, edges (E, 2) i4, tri_edges (T, 3) i4, tri_owns (T,) u1, cinv (N,) f8)
-    work = (box (T, 6), rng (T, 6) i8, start (H + 1,) i8, items (M,) i4, kind (C,) i1, idx (C, 4) i4,
+    work = (box (T, 6), node_box (2T - 1, 6), children (2T - 1, 2) i4, leaf_prim (2T - 1,) i4 (the
+            query's tree: stages.sim.cloth_contact.proximity), kind (C,) i1, idx (C, 4) i4,
             dist (C,) f8, dmin (N,), vstart (N + 1,) i8, vpair (4 C,) i4, m (N,), flag (N,) u1,
-            x_before (N, 3), n_pairs (1,) i8 (listed pairs), cell (2,) f8 (the hash's cell edge, the last
-            query's radius: below prm's where the pair list would have overflowed),
-            corrected (N,) u1)
+            x_before (N, 3), n_pairs (1,) i8 (listed pairs), radius (1,) f8 (the last query's: below
+            prm's where the pair list would have overflowed), corrected (N,) u1, stack (4T + 6, 2) i4)
     prm = (radius m, thickness m, gamma, every)
 """
 from __future__ import annotations
@@ -37,7 +37,7 @@ import numpy as np
 from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
-from stages.sim.cloth_contact.proximity import KIND_VF, point_triangle, query_pairs, segment_segment
+from stages.sim.cloth_contact.proximity import KIND_VF, point_triangle, query_pairs, segment_segment, triangle_tree
 from stages.sim.cloth_contact.response import contact_velocity
 from stages.sim.simd import cycles
 
@@ -73,20 +73,18 @@ def query(x, og):
     the vertex -> pairs table."""
     xq, topo, work, prm, counters = og
     tris, edges, tri_edges, tri_owns, cinv = topo
-    box, rng, start, items, kind, idx, dist, dmin, vstart, vpair, m, flag, x_before, n_pairs, cellw, _ = work
+    box, node_box, children, leaf_prim, kind, idx, dist, dmin, vstart, vpair, m, flag, x_before, n_pairs, rq, _, \
+        stack = work
     radius = prm[0]
     t0 = cycles()
     while True:
-        n = query_pairs(x, tris, edges, tri_edges, tri_owns, radius, cellw[0], box, rng, start, items, kind, idx,
-                        dist, dmin)
-        if n < 0:       # a stretched cloth's boxes span more cells than `items` holds: coarser cells
-            cellw[0] *= 2.0
-        elif n > kind.shape[0]:     # more pairs than the list holds: a smaller radius for this query
-            radius *= 0.7
-            counters[O_OVERFLOW] += 1
-        else:
+        n = query_pairs(x, tris, edges, tri_edges, tri_owns, radius, box, children, leaf_prim, node_box, stack, kind,
+                        idx, dist, dmin)
+        if n <= kind.shape[0]:
             break
-    cellw[1] = radius
+        radius *= 0.7       # more pairs than the list holds: a smaller radius for this query
+        counters[O_OVERFLOW] += 1
+    rq[0] = radius
     n_pairs[0] = n
     for i in range(x.shape[0]):
         xq[i, 0] = x[i, 0]
@@ -323,7 +321,8 @@ def offset_call(x, xp, og):
     from x_q free of crossings, requery when needed; the correction kept out of the velocity."""
     xq, topo, work, prm, counters = og
     tris, edges, tri_edges, tri_owns, cinv = topo
-    box, rng, start, items, kind, idx, dist, dmin, vstart, vpair, m, flag, x_before, n_pairs, cellw, corrected = work
+    box, node_box, children, leaf_prim, kind, idx, dist, dmin, vstart, vpair, m, flag, x_before, n_pairs, rq, corrected, \
+        stack = work
     radius, thickness, gamma, every = prm
     counters[O_CALLS] += 1
     n = x.shape[0]
@@ -335,7 +334,7 @@ def offset_call(x, xp, og):
     _spread(x, xq, cinv, m)
     respond_pairs(x, xq, cinv, kind, idx, dist, n_pairs[0], m, thickness, counters)
     t1 = cycles()
-    half = 0.5 * cellw[1]
+    half = 0.5 * rq[0]
     held = keep_apart(x, xq, cinv, kind, idx, dist, dmin, vstart, vpair, m, flag, half, gamma,
                       counters)
     _, _, _, mx = _spread(x, xq, cinv, m)
@@ -370,14 +369,14 @@ def offset_state(x: np.ndarray, triangles: np.ndarray, cinv: np.ndarray, thickne
                             f"every >= 1; got {thickness}, {r}, {gamma}, {every}")
     edges, tri_edges, _ = mesh_edges(tris)
     owns = feature_owners(tris, tri_edges, n, edges.shape[0])
-    length = np.linalg.norm(x[edges[:, 1]] - x[edges[:, 0]], axis=1) if edges.shape[0] else np.ones(1)
-    cell = 2.0 * float(np.median(length)) + r      # measured: 2-3 x faster than one edge + r (2,500-particle sheet)
-    h = 1 << int(np.ceil(np.log2(max(16, 8 * t))))
+    children, leaf_prim = triangle_tree(x, tris)      # the topology of the cloth at the start, refitted per query
+    nodes = children.shape[0]
     cap = pair_capacity if pair_capacity is not None else max(1024, 64 * n)
-    work = (np.zeros((t, 6)), np.zeros((t, 6), np.int64), np.zeros(h + 1, np.int64), np.zeros(max(27 * t, 64), np.int32),
+    work = (np.zeros((t, 6)), np.zeros((nodes, 6)), children, leaf_prim,
             np.zeros(cap, np.int8), np.zeros((cap, 4), np.int32), np.zeros(cap), np.zeros(n),
             np.zeros(n + 1, np.int64), np.zeros(4 * cap, np.int32), np.zeros(n), np.zeros(n, np.uint8),
-            np.zeros((n, 3)), np.zeros(1, np.int64), np.array([cell, r]), np.zeros(n, np.uint8))
+            np.zeros((n, 3)), np.zeros(1, np.int64), np.array([r]), np.zeros(n, np.uint8),
+            np.zeros((2 * nodes + 8, 2), np.int32))
     topo = (tris, edges, tri_edges, owns, np.ascontiguousarray(cinv, np.float64))
     og = (np.zeros((n, 3)), topo, work, (r, float(thickness), float(gamma), int(every)),
           np.zeros(N_OFFSET_COUNTERS, np.int64))

@@ -1,10 +1,15 @@
 """Cloth proximity query for the offset phase (stages.sim.cloth_contact.offset): every vertex-facet and
 edge-edge pair of features that share no vertex and are closer than a radius, at one set of positions.
 
-Broad phase: a spatial hash of the triangles' boxes (inflated by radius / 2, so two triangles within
-the radius have overlapping boxes); each pair of triangles meeting in a cell is visited once (in the
-first cell their cell ranges share), and tests the features each owns (stages.sim.cloth_contact.setup
-.feature_owners: each vertex and edge has one owner triangle), so each feature pair is tested once.
+Broad phase: a binary tree of the triangles' boxes (inflated by radius / 2, so two triangles within
+the radius have overlapping boxes), its topology built once from the cloth at the phase's start
+(stages.geometry.kdop, median splits) and refitted bottom-up at each query, walked against itself:
+each pair of triangles with overlapping boxes is reached once, and tests the features each owns
+(stages.sim.cloth_contact.setup.feature_owners: each vertex and edge has one owner triangle), so
+each feature pair is tested once. Measured on the 2,500-particle drape folded over its body (4,802
+triangles, one thread): 1.5 ms against 3.9 ms for the spatial hash of the triangles' cells it
+replaced (the same 43,066 triangle pairs; several layers of cloth in a cell made the hash visit 20
+bucket entries per pair); flat, 1.1 against 0.8 ms.
 Narrow phase: exact closest points (Ericson, Real-Time Collision Detection 5.1.5 and 5.1.9).
 
 Pairs (P of them): kind (P,) int8 (VF: vertex idx[0] and triangle idx[1:4]; EE: edges idx[0:2] and
@@ -17,12 +22,10 @@ import numpy as np
 from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
+from stages.geometry.kdop import build_triangle_tree
 
 KIND_VF = 0
 KIND_EE = 1
-HASH_P1 = 73856093
-HASH_P2 = 19349663
-HASH_P3 = 83492791
 
 
 @njit(cache=True, _nrt=False, inline="always")
@@ -112,61 +115,31 @@ def segment_segment(x, p, q, r, t):
     return dx * dx + dy * dy + dz * dz, s, u
 
 
-@njit(cache=True, _nrt=False, inline="always")
-def _cell(v, cell):
-    return int(np.floor(v / cell))
-
-
-@njit(cache=True, _nrt=False, inline="always")
-def _hash(i, j, k, mask):
-    return ((i * HASH_P1) ^ (j * HASH_P2) ^ (k * HASH_P3)) & mask
-
-
 @njit(cache=True, _nrt=False)
-def triangle_cells(x, tris, pad, cell, box, rng):
-    """Each triangle's box inflated by pad (box (T, 6): min xyz, max xyz) and its cell range (rng (T, 6)
-    int64: first ijk, last ijk) in a grid of edge `cell`."""
+def refit_boxes(x, tris, pad, box, children, leaf_prim, node_box):
+    """Each triangle's box inflated by pad (box (T, 6): min xyz, max xyz), then the tree's node boxes
+    (node_box (2T - 1, 6)) bottom-up (children ids are above their parent's: stages.geometry.kdop)."""
     for t in range(tris.shape[0]):
         a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
         for k in range(3):
-            lo = min(x[a, k], x[b, k], x[c, k]) - pad
-            hi = max(x[a, k], x[b, k], x[c, k]) + pad
-            box[t, k] = lo
-            box[t, 3 + k] = hi
-            rng[t, k] = _cell(lo, cell)
-            rng[t, 3 + k] = _cell(hi, cell)
+            box[t, k] = min(x[a, k], x[b, k], x[c, k]) - pad
+            box[t, 3 + k] = max(x[a, k], x[b, k], x[c, k]) + pad
+    for node in range(node_box.shape[0] - 1, -1, -1):
+        t = leaf_prim[node]
+        if t >= 0:
+            for k in range(6):
+                node_box[node, k] = box[t, k]
+        else:
+            l, r = children[node, 0], children[node, 1]
+            for k in range(3):
+                node_box[node, k] = min(node_box[l, k], node_box[r, k])
+                node_box[node, 3 + k] = max(node_box[l, 3 + k], node_box[r, 3 + k])
 
 
-@njit(cache=True, _nrt=False)
-def fill_hash(rng, start, items):
-    """Counting sort of the triangles into the hash buckets of every cell of their range: start
-    (H + 1,) int64 (H a power of two), items (>= sum of the ranges' cells,) int32. Returns False if
-    items is too small (nothing usable then)."""
-    mask = start.shape[0] - 2
-    start[:] = 0
-    total = 0
-    for t in range(rng.shape[0]):
-        for i in range(rng[t, 0], rng[t, 3] + 1):
-            for j in range(rng[t, 1], rng[t, 4] + 1):
-                for k in range(rng[t, 2], rng[t, 5] + 1):
-                    start[_hash(i, j, k, mask) + 1] += 1
-                    total += 1
-    if total > items.shape[0]:
-        return False
-    for h in range(mask + 1):
-        start[h + 1] += start[h]
-    fill = start  # reuse: walk the starts down, then shift back
-    for t in range(rng.shape[0]):
-        for i in range(rng[t, 0], rng[t, 3] + 1):
-            for j in range(rng[t, 1], rng[t, 4] + 1):
-                for k in range(rng[t, 2], rng[t, 5] + 1):
-                    h = _hash(i, j, k, mask)
-                    items[fill[h]] = t
-                    fill[h] += 1
-    for h in range(mask, 0, -1):
-        start[h] = start[h - 1]
-    start[0] = 0
-    return True
+@njit(cache=True, _nrt=False, inline="always")
+def _apart(bx, a, b):
+    return (bx[a, 0] > bx[b, 3] or bx[b, 0] > bx[a, 3] or bx[a, 1] > bx[b, 4] or bx[b, 1] > bx[a, 4]
+            or bx[a, 2] > bx[b, 5] or bx[b, 2] > bx[a, 5])
 
 
 @njit(cache=True, _nrt=False, inline="always")
@@ -215,54 +188,76 @@ def _ee(x, p, q, r, s, radius, r2, kind, idx, dist, n, dmin):
 
 
 @njit(cache=True, _nrt=False)
-def query_pairs(x, tris, edges, tri_edges, tri_owns, radius, cell, box, rng, start, items, kind, idx, dist,
-                dmin):
+def query_pairs(x, tris, edges, tri_edges, tri_owns, radius, box, children, leaf_prim, node_box, stack, kind, idx,
+                dist, dmin):
     """Every non-incident VF and EE pair closer than `radius` at positions x (N, 3): written to
     kind / idx / dist (capacity C = kind.shape[0]); dmin (N,) set to each vertex's nearest pair's
-    distance (radius without one). Work arrays: box (T, 6) f8, rng (T, 6) i8, start (H + 1,) i8,
-    items (M,) i4. Returns the number of pairs (> C: the buffer overflowed, the pairs past C are
-    not stored but dmin counts them), or -1 if `items` was too small for the hash (nothing done)."""
-    triangle_cells(x, tris, 0.5 * radius, cell, box, rng)
-    if not fill_hash(rng, start, items):
-        return -1
-    mask = start.shape[0] - 2
+    distance (radius without one). The tree over the T triangles: children (2T - 1, 2) i4,
+    leaf_prim (2T - 1,) i4 (stages.geometry.kdop's topology, any positions); work arrays: box (T, 6)
+    f8, node_box (2T - 1, 6) f8, stack (>= 2 (2T - 1) + 8, 2) i4 (a walk holds at most 2 pairs per
+    level of each tree: 4 depth + 4 < 2 nodes + 8). Returns the number of pairs (> C: the buffer
+    overflowed, the pairs past C are not stored but dmin counts them)."""
     r2 = radius * radius
     dmin[:] = radius
+    if tris.shape[0] == 0:
+        return 0
+    refit_boxes(x, tris, 0.5 * radius, box, children, leaf_prim, node_box)
     n = 0
-    for t1 in range(tris.shape[0]):
-        i0, j0, k0, i1, j1, k1 = rng[t1, 0], rng[t1, 1], rng[t1, 2], rng[t1, 3], rng[t1, 4], rng[t1, 5]
-        own1 = tri_owns[t1]
-        for i in range(i0, i1 + 1):
-            for j in range(j0, j1 + 1):
-                for k in range(k0, k1 + 1):
-                    hh = _hash(i, j, k, mask)
-                    for m in range(start[hh], start[hh + 1]):
-                        t2 = items[m]
-                        if t2 <= t1 or (m > start[hh] and items[m - 1] == t2):
-                            continue     # (a triangle twice in a bucket: two of its cells share the hash)
-                        # visited once: in the first cell the two ranges share (skip hash collisions)
-                        if (i != max(i0, rng[t2, 0]) or j != max(j0, rng[t2, 1]) or k != max(k0, rng[t2, 2])
-                                or i > rng[t2, 3] or j > rng[t2, 4] or k > rng[t2, 5]):
-                            continue
-                        if (box[t1, 0] > box[t2, 3] or box[t2, 0] > box[t1, 3] or box[t1, 1] > box[t2, 4]
-                                or box[t2, 1] > box[t1, 4] or box[t1, 2] > box[t2, 5] or box[t2, 2] > box[t1, 5]):
-                            continue
-                        own2 = tri_owns[t2]
-                        for a in range(3):
-                            if own1 & (1 << a):
-                                n = _vf(x, tris[t1, a], tris, t2, box, radius, r2, kind, idx, dist, n, dmin)
-                            if own2 & (1 << a):
-                                n = _vf(x, tris[t2, a], tris, t1, box, radius, r2, kind, idx, dist, n, dmin)
-                        for a in range(3):
-                            if not own1 & (8 << a):
-                                continue
-                            e1 = tri_edges[t1, a]
-                            for b in range(3):
-                                if own2 & (8 << b):
-                                    e2 = tri_edges[t2, b]
-                                    n = _ee(x, edges[e1, 0], edges[e1, 1], edges[e2, 0], edges[e2, 1], radius, r2,
-                                            kind, idx, dist, n, dmin)
+    stack[0, 0] = 0
+    stack[0, 1] = 0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        a, b = stack[sp, 0], stack[sp, 1]
+        if a == b:        # a subtree against itself: its children against themselves and each other
+            if leaf_prim[a] < 0:
+                l, r = children[a, 0], children[a, 1]
+                stack[sp, 0], stack[sp, 1] = l, r
+                stack[sp + 1, 0], stack[sp + 1, 1] = r, r
+                stack[sp + 2, 0], stack[sp + 2, 1] = l, l
+                sp += 3
+            continue
+        if _apart(node_box, a, b):
+            continue
+        t1, t2 = leaf_prim[a], leaf_prim[b]
+        if t1 >= 0 and t2 >= 0:
+            own1, own2 = tri_owns[t1], tri_owns[t2]
+            for k in range(3):
+                if own1 & (1 << k):
+                    n = _vf(x, tris[t1, k], tris, t2, box, radius, r2, kind, idx, dist, n, dmin)
+                if own2 & (1 << k):
+                    n = _vf(x, tris[t2, k], tris, t1, box, radius, r2, kind, idx, dist, n, dmin)
+            for k in range(3):
+                if not own1 & (8 << k):
+                    continue
+                e1 = tri_edges[t1, k]
+                for j in range(3):
+                    if own2 & (8 << j):
+                        e2 = tri_edges[t2, j]
+                        n = _ee(x, edges[e1, 0], edges[e1, 1], edges[e2, 0], edges[e2, 1], radius, r2,
+                                kind, idx, dist, n, dmin)
+            continue
+        # descend the larger box (a leaf never): its two children against the other
+        if t2 >= 0 or (t1 < 0 and (node_box[a, 3] - node_box[a, 0] + node_box[a, 4] - node_box[a, 1]
+                                   + node_box[a, 5] - node_box[a, 2]
+                                   >= node_box[b, 3] - node_box[b, 0] + node_box[b, 4] - node_box[b, 1]
+                                   + node_box[b, 5] - node_box[b, 2])):
+            stack[sp, 0], stack[sp, 1] = children[a, 0], b
+            stack[sp + 1, 0], stack[sp + 1, 1] = children[a, 1], b
+        else:
+            stack[sp, 0], stack[sp, 1] = a, children[b, 0]
+            stack[sp + 1, 0], stack[sp + 1, 1] = a, children[b, 1]
+        sp += 2
     return n
+
+
+def triangle_tree(x: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The topology query_pairs walks (children (2T - 1, 2) i4, leaf_prim (2T - 1,) i4): median splits
+    of the triangles at positions x (stages.geometry.kdop, axis-aligned boxes); empty for T = 0."""
+    if tris.shape[0] == 0:
+        return np.zeros((0, 2), np.int32), np.zeros(0, np.int32)
+    tree = build_triangle_tree(x, tris, k=6)
+    return np.ascontiguousarray(tree.children, np.int32), np.ascontiguousarray(tree.leaf_prim, np.int32)
 
 
 def brute_force_pairs(x: np.ndarray, tris: np.ndarray, edges: np.ndarray, radius: float):
