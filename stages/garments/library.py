@@ -445,7 +445,7 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
     ignore_joints: joints whose colliders the simulation will not let push this garment (build_garment).
     """
     from stages.garments.sewing import SewParams, merged_mesh, seam_gaps, sew
-    from stages.garments.untangle import untangle
+    from stages.garments.untangle import untangle_sewn
     from stages.garments.triangulate import run_vertices, triangulate_pattern
     from scipy.spatial import cKDTree
 
@@ -563,10 +563,7 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
                 tri_rest[e, k] = np.maximum(tri_rest[e, k], np.linalg.norm(pos[a[e]] - pos[b[e]], axis=1))
     # a few edges folded through the garment's own triangles while sewing (a leg's inseam closing
     # at the hem: CesiumMan's shorts 3-4 edges) are moved back out (the simulation would keep them)
-    pos, left, tangled = untangle(pos, mtri)
-    if tangled:
-        log = replace(log, notes=log.notes + (f"untangled: {tangled - left} of {tangled} edges through the "
-                                              f"garment's own triangles moved back out",))
+    pos, log = untangle_sewn(pos, mtri, log)
     atts = []
     if attach and pattern.attachments:
         for a in pattern.attachments:

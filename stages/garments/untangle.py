@@ -148,3 +148,14 @@ def untangle(x: np.ndarray, triangles: np.ndarray, *, step: float = 5e-4, rounds
         if flagged.size == 0:
             break
     return best, best_n, before
+
+
+def untangle_sewn(positions: np.ndarray, triangles: np.ndarray, log):
+    """(positions, log) of a sewn garment (merged mesh) after `untangle`, the sewing log (SewingLog)
+    with a note saying how many crossing edges were moved back out when there were any."""
+    from dataclasses import replace
+    pos, left, tangled = untangle(positions, triangles)
+    if tangled:
+        log = replace(log, notes=log.notes + (f"untangled: {tangled - left} of {tangled} edges through the "
+                                              f"garment's own triangles moved back out",))
+    return pos, log
