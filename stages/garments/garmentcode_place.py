@@ -204,12 +204,13 @@ GATHER_NOTED = 1.25   # sides' length ratio from which a seam left open is expla
 def gathered_note(gc: GCPattern, seam: str) -> str:
     """Why the seam labelled 'panel.eA / panel.eB' may stay open: '' or a sentence giving its sides'
     lengths when they differ by GATHER_NOTED or more (GarmentCode gathers the longer side into the
-    shorter; this sewing pulls them together as stiff sheets, which stalls at such ratios: the sampled
-    tee's armholes, 37.6 vs 22.2 cm, stay 19-26 mm open with the body's colliders or without them)."""
+    shorter; this sewing eases the longer side's rest shape onto the shorter (sewing.gathered_rest),
+    and on the body such seams can still stall: the sampled tee's armholes, 37.6 vs 22.2 cm)."""
     for st, (la, lb) in zip(gc.stitches, stitch_lengths(gc)):
         if f"{st.a[0]}.e{st.a[1]} / {st.b[0]}.e{st.b[1]}" == seam and max(la, lb) >= GATHER_NOTED * min(la, lb):
             return (f"its sides are {la * 100:.1f} cm and {lb * 100:.1f} cm long: GarmentCode gathers the longer "
-                    f"side; this sewing does not gather sides {GATHER_NOTED:.2f}x apart or more")
+                    f"side; this sewing eases it onto the shorter (sewing.gathered_rest), which sides "
+                    f"{GATHER_NOTED:.2f}x apart or more do not always close over the body")
     return ""
 
 
@@ -351,7 +352,7 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
     holds a skirt up); collars are left free (HOLD_LABELS)."""
     from stages.garments.library import GarmentBuild, hug_targets, seam_label
     from stages.garments.placement import bind_geometry, hug, respace
-    from stages.garments.sewing import SewParams, merged_mesh, seam_gaps, sew
+    from stages.garments.sewing import SewParams, gathered_rest, merged_mesh, seam_gaps, sew
     from stages.garments.triangulate import run_vertices
     from stages.garments.types import attach_indices, bind_pose, build_garment
 
@@ -359,7 +360,7 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
     gc, pattern, flat, placed, warning = place_gc_garment(gc, body, character, motion, colliders,
                                                           edge_length=edge_length, name=name, density=density)
     tri, uv = flat.triangles, flat.uv
-    tri_rest = np.linalg.norm(uv[tri[:, [1, 2, 0]]] - uv[tri], axis=2)
+    tri_rest, _ = gathered_rest(tri, uv, flat.seam_pairs, flat.seam_index, flat.panel_of_vertex)
     skinned0, origins, _ = bind_geometry(character, motion)
     pose = bind_pose(character, motion, colliders)
     held, waist = [], []
