@@ -214,6 +214,34 @@ def gathered_note(gc: GCPattern, seam: str) -> str:
     return ""
 
 
+def check_stitch_chains(gc: GCPattern, pattern: Pattern, flat) -> None:
+    """InputError when the stitches, followed from panel to panel, join two points of one panel that
+    no stitch of that panel with itself (a dart) joins: sewing would have to fold the panel onto
+    itself (GarmentCode's standing_lapel example: its collar stitches chain two points of each collar
+    panel 7 cm apart; the library cannot stitch it either)."""
+    from stages.garments.library import seam_label
+    from stages.garments.sewing import merge_pairs
+    pairs = flat.seam_pairs
+    if pairs.size == 0:
+        return
+    group = merge_pairs(flat.uv.shape[0], pairs)
+    pv = flat.panel_of_vertex
+    own = pairs[pv[pairs[:, 0]] == pv[pairs[:, 1]]]          # pairs of a panel with itself (darts)
+    own_group = merge_pairs(flat.uv.shape[0], own)
+    order = np.lexsort((pv, group))
+    g, p = group[order], pv[order]
+    dup = np.flatnonzero((g[1:] == g[:-1]) & (p[1:] == p[:-1]))
+    for i in dup:
+        u, v = order[i], order[i + 1]
+        if own_group[u] == own_group[v]:
+            continue
+        seams = sorted({seam_label(pattern.seams[k]) for k in flat.seam_index[np.isin(group[pairs[:, 0]], group[u])]})
+        far = float(np.linalg.norm(flat.uv[u] - flat.uv[v]))
+        raise InputError(gc.source, f"the stitches {', '.join(seams)} join two points of panel "
+                                    f"{pattern.panels[pv[u]].name!r} {far * 100:.1f} cm apart (followed from panel to "
+                                    f"panel, no stitch of that panel joins them): sewn, the panel would fold onto itself")
+
+
 @dataclass(frozen=True)
 class BodyMap:
     """From the pattern body's frame (m, GarmentCode) to the character's relative frame at frame 0.
@@ -332,6 +360,7 @@ def place_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, 
     graded, gbody = grade(gc, k, sy), graded_body(body, k, sy)
     pattern, signs = to_pattern(graded, edge_length, name or gc.name, density)
     flat = triangulate_pattern(pattern)
+    check_stitch_chains(graded, pattern, flat)
     skinned0, origins, _ = bind_geometry(character, motion)
     placed = place_gc(graded, flat, signs, body_map(gbody, meas, character, origins), gbody)
     bad = inside_body(character, skinned0, placed)
