@@ -142,7 +142,7 @@ def _ring(points: list, normals: list, up: list, girth, anchor: float | None) ->
         have = np.isfinite(lo)   # centred at every level: a sleeve cap's halves differ in shape
         for i in members:
             n, t, s_i = lateral[i]
-            lateral[i] = (n, t, s_i - np.interp(points[i][:, 1], mid[have], 0.5 * (lo + hi)[have]))
+            lateral[i] = (n, t, s_i - np.interp(points[i][:, 1], mid[have], 0.5 * (lo[have] + hi[have])))
     rho = np.maximum(width, girth(mid)) / (2 * np.pi)
     # heights: the flat distance between bins kept along the ring's slant, from the anchor out
     Y = mid.copy()
