@@ -271,3 +271,20 @@ def test_a_bad_pattern_file_stops_the_run_before_the_colliders(tmp_path):
     with pytest.raises(SceneError) as err:
         check_references(scene, load_character(scene))
     assert "garments[0].path" in str(err.value) and "x_specification.json" in str(err.value)
+
+
+@needs_assets
+def test_stitches_that_fold_a_panel_onto_itself_are_one_error_naming_them():
+    from stages.garments.garmentcode_place import check_stitch_chains
+    for spec in SPECS:
+        gc = read_pattern(spec)
+        pattern, _ = to_pattern(gc, 0.025, "g")
+        flat = triangulate_pattern(pattern)
+        if spec.name != "standing_lapel_specification.json":
+            check_stitch_chains(gc, pattern, flat)    # darts (a panel stitched to itself) are fine
+            continue
+        with pytest.raises(InputError) as err:        # the example GarmentCode itself cannot stitch
+            check_stitch_chains(gc, pattern, flat)
+        msg = str(err.value)
+        assert "\n" not in msg and "collar" in msg and "left_ftorso.e4 / left_collar_front.e1" in msg
+        assert "fold onto itself" in msg

@@ -204,13 +204,42 @@ GATHER_NOTED = 1.25   # sides' length ratio from which a seam left open is expla
 def gathered_note(gc: GCPattern, seam: str) -> str:
     """Why the seam labelled 'panel.eA / panel.eB' may stay open: '' or a sentence giving its sides'
     lengths when they differ by GATHER_NOTED or more (GarmentCode gathers the longer side into the
-    shorter; this sewing pulls them together as stiff sheets, which stalls at such ratios: the sampled
-    tee's armholes, 37.6 vs 22.2 cm, stay 19-26 mm open with the body's colliders or without them)."""
+    shorter; this sewing eases the longer side's rest shape onto the shorter (sewing.gathered_rest),
+    and on the body such seams can still stall: the sampled tee's armholes, 37.6 vs 22.2 cm)."""
     for st, (la, lb) in zip(gc.stitches, stitch_lengths(gc)):
         if f"{st.a[0]}.e{st.a[1]} / {st.b[0]}.e{st.b[1]}" == seam and max(la, lb) >= GATHER_NOTED * min(la, lb):
             return (f"its sides are {la * 100:.1f} cm and {lb * 100:.1f} cm long: GarmentCode gathers the longer "
-                    f"side; this sewing does not gather sides {GATHER_NOTED:.2f}x apart or more")
+                    f"side; this sewing eases it onto the shorter (sewing.gathered_rest), which sides "
+                    f"{GATHER_NOTED:.2f}x apart or more do not always close over the body")
     return ""
+
+
+def check_stitch_chains(gc: GCPattern, pattern: Pattern, flat) -> None:
+    """InputError when the stitches, followed from panel to panel, join two points of one panel that
+    no stitch of that panel with itself (a dart) joins: sewing would have to fold the panel onto
+    itself (GarmentCode's standing_lapel example: its collar stitches chain two points of each collar
+    panel 7 cm apart; the library cannot stitch it either)."""
+    from stages.garments.library import seam_label
+    from stages.garments.sewing import merge_pairs
+    pairs = flat.seam_pairs
+    if pairs.size == 0:
+        return
+    group = merge_pairs(flat.uv.shape[0], pairs)
+    pv = flat.panel_of_vertex
+    own = pairs[pv[pairs[:, 0]] == pv[pairs[:, 1]]]          # pairs of a panel with itself (darts)
+    own_group = merge_pairs(flat.uv.shape[0], own)
+    order = np.lexsort((pv, group))
+    g, p = group[order], pv[order]
+    dup = np.flatnonzero((g[1:] == g[:-1]) & (p[1:] == p[:-1]))
+    for i in dup:
+        u, v = order[i], order[i + 1]
+        if own_group[u] == own_group[v]:
+            continue
+        seams = sorted({seam_label(pattern.seams[k]) for k in flat.seam_index[np.isin(group[pairs[:, 0]], group[u])]})
+        far = float(np.linalg.norm(flat.uv[u] - flat.uv[v]))
+        raise InputError(gc.source, f"the stitches {', '.join(seams)} join two points of panel "
+                                    f"{pattern.panels[pv[u]].name!r} {far * 100:.1f} cm apart (followed from panel to "
+                                    f"panel, no stitch of that panel joins them): sewn, the panel would fold onto itself")
 
 
 @dataclass(frozen=True)
@@ -331,6 +360,7 @@ def place_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, 
     graded, gbody = grade(gc, k, sy), graded_body(body, k, sy)
     pattern, signs = to_pattern(graded, edge_length, name or gc.name, density)
     flat = triangulate_pattern(pattern)
+    check_stitch_chains(graded, pattern, flat)
     skinned0, origins, _ = bind_geometry(character, motion)
     placed = place_gc(graded, flat, signs, body_map(gbody, meas, character, origins), gbody)
     bad = inside_body(character, skinned0, placed)
@@ -351,7 +381,7 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
     holds a skirt up); collars are left free (HOLD_LABELS)."""
     from stages.garments.library import GarmentBuild, hug_targets, seam_label
     from stages.garments.placement import bind_geometry, hug, respace
-    from stages.garments.sewing import SewParams, merged_mesh, seam_gaps, sew
+    from stages.garments.sewing import SewParams, gathered_rest, merged_mesh, seam_gaps, sew
     from stages.garments.triangulate import run_vertices
     from stages.garments.types import attach_indices, bind_pose, build_garment
 
@@ -359,7 +389,7 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
     gc, pattern, flat, placed, warning = place_gc_garment(gc, body, character, motion, colliders,
                                                           edge_length=edge_length, name=name, density=density)
     tri, uv = flat.triangles, flat.uv
-    tri_rest = np.linalg.norm(uv[tri[:, [1, 2, 0]]] - uv[tri], axis=2)
+    tri_rest, _ = gathered_rest(tri, uv, flat.seam_pairs, flat.seam_index, flat.panel_of_vertex)
     skinned0, origins, _ = bind_geometry(character, motion)
     pose = bind_pose(character, motion, colliders)
     held, waist = [], []

@@ -16,6 +16,7 @@ import numpy as np
 from stages.garments.garmentcode import GCPattern, edge_points, panel_part
 
 WRAP_BIN = 0.02   # m: height bins of the wrap's ring widths
+FACING_COS = 0.7   # panels whose horizontal normals are within ~45 degrees face one way (one group)
 
 
 MAX_APEX = 1.0   # m: a top arc of a larger radius (a waistband's slight curve) is wrapped as a cylinder
@@ -123,6 +124,25 @@ def _ring(points: list, normals: list, up: list, girth, anchor: float | None) ->
             inside = (np.arange(mid.size) > k[0]) & (np.arange(mid.size) < k[-1])
             w[inside & ~have] = np.interp(mid[inside & ~have], mid[have], w[have])
         width += w
+    # each group of panels facing one way is centred on its direction: GarmentCode lays a sleeve's
+    # panels off the arm's axis (the sampled tee's front sleeve spans -32..+1 cm across it, its back
+    # -1..+31 cm), which wrapped as they lie put both halves on the same side of the ring, through
+    # each other (700 crossing edges on the placed tee); a torso's halves (0..w, -w..0) stay as they are
+    facing = [(i, lat[0]) for i, lat in enumerate(lateral) if lat is not None]
+    group = {}
+    for i, n in facing:
+        group[i] = next((group[j] for j, m in facing if j in group and float(n @ m) > FACING_COS), i)
+    for g in set(group.values()):
+        members = [i for i in group if group[i] == g]
+        s_all = np.concatenate([lateral[i][2] for i in members])
+        b_all = np.clip(np.digitize(np.concatenate([points[i][:, 1] for i in members]), edges) - 1, 0, mid.size - 1)
+        lo, hi = np.full(mid.size, np.inf), np.full(mid.size, -np.inf)
+        np.minimum.at(lo, b_all, s_all)
+        np.maximum.at(hi, b_all, s_all)
+        have = np.isfinite(lo)   # centred at every level: a sleeve cap's halves differ in shape
+        for i in members:
+            n, t, s_i = lateral[i]
+            lateral[i] = (n, t, s_i - np.interp(points[i][:, 1], mid[have], 0.5 * (lo[have] + hi[have])))
     rho = np.maximum(width, girth(mid)) / (2 * np.pi)
     # heights: the flat distance between bins kept along the ring's slant, from the anchor out
     Y = mid.copy()
