@@ -382,6 +382,7 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
     from stages.garments.library import GarmentBuild, hug_targets, seam_label
     from stages.garments.placement import bind_geometry, hug, respace
     from stages.garments.sewing import SewParams, gathered_rest, merged_mesh, seam_gaps, sew
+    from stages.garments.untangle import untangle_sewn
     from stages.garments.triangulate import run_vertices
     from stages.garments.types import attach_indices, bind_pose, build_garment
 
@@ -422,6 +423,7 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
                     density=density, flat_positions=flat3, pair_stage=None, pins=pins, bind=pose if pins else None,
                     progress=progress)
     pos, mtri, remap = merged_mesh(sewn, tri, flat.seam_pairs)
+    pos, log = untangle_sewn(pos, mtri, log)
     atts = [attach_indices(np.unique(remap[i]), None) for i in waist]
     g = build_garment(name, pos, mtri, density=density, triangle_rest=tri_rest, attachments=atts,
                       bind=pose if atts else None, ignore_joints=ignore_joints)
