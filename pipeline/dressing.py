@@ -215,6 +215,11 @@ def build_garmentcode_garment(scene: Scene, index: int, character, motion, colli
         body = body_of(g["path"], assets_dir() / DEFAULT_BODY)
     except InputError as err:
         raise SceneError(f"{scene.path or '<scene>'}: garments[{index}].path: {err}") from None
+    from stages.garments.quadruped import front_legs
+    if front_legs(character):
+        raise SceneError(f"{where}: a GarmentCode pattern is made for a human body, and {character.name!r} stands on "
+                         f"four legs (its front legs reach the floor); a pattern cape is dressed as a blanket over "
+                         f"its back (type: pattern, kind: cape), and mesh garments fit any shape")
     if place_only:
         try:
             place_gc_garment(gc, body, character, motion, colliders, edge_length=g["edge_length"], name=g["name"])

@@ -87,3 +87,15 @@ def test_a_cape_on_a_dog_is_a_blanket_pinned_along_the_spine_that_drapes():
     assert x[:, 1].min() < meas["back_top_y"] - 0.08            # the flanks hang down
     assert np.abs(x[:, 0] - meas["back_x"]).max() < meas["back_half"] + 0.1   # round the body, not spread out
     assert int(r.penetrations_colliders[-1]) == 0
+
+
+@pytest.mark.assets
+def test_a_garmentcode_pattern_on_four_legs_is_one_line(assets_dir):
+    # made for a human body: validate said ok and a run would wrap a skirt round a dog
+    from pipeline.dressing import build_garmentcode_garment
+    from pipeline.scene import parse_scene_text
+    from pipeline.schema import SceneError
+    spec = assets_dir / "garmentcode" / "examples" / "flare_skirt_specification.json"
+    scene = parse_scene_text(f"garments: [{{type: garmentcode, path: {spec}}}]", source="s.yaml")
+    with pytest.raises(SceneError, match="made for a human body, and 'dog' stands on four legs"):
+        build_garmentcode_garment(scene, 0, _dog(), None, None, None, place_only=True)
