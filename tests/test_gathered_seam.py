@@ -45,9 +45,10 @@ def test_a_gathered_seam_closes_without_crossings(scene):
 
 
 def test_without_easing_the_same_seam_stays_open(scene):
-    # the reference: seam springs alone stall against the longer panel's own springs (24.8 mm)
+    # the reference: seam springs alone stall against the longer panel's own springs (24.8 mm with
+    # stiff bend springs; 4.5 mm once the stalled sewing softens them, still open)
     log, _ = sew_panels(scene, gather=False)
-    assert not log.converged and log.gap_max[-1] > 0.01
+    assert not log.converged and log.gap_max[-1] > 2 * 0.002
 
 
 def test_easing_keeps_the_rest_shape_flat_and_the_far_side_as_it_was():
