@@ -62,11 +62,7 @@ def garment_measurements(character, colliders=None, motion=None, *, clearance: f
     m["floor_y"] = y0
     m.update(clearance_measurements(character, colliders, motion, clearance=clearance, under=under))
     from stages.garments.quadruped import back_measurements
-    if motion is None:
-        m.update(back_measurements(character))
-    else:   # the trunk at frame 0 of the motion, where a blanket is laid on (relative frame)
-        from stages.rig.skinning import skin
-        m.update(back_measurements(character, skin(character, motion, frames=[0])[0]))
+    m.update(back_measurements(character, motion, parts))   # a quadruped's trunk, where a blanket is laid
     return m
 
 

@@ -67,15 +67,20 @@ def _need_keys(meas: dict, *keys: str) -> None:
         raise ContractError(f"blanket: measurements {', '.join(missing)} missing (not a quadruped?)")
 
 
-def back_measurements(character, skinned: np.ndarray | None = None) -> dict:
-    """For a quadruped, from its trunk's skin (`skinned`: (V, 3) vertices at frame 0 of the motion,
-    relative frame; default: the rest pose), metres: back_x (the mid-plane), back_top_y / belly_y
-    (highest and lowest trunk skin), back_rear_z / back_front_z (its extent along the body, facing
-    +Z), back_half (half its width, 98th percentile), quadruped = 1. Empty for any other character."""
-    trunk = trunk_joints(character)
+def back_measurements(character, motion=None, parts=None) -> dict:
+    """For a quadruped, from its trunk's skin at frame 0 of `motion` (relative frame; default: the
+    rest pose), metres: back_x (the mid-plane), back_top_y / belly_y (highest and lowest trunk skin),
+    back_rear_z / back_front_z (its extent along the body, facing +Z), back_half (half its width, 98th
+    percentile), quadruped = 1. Empty for any other character (nothing skinned). parts: the
+    character's humanoid_joints when the caller has them."""
+    trunk = trunk_joints(character, parts)
     if not trunk:
         return {}
-    v = np.asarray(character.vertices if skinned is None else skinned, np.float64)
+    if motion is None:
+        v = np.asarray(character.vertices, np.float64)
+    else:
+        from stages.rig.skinning import skin
+        v = skin(character, motion, frames=[0])[0]
     dom = character.skin_joints[np.arange(len(v)), np.argmax(character.skin_weights, axis=1)]
     t = v[np.isin(dom, trunk)]
     if len(t) < 4:
