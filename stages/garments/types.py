@@ -16,7 +16,6 @@ vertices welded, unused ones removed) or refused (InputError: non-manifold, empt
 """
 from __future__ import annotations
 
-import re
 import warnings
 from dataclasses import dataclass
 
@@ -24,6 +23,8 @@ import numpy as np
 
 from stages.checks import ContractError, check_array, check_index
 from stages.errors import InputError
+from stages.garments.band import collider_list as _colliders
+from stages.garments.band import resting_limbs, signed_distance as _signed_distance, swept_attachments
 
 STRETCH = 0  # spring kind: mesh edge (stretch / shear)
 COMMON_BONE = "common"   # Attachment.joint: the lowest common ancestor of the nearest bones
@@ -52,6 +53,9 @@ class Garment:
     attach_local: (N, 3) float64, metres, bone-local position of attached particles (0 for others).
     density: area density used for the masses, kg/m^2. stretch_stiffness, bend_stiffness: share of a
         correction per round at 300/s (SimParams, the garment's fabric), None: the simulation's.
+    passing_joints: joints whose colliders never push this garment: limbs it does not wrap that rest
+        on its attached band in most frames (stages.garments.band.resting_limbs); the simulation adds
+        them to its ignore_colliders.
     """
 
     name: str
@@ -67,6 +71,7 @@ class Garment:
     density: float = 0.2
     stretch_stiffness: float | None = None
     bend_stiffness: float | None = None
+    passing_joints: tuple = ()
 
     def __post_init__(self):
         o = f"Garment[{self.name!r}]"
@@ -223,52 +228,6 @@ def bind_pose(character, motion, colliders=None) -> BindPose:
     return BindPose(jw, np.ascontiguousarray(jw[:, :3, 3]), tuple(character.joint_names), colliders,
                     np.ascontiguousarray(motion.joint_world, dtype=np.float64),
                     np.ascontiguousarray(character.parents, dtype=np.int32), frames)
-
-
-def swept_attachments(bind: BindPose, local: np.ndarray, joints: np.ndarray, depth: float, ignore=()):
-    """Attached particles that a collider of another bone holds deeper than `depth` (m) at some
-    frame of bind.poses: ((M,) bool, names of those colliders' joints).
-
-    local: (M, 3) bone-local positions, joints: (M,) the bones they follow. A particle's own bone's
-    colliders move rigidly with it and are not tested, nor those of the joints in `ignore` (the
-    garment ignores them: simulate's ignore_colliders).
-    """
-    hit = np.zeros(len(joints), bool)
-    names = []
-    if bind.poses is None or bind.colliders is None or len(joints) == 0:
-        return hit, names
-    m = bind.poses[:, joints]
-    x = np.einsum("fmij,mj->fmi", m[..., :3, :3], local) + m[..., :3, 3]   # (F, M, 3) relative frame
-    inv = np.linalg.inv(bind.frames_of_colliders())
-    for bone, name, collider, frame in _colliders(bind.colliders):
-        other = np.flatnonzero(joints != bone)
-        if other.size == 0 or bone in ignore:
-            continue
-        w = inv[:, frame]
-        p = np.einsum("fij,fmj->fmi", w[:, :3, :3], x[:, other]) + w[:, None, :3, 3]
-        deep = (_signed_distance(collider, p) < -depth).any(axis=0)
-        if deep.any():
-            hit[other[deep]] = True
-            names.append(name)
-    # a bone's hull and sphere share its name; its skinned balls (<joint>_ball<k>) are named by their joint
-    return hit, list(dict.fromkeys(re.sub(r"_ball\d+$", "", n) for n in names))
-
-
-def _signed_distance(collider, p: np.ndarray) -> np.ndarray:
-    """(...) signed distance (m) of bone-local points (..., 3) to a hull collider (largest plane
-    distance: exact inside, a lower bound outside, near corners slightly more than the true
-    distance) or a sphere collider."""
-    if hasattr(collider, "simplified"):
-        pl = collider.simplified.planes
-        return (p @ pl[:, :3].T - pl[:, 3]).max(axis=-1)
-    return np.linalg.norm(p - collider.center, axis=-1) - collider.radius
-
-
-def _colliders(cs) -> list:
-    """(bone, name, collider, pose index) of every hull, then every sphere (a skinned ball: the
-    joint it is named by as the bone, the flexible region's joint of the first vertex it holds, which
-    can differ from the joint that moves it most; its own frame as the pose index)."""
-    return [(h.bone, h.name, h, h.bone) for h in cs.hulls] + [(s.joint, s.name, s, s.pose_index) for s in cs.spheres]
 
 
 def _collider_distances(bind: BindPose, points: np.ndarray):
@@ -445,6 +404,7 @@ def build_garment(name: str, positions, triangles, *, rest_positions=None, densi
         the joints in `ignore_joints` (which the simulation will not let push this garment) do not count.
     """
     where = f"garment {name!r}"
+    passing = []          # limbs resting on the band (band.resting_limbs)
     x = np.asarray(positions, dtype=np.float64)
     tri = np.asarray(triangles)
     if x.ndim != 2 or x.shape[1] != 3 or x.shape[0] == 0:
@@ -533,8 +493,15 @@ def build_garment(name: str, positions, triangles, *, rest_positions=None, densi
         rigid = attach_joint >= 0
         if yield_swept and bind.colliders is not None:
             att = np.flatnonzero(rigid)
+            ignore = set(int(j) for j in ignore_joints)
+            passing = resting_limbs(bind, x, attach_local[att], attach_joint[att], bind.colliders.delta, ignore)
+            if passing:
+                warnings.warn(f"garment {name!r}: the colliders of {', '.join(bind.joint_names[j] for j in passing)} "
+                              f"rest on its attached band in most frames and pass through the garment (a limb it "
+                              f"does not wrap lying where the band must be; the body audit counts the cloth under "
+                              f"it as inside the body)", stacklevel=2)
             swept, names = swept_attachments(bind, attach_local[att], attach_joint[att], bind.colliders.delta,
-                                             ignore=set(int(j) for j in ignore_joints))
+                                             ignore=ignore | set(passing))
             if swept.any():
                 warnings.warn(f"garment {name!r}: {int(swept.sum())} of {att.size} attached particles yield to "
                               f"collisions: the colliders {', '.join(names)} pass through them during "
@@ -543,7 +510,8 @@ def build_garment(name: str, positions, triangles, *, rest_positions=None, densi
                 rigid[att[swept]] = False
         inv_mass[rigid] = 0.0
     return Garment(name, np.ascontiguousarray(x), np.ascontiguousarray(rest), np.ascontiguousarray(tri),
-                   springs, rest_len, kinds, inv_mass, attach_joint, attach_local, float(density))
+                   springs, rest_len, kinds, inv_mass, attach_joint, attach_local, float(density),
+                   passing_joints=tuple(passing))
 
 
 def _rest_from_triangles(tri, tri_rest, edges, bend, n):

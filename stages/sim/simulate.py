@@ -400,6 +400,9 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     col = _Colliders(colliders, maps, character.parents)
     sysm.set_colliders(col.joint.size)
     notes = list(col.notes)
+    if any(g.passing_joints for g in garments):    # limbs resting on a band (stages.garments.band)
+        ignore_colliders = [tuple(sorted(set(ignore_colliders[k] if ignore_colliders is not None else ())
+                                         | set(g.passing_joints))) for k, g in enumerate(garments)]
     if ignore_colliders is not None:
         sysm.ignore_colliders(ignore_colliders, col.owner, character.n_joints)
         notes += [f"{g.name}: not pushed by the colliders of {', '.join(character.joint_names[j] for j in js)}"

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from stages.checks import ContractError, check_array
-from stages.garments.types import _colliders, _signed_distance
+from stages.garments.band import collider_list as _colliders, signed_distance as _signed_distance
 
 TOP_SHARE = 0.01    # the most strained edges: this share of them (the p99's tail), at least one
 TOUCH = 0.005       # m: an edge touches a collider when an end is within this of its surface
