@@ -333,7 +333,8 @@ def cape(meas: dict, *, length: float | None = None, edge_length: float = 0.03, 
     bottom = top + 0.25 * L
     edges = (line("hem", (bottom, 0.0)), line("side_l", (top, L)), line("top", (-top, L)), line("side_r", (-bottom, 0.0)))
     p = Panel("cape", edges, Placement("torso", angle_deg=180.0, span_deg=120.0,
-                                       shift=meas["shoulder_y"] + 0.03 * h - L, offset=0.03, wrap_until=L))
+                                       shift=meas["shoulder_y"] + 0.03 * h - L, offset=0.03, wrap_until=L,
+                                       stretch=False))
     atts = (PatternAttachment("cape", "top", joint=COMMON_BONE, sewing=True),)
     return Pattern(name, (p,), (), edge_length, atts, fit_edges=(SeamSide("cape", "top"),), fit_hug="neck")
 

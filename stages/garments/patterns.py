@@ -106,6 +106,10 @@ class Placement:
         box, e.g. an upper torso whose shoulders and arm roots are wide in front and back).
     arms: torso only: whether the cross-section must also cover the upper arms' roots (a cape) or
         not (a T-shirt, whose sleeves cover them).
+    stretch: True: a panel narrower than the arc of its span is stretched round the body to cover it
+        (front and back meet at their side seams); False: it lies on the body at its own width,
+        centred on angle_deg (a cape, which has no side seam to reach: stretched to 120 degrees of
+        the shoulders its top rows started 37 % (CesiumMan) to 106 % (a chibi) long, p99).
     fold_at, ridge: torso only: above panel height fold_at each panel column bends over the top of
         the body (a quarter superellipse in the column's vertical plane) so that it ends on the
         ridge plane through the axis (front and back meet there: a T-shirt's shoulder line). ridge:
@@ -123,6 +127,7 @@ class Placement:
     normal: tuple = (0.0, 0.0, 1.0)
     exponent: float = 2.0
     arms: bool = True
+    stretch: bool = True
     fold_at: float | None = None
     ridge: tuple = ()
 

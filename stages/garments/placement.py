@@ -277,6 +277,8 @@ def _wrap(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, axis: BodyAxis
             a_neg = a
             phi, s = _arc_table(a, b, phi0, exponent=ex)
             half_arc *= grow
+            if not pl.stretch:     # at its own width: the arc its width covers, not the span's
+                half_arc = min(half_arc, 0.5 * width[k])
         else:
             # a leg tube: its side towards the body's mid-plane stays on this side of it (it would
             # be inside the other leg); a wider tube grows outwards and front / back instead
