@@ -340,9 +340,6 @@ SCENE_SPEC = {
                               "collisions a cloth edge longer than (1 + strain_limit) times its rest length is "
                               "shortened back to it: cloth hooked on a limb is let through it instead of staying "
                               "stretched round it (less strain, more cloth inside the body)", lo=0.0, hi=10.0),
-        "body_untangle": Field("bool", None, "on | off (preset: off): once a frame, cloth triangles a limb's skin "
-                               "passes through are moved back out of it along the skin's normal (not where the "
-                               "body meets itself)"),
         "cloth_thickness": Field("float", 0.003, "distance kept between cloth layers, m", lo=0.0, lo_open=True, hi=0.1),
         "cloth_contact": Field("str", "swept", "swept | offset: how cloth collision keeps cloth from passing through "
                                "cloth. swept: continuous collision tests of every call's motion; offset: one proximity "

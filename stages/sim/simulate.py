@@ -435,13 +435,6 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
         audit = WindingTree(character.vertices, character.triangles)
         from stages.rig.skinning import skin
 
-    untangle = None
-    if params.body_untangle and character.triangles.shape[0] > 0:
-        from stages.sim.body_untangle import BodyUntangle
-        from stages.rig.skinning import skin
-        untangle = BodyUntangle(sysm.x, sysm.tris, np.where(sysm.attach_joint >= 0, 0.0, sysm.inv_mass),
-                                character.triangles)
-
     rel = np.zeros((nf, n, 3), np.float32)       # relative frame; root translation added at the end
     pen_col = np.zeros((nf, len(garments)), np.int32)
     pen_body = np.full((nf, len(garments)), -1, np.int32)
@@ -527,7 +520,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     d_last = None
     f0 = 1
     while f0 < nf:
-        f1 = min(nf, f0 + (1 if ocol is not None or untangle is not None else FRAME_CHUNK))
+        f1 = min(nf, f0 + (1 if ocol is not None else FRAME_CHUNK))
         cc = cphase.rest if cphase is not None else None
         t0 = time.perf_counter()
         fwd, inv, inv0, d_prev, d_next, tr, d_last = chunk_poses(motion, f0, f1, ss, s, d_last)
@@ -538,11 +531,6 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
                                 timers, cc)
             if done < f1 - f0:
                 raise diverged(f0 + done)
-            if untangle is not None:      # once a frame: the cloth moved out of the true body
-                t0 = time.perf_counter()
-                untangle.frame(sysm.x, sysm.xp, skin(character, body_motion, frames=[f0])[0])
-                rel[f0] = sysm.x
-                timings["untangle"] = timings.get("untangle", 0.0) + time.perf_counter() - t0
         else:   # paper B obstacles live in world: hand over world positions after every step
             f = f0
             sysm.corrected[:] = 0
@@ -575,10 +563,6 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
             progress(f1, nf)
         f0 = f1
     timings["total"] = time.perf_counter() - t_start
-    if untangle is not None:
-        u = untangle.stats
-        notes.append(f"body untangle: {u.found} body edges through the cloth after the frames' steps, "
-                     f"{u.moved} particle moves, {u.left} crossings left")
     return result(nf)
 
 

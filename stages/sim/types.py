@@ -106,9 +106,6 @@ class SimParams:
         blend-in (cesium_skirt 127 -> 46 %, bvh_walk T-shirt 129 -> 52 %) but leaves 1.4-2.4 % of the
         particles inside the true body at the worst frame (0.1-0.3 % without) and does not lower the
         body edges through the cloth.
-    body_untangle: once a frame, after its steps, the cloth triangles a body-mesh edge passes through
-        (the body audit's crossings, not where the body meets itself) have their corners moved out
-        along the body's normal there (stages.sim.body_untangle; needs the character's mesh).
     max_speed: m/s; a particle faster than this (or NaN / inf) stops the run as diverged.
     speed_limit: m/s (relative frame), 0 = none: at the end of every step a free particle's Verlet
         velocity is capped at this (stages.sim.integrate.limit_speed; counted per frame in
@@ -163,7 +160,6 @@ class SimParams:
     entry_side: bool = False
     face_contact: bool = False
     strain_limit: float = 0.0
-    body_untangle: bool = False
     max_speed: float = 100.0
     speed_limit: float = 0.0
     body_audit: bool = True
@@ -221,8 +217,6 @@ class SimParams:
             raise ContractError(f"{o}.cloth_collision: expected a bool, got {self.cloth_collision!r}")
         if not isinstance(self.face_contact, (bool, np.bool_)):
             raise ContractError(f"{o}.face_contact: expected a bool, got {self.face_contact!r}")
-        if not isinstance(self.body_untangle, (bool, np.bool_)):
-            raise ContractError(f"{o}.body_untangle: expected a bool, got {self.body_untangle!r}")
         if not isinstance(self.entry_side, (bool, np.bool_)):
             raise ContractError(f"{o}.entry_side: expected a bool, got {self.entry_side!r}")
         if not isinstance(self.tethers, (bool, np.bool_)):
