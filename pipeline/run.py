@@ -23,7 +23,7 @@ from pipeline.summary import RunSummary, StageTimer
 
 # simulation keys whose scene default (null) means "the preset's value" (stages.sim.types.PRESETS)
 PRESET_KEYS = ("substeps", "iterations", "damping", "tethers", "stretch_stiffness", "bend_stiffness",
-               "cloth_collision", "pinch", "entry_side", "face_contact", "cloth_contact_every", "settle_frames")
+               "cloth_collision", "pinch", "entry_side", "face_contact", "strain_limit", "cloth_contact_every", "settle_frames")
 
 
 def sim_params(scene: Scene):

@@ -336,6 +336,10 @@ SCENE_SPEC = {
                               "(their centres and edge midpoints), not only its particles: a limb thinner than the "
                               "cloth's triangles, or cloth stretched across one, cannot pass between the particles "
                               "(collisions take 2.5-5 times as long)"),
+        "strain_limit": Field("float", None, "share over the rest length (preset: 0, off): after every sub-step's "
+                              "collisions a cloth edge longer than (1 + strain_limit) times its rest length is "
+                              "shortened back to it: cloth hooked on a limb is let through it instead of staying "
+                              "stretched round it (less strain, more cloth inside the body)", lo=0.0, hi=10.0),
         "cloth_thickness": Field("float", 0.003, "distance kept between cloth layers, m", lo=0.0, lo_open=True, hi=0.1),
         "cloth_contact": Field("str", "swept", "swept | offset: how cloth collision keeps cloth from passing through "
                                "cloth. swept: continuous collision tests of every call's motion; offset: one proximity "

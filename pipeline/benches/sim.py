@@ -209,8 +209,9 @@ def shipped_walk(frames: int = 60, threads: int = 1, repeats: int = 1, preset: s
 
 def pinch_rules(frames: int = 60, repeats: int = 1) -> dict:
     """scenes/cesium_skirt.yaml (CesiumMan's left hand swings into the skirt at the hip) with each
-    simulation.pinch rule, and 'midpoint' with simulation.face_contact on, in one run: what pinch
-    handling and face contact cost and what they change (strain, particles inside the body, body edges
+    simulation.pinch rule, and 'midpoint' with simulation.face_contact on and with
+    simulation.strain_limit 0.1, in one run: what pinch handling, face contact and strain limiting cost
+    and what they change (strain, particles inside the body, body edges
     through the cloth). Skipped without the asset."""
     from pathlib import Path
 
@@ -226,12 +227,16 @@ def pinch_rules(frames: int = 60, repeats: int = 1) -> dict:
     garments, _ = build_scene_garments(scene, p.character, p.motion, p.colliders, p.maps)
     sc = (p.character, p.motion, p.colliders, p.maps, garments)
     out = {}
-    # each rule, then the default rule with the colliders also against the cloth's triangles
-    for rule, faces in [(rule, False) for rule in PINCH_RULES] + [("midpoint", True)]:
-        params = replace(sim_params(scene), body_audit=True, pinch=rule, face_contact=faces)
+    # each rule, then the default rule with the colliders also against the cloth's triangles, and with
+    # strain limiting (simulation.strain_limit 0.1)
+    runs = [(rule, f"pinch {rule}", {"pinch": rule}) for rule in PINCH_RULES]
+    runs += [("midpoint-faces", "pinch midpoint, face contact", {"pinch": "midpoint", "face_contact": True}),
+             ("midpoint-strain_limit", "pinch midpoint, strain limit 10 %", {"pinch": "midpoint", "strain_limit": 0.1})]
+    for key, label, change in runs:
+        params = replace(sim_params(scene), body_audit=True, **change)
         r = _run(sc, params, repeats, 1, layers=garment_layers(scene))
-        r.update(threads=1, preset=f"pinch {rule}" + (", face contact" if faces else ""), frames=frames)
-        out[rule + ("-faces" if faces else "")] = r
+        r.update(threads=1, preset=label, frames=frames)
+        out[key] = r
     return out
 
 

@@ -45,6 +45,7 @@ from stages.sim.cloth_contact.phase import ClothPhase
 from stages.sim.poses import chunk_poses
 from stages.sim.settle import settle
 from stages.sim.springs import pack_springs, partition_springs
+from stages.sim.strain_limit import strain_limits
 from stages.sim.types import PINCH_RULES, GarmentTrack, SimParams, SimResult, SimulationDiverged
 
 _CYCLES_PER_S = None
@@ -141,6 +142,8 @@ class _System:
         wsum = w[springs[:, 0]] + w[springs[:, 1]]
         live = wsum > 0
         springs, rest, kinds, wsum = springs[live], rest[live], kinds[live], wsum[live]
+        stretch = kinds == STRETCH      # the mesh edges (seams included): what the strain audit measures
+        self.limits = strain_limits(springs[stretch, 0], springs[stretch, 1], rest[stretch], w, params.strain_limit)
         stiff = np.where(kinds == BEND, k_bend[live], k_stretch[live])
         order, part_start = partition_springs(self.x, springs, n_parts=2)
         springs, rest, stiff, wsum = springs[order], rest[order], stiff[order], wsum[order]
@@ -444,7 +447,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     obst_points = [np.zeros((0, 3), np.float32) for _ in range(nf)]
     prm = (h, params.step_damping(), s, k_drag, k_lift, float(params.friction), use_aero, int(params.iterations),
            int(params.collision_passes), method, int(params.aero_steps()), PINCH_RULES.index(params.pinch),
-           float(params.speed_limit) * h, bool(params.entry_side), bool(params.face_contact))
+           float(params.speed_limit) * h, bool(params.entry_side), bool(params.face_contact), sysm.limits)
     cloth, cols, flags = sysm.cloth(), col.cols(), sysm.flags()
     # one thread: the serial kernels (compiled several times faster than the parallel ones)
     import numba

@@ -8,7 +8,8 @@ inv0 (J, 4, 4) the inverse at the START of the step (for friction relative to a 
 Phases, one module each: stages.sim.forces (aerodynamic forces), stages.sim.integrate (Verlet,
 gravity, attachments), stages.sim.springs (spring corrections and tethers), stages.sim.collider_grid
 (collider frames, broad phase), stages.sim.body_collide (colliders; then stages.sim.face_collide,
-the colliders against the cloth's triangles, SimParams.face_contact), stages.sim.cloth_contact.kernels
+the colliders against the cloth's triangles, SimParams.face_contact; then stages.sim.strain_limit,
+SimParams.strain_limit), stages.sim.cloth_contact.kernels
 (cloth x cloth: garment-garment and self collision, last, so a recorded frame is what it checked).
 
 Speed (issue 6): a whole chunk of frames runs in one call (`run_frames`): nothing is allocated and
@@ -27,10 +28,11 @@ Cloth-side argument tuples (built once by simulate.py, unpacked for free inside 
             cws (C, 5): the swept spheres of a frame's broad phase (collider_grid.swept_spheres)
             family (C, 3): joint, its parent, its depth (simulate.collider_family; the 'limb' pinch rule)
     prm   = (h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method, aero_every, pinch,
-             speed_h, entry, faces)
+             speed_h, entry, faces, limits)
             entry: SimParams.entry_side (body_collide.collide's `entry`); pinch: body_collide.PINCH_* code.
             faces: SimParams.face_contact (face_collide.collide_faces after the particles' collisions).
             speed_h: the speed limit times h (m per step; 0: no limit, see integrate.limit_speed).
+            limits: stages.sim.strain_limit's edges (empty arrays: SimParams.strain_limit off).
             aero_every: steps per aerodynamic force computation (SimParams.aero_steps): the forces of
             step k with k % aero_every == 0 are held over the next aero_every steps, summed per vertex
             into vertex_force (N + 1, 4) once (integrate then reads it through vt_eye, (N, 1)).
@@ -62,10 +64,11 @@ from stages.sim.forces import aero_forces
 from stages.sim.integrate import LIMITED, gather_forces, integrate, limit_speed
 from stages.sim.simd import cycles
 from stages.sim.springs import correct_springs
+from stages.sim.strain_limit import PASSES as LIMIT_PASSES, limit_strain
 
 # the phases are compiled into the step loop: an edit of any of them must invalidate its cache
 NUMBA_CACHE_DEPENDS = ("stages.sim.body_collide", "stages.sim.face_collide", "stages.sim.body_escape", "stages.sim.collider_query",
-                       "stages.sim.collider_grid", "stages.sim.forces",
+                       "stages.sim.collider_grid", "stages.sim.forces", "stages.sim.strain_limit",
                        "stages.sim.integrate", "stages.sim.simd", "stages.sim.springs", "stages.maps.kernels",
                        "stages.maps.types", "stages.affine", "stages.fastmath", "stages.sim.cloth_contact.kernels",
                        "stages.sim.cloth_contact.ccd", "stages.sim.cloth_contact.cull",
@@ -101,7 +104,7 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
      tq, tq0, fq, cw, grid_start, grid_items, grid_runs, grid_box, grid_dims, face_edges, src_range, cws,
      family) = cols
     (h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method, aero_every, pinch, speed_h, entry,
-     faces) = prm
+     faces, limits) = prm
     corrected, inside, speed2, contact = flags
     for k in range(k0, k1):
         if cc is not None and len(cc) == 10:     # the swept phase (a 5-tuple: the offset phase)
@@ -137,6 +140,8 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
         if faces:
             collide_faces(x, xp, inv_mass, tris, m, method, col_kind, col_index, sph_radius, tq, tq0, fq, cw,
                           grid_start, grid_items, grid_box, grid_dims, contact, corrected)
+        if limits[0].size:      # strain limiting after the collisions (SimParams.strain_limit)
+            limit_strain(x, limits, LIMIT_PASSES)
         t3 = cycles()
         if cc is not None:
             cloth_phase(x, xp, k, cc)
