@@ -9,16 +9,13 @@ cloth edge can only come to cross a triangle it shares no vertex with through su
 its vertices' displacements D_i, so two features' distance stays above d - max |D_a - D_b| over
 their vertices a, b. Hence x is as free of crossings as x_q when
   - every listed pair has max |D_a - D_b| < d, and
-  - every unlisted pair has max |D_a - D_b| < r: proven from nearby vertices' relative drift
-    (stages.sim.cloth_contact.drift: a cloth moving or turning as a whole keeps its query), or, where
-    that fails, from every vertex having |D_i - c| < r / 2 for one common vector c (an unlisted pair
-    is at least r apart and |D_a - D_b| <= |D_a - c| + |D_b - c|; c follows the pinned particles,
-    `_spread`).
+  - every vertex has |D_i - c| < r / 2 for one common vector c (an unlisted pair is at least r apart
+    and |D_a - D_b| <= |D_a - c| + |D_b - c|; c follows the pinned particles, `_spread`).
 Each call checks that; where it fails it moves the vertex back towards x_q until |D_i - c| is at
 most its bound gamma * dmin_i (gamma < 1/2; dmin_i: its nearest listed pair, r without one), under
 which no pair of it can fail (OGC's bound). Only a vertex over its bound needs its pairs checked, so
-a call costs O(N) plus the few such vertices' pairs; the query reruns when many vertices were held
-back or the drift (or, without it, one vertex) has used RENEW of its limit.
+a call costs O(N) plus the few such vertices' pairs; the query reruns when a vertex was held back
+or one has used RENEW of its r / 2.
 
 The response: every listed pair that may now be closer than the thickness is measured and pushed
 apart to it along its closest points (PBD by inverse mass); the correction is not turned into
@@ -31,8 +28,7 @@ State tuple (`OffsetContact.state()`; its length, 5, tells the step loop which p
             query's tree: stages.sim.cloth_contact.proximity), kind (C,) i1, idx (C, 4) i4,
             dist (C,) f8, dmin (N,), vstart (N + 1,) i8, vpair (4 C,) i4, m (N,), flag (N,) u1,
             x_before (N, 3), n_pairs (1,) i8 (listed pairs), radius (1,) f8 (the last query's: below
-            prm's where the pair list would have overflowed), corrected (N,) u1, stack (4T + 6, 2) i4,
-            dr: the drift test's cubes, stages.sim.cloth_contact.drift)
+            prm's where the pair list would have overflowed), corrected (N,) u1, stack (4T + 6, 2) i4)
     prm = (radius m, thickness m, gamma, every)
 """
 from __future__ import annotations
@@ -41,12 +37,11 @@ import numpy as np
 from numba import njit
 
 import stages.jit  # noqa: F401  (numba cache stamps follow NUMBA_CACHE_DEPENDS)
-from stages.sim.cloth_contact.drift import drift_build, drift_state, ratio
 from stages.sim.cloth_contact.proximity import KIND_VF, point_triangle, query_pairs, segment_segment, triangle_tree
 from stages.sim.cloth_contact.response import contact_velocity
 from stages.sim.simd import cycles
 
-NUMBA_CACHE_DEPENDS = ("stages.sim.cloth_contact.drift", "stages.sim.cloth_contact.proximity", "stages.sim.cloth_contact.response", "stages.sim.simd")
+NUMBA_CACHE_DEPENDS = ("stages.sim.cloth_contact.proximity", "stages.sim.cloth_contact.response", "stages.sim.simd")
 
 GAMMA = 0.45          # a vertex held back keeps |D - c| <= GAMMA * its nearest pair's distance (< 1/2)
 RENEW = 0.6           # the query reruns once a vertex has used this share of r / 2
@@ -69,8 +64,7 @@ O_CYC_QUERY = 7
 O_CYC_RESPOND = 8
 O_CYC_CHECK = 9
 O_CALLS = 10
-O_GLOBAL = 11         # calls whose unlisted pairs needed the one margin for all (drift too large)
-N_OFFSET_COUNTERS = 12
+N_OFFSET_COUNTERS = 11
 
 
 @njit(cache=True, _nrt=False)
@@ -80,7 +74,7 @@ def query(x, og):
     xq, topo, work, prm, counters = og
     tris, edges, tri_edges, tri_owns, cinv = topo
     box, node_box, children, leaf_prim, kind, idx, dist, dmin, vstart, vpair, m, flag, x_before, n_pairs, rq, _, \
-        stack, dr = work
+        stack = work
     radius = prm[0]
     t0 = cycles()
     while True:
@@ -92,7 +86,6 @@ def query(x, og):
         counters[O_OVERFLOW] += 1
     rq[0] = radius
     n_pairs[0] = n
-    drift_build(x, tris, radius, dr)
     for i in range(x.shape[0]):
         xq[i, 0] = x[i, 0]
         xq[i, 1] = x[i, 1]
@@ -248,13 +241,12 @@ def _bound(gamma, d):
 
 
 @njit(cache=True, _nrt=False)
-def keep_apart(x, xq, cinv, kind, idx, dist, dmin, vstart, vpair, m, flag, half, gamma, counters, unlisted_ok=False):
+def keep_apart(x, xq, cinv, kind, idx, dist, dmin, vstart, vpair, m, flag, half, gamma, counters):
     """Make the path xq -> x provably free of new crossings (module docstring): returns the number of
     vertices held back. A failing pair whose vertices over their bounds cannot be held (pinned, or
     already following a pinned one) has its other free vertices follow that vertex (the same
     displacement: the pair then moves as one). flag (N,) u1 work array (left 0): 1 over its bound,
-    3 following a pinned vertex, 2 given up. unlisted_ok: the unlisted pairs are proven already
-    (stages.sim.cloth_contact.drift): no vertex is held back for |D_i - c| alone."""
+    3 following a pinned vertex, 2 given up."""
     c0, c1, c2, _ = _spread(x, xq, cinv, m)
     held = 0
     over = 0
@@ -262,7 +254,7 @@ def keep_apart(x, xq, cinv, kind, idx, dist, dmin, vstart, vpair, m, flag, half,
         b = _bound(gamma, dmin[i])
         if m[i] <= b:
             continue
-        if not unlisted_ok and m[i] >= SAFE * half:   # its unlisted pairs are not proven: back to its bound
+        if m[i] >= SAFE * half:   # its unlisted pairs are not proven: back to its bound
             if cinv[i] > 0.0:
                 _hold(x, xq, i, c0, c1, c2, m, b)
                 held += 1
@@ -330,7 +322,7 @@ def offset_call(x, xp, og):
     xq, topo, work, prm, counters = og
     tris, edges, tri_edges, tri_owns, cinv = topo
     box, node_box, children, leaf_prim, kind, idx, dist, dmin, vstart, vpair, m, flag, x_before, n_pairs, rq, corrected, \
-        stack, dr = work
+        stack = work
     radius, thickness, gamma, every = prm
     counters[O_CALLS] += 1
     n = x.shape[0]
@@ -343,22 +335,13 @@ def offset_call(x, xp, og):
     respond_pairs(x, xq, cinv, kind, idx, dist, n_pairs[0], m, thickness, counters)
     t1 = cycles()
     half = 0.5 * rq[0]
-    # the unlisted pairs: proven by the vertices' drift from their neighbours' (stages.sim.cloth_contact.drift),
-    # else by one margin for all (|D_i - c| < r / 2, vertices past it held back)
-    local = ratio(x, xq, dr) < SAFE
     held = keep_apart(x, xq, cinv, kind, idx, dist, dmin, vstart, vpair, m, flag, half, gamma,
-                      counters, local)
-    if local and held > 0 and ratio(x, xq, dr) >= SAFE:   # the holds moved vertices away from their neighbours
-        local = False
-        held += keep_apart(x, xq, cinv, kind, idx, dist, dmin, vstart, vpair, m, flag, half, gamma, counters, False)
+                      counters)
     _, _, _, mx = _spread(x, xq, cinv, m)
-    renew = ratio(x, xq, dr) > RENEW if local else mx > RENEW * half
     t2 = cycles()
     counters[O_CYC_RESPOND] += t1 - t0
     counters[O_CYC_CHECK] += t2 - t1
-    if not local:
-        counters[O_GLOBAL] += 1
-    if held > HELD_REQUERY * n or renew:
+    if held > HELD_REQUERY * n or mx > RENEW * half:
         query(x, og)
     for i in range(n):
         corrected[i] = (x[i, 0] != x_before[i, 0]) or (x[i, 1] != x_before[i, 1]) or (x[i, 2] != x_before[i, 2])
@@ -393,7 +376,7 @@ def offset_state(x: np.ndarray, triangles: np.ndarray, cinv: np.ndarray, thickne
             np.zeros(cap, np.int8), np.zeros((cap, 4), np.int32), np.zeros(cap), np.zeros(n),
             np.zeros(n + 1, np.int64), np.zeros(4 * cap, np.int32), np.zeros(n), np.zeros(n, np.uint8),
             np.zeros((n, 3)), np.zeros(1, np.int64), np.array([r]), np.zeros(n, np.uint8),
-            np.zeros((2 * nodes + 8, 2), np.int32), drift_state(n))
+            np.zeros((2 * nodes + 8, 2), np.int32))
     topo = (tris, edges, tri_edges, owns, np.ascontiguousarray(cinv, np.float64))
     og = (np.zeros((n, 3)), topo, work, (r, float(thickness), float(gamma), int(every)),
           np.zeros(N_OFFSET_COUNTERS, np.int64))
@@ -404,5 +387,5 @@ def offset_state(x: np.ndarray, triangles: np.ndarray, cinv: np.ndarray, thickne
 def offset_summary(counters: np.ndarray) -> dict:
     """The counters by name (summed over the calls)."""
     names = ("queries", "pairs", "held", "checked", "pushed", "unproven", "overflow", "cycles_query",
-             "cycles_respond", "cycles_check", "calls", "global_margin")
+             "cycles_respond", "cycles_check", "calls")
     return {k: int(counters[i]) for i, k in enumerate(names)}
