@@ -310,3 +310,48 @@ def test_a_sewn_pattern_starts_without_edges_through_itself(tmp_path):
     g, log, _ = build_garmentcode_garment(scene, 0, c, m, cols, build_maps(cols))
     assert crossing_count(g.positions, g.triangles) == 0
     assert any(n.startswith("untangled") for n in log.notes)
+
+
+@needs_assets
+def test_trouser_legs_are_wrapped_round_each_leg_so_the_crotch_and_inseams_start_closed(tmp_path):
+    # GarmentCode lays a trouser's four panels flat in front of and behind its body, the front
+    # halves 14 cm apart at the waist; wrapped round the body's axis like a skirt the inseams were
+    # 418 mm open as placed on the built-in walk and the crotch seams 144-162 mm; wrapped round each
+    # leg below the crotch (the character's leg joints), halves stitched side by side: under 90 mm
+    from pipeline.run import frame_times, load_character, split_and_fit
+    from pipeline.scene import load_scene
+    from pipeline.scene_motion import sample_scene_motion
+    from stages.garments.garmentcode_place import body_of, place_gc_garment
+    from stages.garments.library import seam_label
+    path = ASSETS / "sampled" / "pants_s1025" / "pants_s1025_specification.json"
+    p = tmp_path / "pants.yaml"
+    p.write_text("character: {clip: walk}\nframes: {start: 0.5, count: 2}\n")
+    scene = load_scene(p)
+    c = load_character(scene)
+    m = sample_scene_motion(scene, c, frame_times(scene, None))
+    _, cols = split_and_fit(scene, c, m)
+    gc = read_pattern(path)
+    _, pattern, flat, placed, _ = place_gc_garment(gc, body_of(path, assets_dir() / DEFAULT_BODY), c, m, cols)
+    gaps = np.linalg.norm(placed[flat.seam_pairs[:, 0]] - placed[flat.seam_pairs[:, 1]], axis=1)
+    by_seam = {seam_label(s): float(gaps[flat.seam_index == j].max()) for j, s in enumerate(pattern.seams)}
+    crotch_and_inseams = ["pant_f_r.e3 / pant_f_l.e3", "pant_f_r.e2 / pant_f_l.e4", "pant_b_r.e9 / pant_b_l.e4",
+                          "pant_b_r.e10 / pant_b_l.e3", "pant_f_l.e5 / pant_b_l.e2", "pant_f_r.e1 / pant_b_r.e11"]
+    for s in crotch_and_inseams:
+        assert by_seam[s] < 0.09, (s, by_seam[s])
+
+
+def test_panel_spans_across_each_level_match_a_brute_force_scan():
+    from stages.garments.garmentcode_wrap import _spans
+    rng = np.random.default_rng(3)
+    th = np.sort(rng.uniform(0, 2 * np.pi, 40))
+    r = 1.0 + 0.3 * rng.uniform(size=40)
+    s, y = r * np.cos(th), r * np.sin(th)
+    levels = np.linspace(-1.2, 1.2, 25)
+    lo, hi = _spans(s, y, levels)
+    for k, L in enumerate(levels):   # every crossing of the closed outline with the level, one by one
+        hits = [s[i] + (L - y[i]) / (y[(i + 1) % 40] - y[i]) * (s[(i + 1) % 40] - s[i])
+                for i in range(40) if (y[i] - L) * (y[(i + 1) % 40] - L) <= 0 and y[i] != y[(i + 1) % 40]]
+        if hits:
+            assert lo[k] == pytest.approx(min(hits)) and hi[k] == pytest.approx(max(hits))
+        else:
+            assert lo[k] == np.inf and hi[k] == -np.inf

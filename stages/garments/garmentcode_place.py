@@ -19,7 +19,7 @@ import yaml
 
 from stages.errors import InputError
 from stages.garments.garmentcode import GCPattern, edge_points, panel_part
-from stages.garments.garmentcode_wrap import wrap_ring, wrap_sleeves
+from stages.garments.garmentcode_wrap import wrap_legs, wrap_ring, wrap_sleeves
 from stages.garments.patterns import Edge, Panel, Pattern, PatternAttachment, Placement, Seam, SeamSide
 
 # GarmentCode's default body, under the real assets folder (pipeline.assets.assets_dir)
@@ -250,7 +250,9 @@ class BodyMap:
     and the character / pattern girth ratio there (hips, waist, bust). axis: (3,) the character's
     vertical axis point (root x, z). arm_turn: rad, the character's arm angle minus the pattern
     body's (positive: lower). shoulder_src: (2,) pattern body shoulder point (|x|, y), m;
-    shoulders_dst: {+1: (3,), -1: (3,)} the character's upper-arm joints (left +x, right -x)."""
+    shoulders_dst: {+1: (3,), -1: (3,)} the character's upper-arm joints (left +x, right -x).
+    legs_dst: {+1: (2, 3), -1: (2, 3)} each leg's hip and ankle joints (sides without a leg chain
+    left out)."""
 
     src_y: np.ndarray
     dst_y: np.ndarray
@@ -260,10 +262,21 @@ class BodyMap:
     arm_turn: float
     shoulder_src: np.ndarray
     shoulders_dst: dict
+    legs_dst: dict
 
     def y(self, y):
         return np.interp(y, self.src_y, self.dst_y, left=None, right=None) + np.where(
             y > self.src_y[-1], (y - self.src_y[-1]) * (self.dst_y[-1] - self.dst_y[-2]) / (self.src_y[-1] - self.src_y[-2]), 0.0)
+
+    def torso_inverse(self, q: np.ndarray) -> np.ndarray:
+        """(N, 3) pattern-body points that `torso` takes to the character's points q (N, 3)."""
+        y = np.interp(q[:, 1], self.dst_y, self.src_y)
+        k = np.interp(y, self.src_girth_y, self.ratio)
+        return np.c_[(q[:, 0] - self.axis[0]) / k, y, (q[:, 2] - self.axis[2]) / k]
+
+    def leg_axes(self) -> dict:
+        """{side: (2, 3) hip and ankle points in the pattern body's frame} of the character's legs."""
+        return {side: self.torso_inverse(q) for side, q in self.legs_dst.items()}
 
     def torso(self, p: np.ndarray) -> np.ndarray:
         k = np.interp(p[:, 1], self.src_girth_y, self.ratio)
@@ -296,10 +309,17 @@ def body_map(body: GCBody, meas: dict, character, origins: np.ndarray) -> BodyMa
         chain = limb_chain(character, "arm", s)
         shoulders[side] = (origins[chain[0]].copy() if chain else
                            np.array([root[0] + side * meas["shoulder_half"], meas["shoulder_y"], root[2]]))
+    legs = {}
+    for s in ("l", "r"):
+        chain = limb_chain(character, "leg", s)
+        if chain:   # the side from where the leg is, whatever the rig calls it
+            q = origins[[chain[0], chain[2]]].copy()
+            legs[1.0 if q[0, 0] >= root[0] else -1.0] = q
     turn = meas.get("arm_angle", body.arm_angle) - body.arm_angle
     return BodyMap(src, dst, np.array([body.hips_y, body.waist_y, body.bust_y]), ratio,
                    np.array([root[0], 0.0, root[2]]), float(turn),
-                   np.array([body.shoulder_half + 0.02, body.shoulder_y - 0.04]), shoulders)
+                   np.array([body.shoulder_half + 0.02, body.shoulder_y - 0.04]), shoulders,
+                   legs if len(legs) == 2 else {})
 
 
 def mismatch(body: GCBody, meas: dict) -> dict:
@@ -322,11 +342,12 @@ def mismatch_warning(body: GCBody, meas: dict, name: str, k: float = 1.0, sy: fl
 def place_gc(gc: GCPattern, flat, signs: dict, bmap: BodyMap, body: GCBody | None = None) -> np.ndarray:
     """(N, 3) positions of the meshed panels (flat: FlatPattern of to_pattern's Pattern, same panel
     order) in the character's relative frame at frame 0; with `body`, upright panels wrapped round
-    the body first (wrap_ring)."""
+    the body first (wrap_ring), trouser legs round each leg (wrap_legs), sleeves round the arms."""
     uvs = [fp.uv * np.array([signs[p.name], 1.0]) for p, fp in zip(gc.panels, flat.panels)]
     pts = [p.to_3d(uv) for p, uv in zip(gc.panels, uvs)]
     if body is not None:
-        pts = wrap_sleeves(gc, wrap_ring(gc, pts, body, uvs), body)
+        ringed = wrap_legs(gc, pts, wrap_ring(gc, pts, body, uvs), body, bmap.leg_axes())
+        pts = wrap_sleeves(gc, ringed, body)
     out = []
     for p, x in zip(gc.panels, pts):
         part = panel_part(p)
