@@ -116,6 +116,20 @@ def test_a_limb_the_garment_wraps_never_passes():
     assert resting_limbs(bind, x, x[top], joints, DELTA) == []
 
 
+def test_the_trunk_never_passes():
+    # a bone above the skirt at frame 0 (not wrapped), then resting on its whole band from above, the
+    # band's centre line through it: a chest behind a high waistband, not a limb beside the body
+    ch, mo, cs, x, tri = _scene(10, centre=(0.0, 1.1, 0.0), away=(0.0, 1.6, 0.0))
+    cs = ColliderSet(hulls=(), spheres=(SphereCollider(1, "arm", np.zeros(3), 0.35, np.zeros((0, 3))),),
+                     delta=DELTA, min_triangles=4)
+    bind = bind_pose(ch, mo, cs)
+    top = np.flatnonzero(np.isclose(x[:, 1], 1.0))
+    joints = np.zeros(top.size, np.int32)
+    (bone, _, _, frames), = band_contacts(bind, x[top], joints, DELTA)
+    assert frames.mean() >= REST_SHARE
+    assert resting_limbs(bind, x, x[top], joints, DELTA) == []
+
+
 def test_the_simulation_lets_a_passing_limb_through():
     from dataclasses import replace
     ch, mo, cs, g, _ = _build(10, centre=(0.32, 0.94, 0.0))     # on the band and the cloth below it

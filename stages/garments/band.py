@@ -10,7 +10,9 @@ yielding drags the band along under the limb at every step: edges of the band 97
 stopped as diverged in 13 of the 32 clips of a Kenney chibi with a skirt. Such a limb passes through the
 garment instead (`resting_limbs`, Garment.passing_joints): the cloth hangs under it as if it were not
 there, which the body audit counts as cloth inside the body. A limb the garment wraps (an upper arm in
-a sleeve, a thigh in a skirt or a trouser leg) always collides.
+a sleeve, a thigh in a skirt or a trouser leg) always collides, and so does a part of the trunk (a
+bone whose colliders the band's vertical centre line runs through: CesiumMan's upper torso behind a
+GarmentCode skirt's high waistband).
 """
 from __future__ import annotations
 
@@ -123,22 +125,37 @@ def wraps(points: np.ndarray, limb: np.ndarray, origin: np.ndarray, toward) -> b
     return bool(np.diff(np.concatenate([angle, angle[:1] + 2 * np.pi])).max() < WRAP_GAP)
 
 
+def beside(limb: np.ndarray, centre: np.ndarray) -> bool:
+    """Whether a bone's collider points (P, 3) lie beside the vertical line through centre (3,) (+y
+    up): their centroid farther from it, horizontally, than any of them from the centroid. A limb
+    hangs beside the body's line; the trunk's bones are round it."""
+    if limb.shape[0] == 0:
+        return False
+    xz = limb[:, [0, 2]]
+    mid = xz.mean(axis=0)
+    return bool(np.linalg.norm(mid - np.asarray(centre)[[0, 2]]) > np.linalg.norm(xz - mid, axis=1).max())
+
+
 def resting_limbs(bind, points: np.ndarray, local: np.ndarray, joints: np.ndarray, depth: float,
                   ignore=()) -> list[int]:
     """Joints (sorted) whose colliders rest on the garment's attached band: they hold one of its
     attached particles (local (M, 3) bone-local, joints (M,)) deeper than `depth` in REST_SHARE of
-    bind.poses' frames or more, and the garment (points (N, 3), frame 0) does not wrap them. Their
+    bind.poses' frames or more, lie beside the band's vertical centre line at frame 0 (`beside`: a
+    limb, not the trunk), and the garment (points (N, 3), frame 0) does not wrap them. Their
     colliders then pass through the garment (Garment.passing_joints)."""
     share: dict[int, np.ndarray] = {}
     for bone, _, _, frames in band_contacts(bind, local, joints, depth, ignore):
         share[bone] = share.get(bone, np.zeros(frames.size, bool)) | frames
     parents = bind.parents
+    band = np.einsum("mij,mj->mi", bind.joint_world[joints][:, :3, :3], local) + bind.joint_world[joints][:, :3, 3]
+    centre = band.mean(axis=0) if band.shape[0] else np.zeros(3)
     out = []
     for bone, frames in share.items():
         if frames.mean() < REST_SHARE:
             continue
+        limb = collider_points(bind, bone)
         children = np.flatnonzero(parents == bone) if parents is not None else []
         toward = bind.joint_origins[children].mean(axis=0) if len(children) else None
-        if not wraps(points, collider_points(bind, bone), bind.joint_origins[bone], toward):
+        if beside(limb, centre) and not wraps(points, limb, bind.joint_origins[bone], toward):
             out.append(bone)
     return sorted(out)
