@@ -13,8 +13,9 @@ from stages.garments.band import REST_SHARE, band_contacts, resting_limbs, wraps
 from stages.garments.simple import tube_skirt
 from stages.garments.types import attach_top_loop, bind_pose, build_garment
 from stages.hulls.types import ColliderSet, SphereCollider
-from stages.rig.types import Character, Motion
+from stages.rig.types import Motion
 from stages.sim import SimParams, simulate
+from tests.test_sim_yield import root_and_arm
 
 RADIUS, DELTA = 0.1, 0.01
 N_FRAMES = 40
@@ -57,23 +58,29 @@ def test_wrapping_does_not_depend_on_how_the_body_is_turned_or_sized(yaw, tilt, 
     assert not wraps(f(SKIRT), f(ARM), f(ORIGIN), None)
 
 
-def _scene(rest_from: int, centre=(0.3, 1.0, 0.0), away=(1.2, 1.0, 0.0)):
-    """Joint 'root' still; joint 'arm' carries a sphere, away from a skirt pinned to the root (top
-    ring: radius 0.3 at y = 1) until frame `rest_from`, then lying on its waistband at `centre`."""
-    eye = np.eye(4)
-    tet = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]) * 0.01 - 5.0   # a far-away body
-    ch = Character(name="arm", vertices=tet, triangles=np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]], np.int32),
-                   primitive_ids=np.zeros(4, np.int32), joint_names=("root", "arm"), parents=np.array([-1, 0], np.int32),
-                   rest_local=np.stack([eye, eye]), inverse_bind=np.stack([eye, eye]),
-                   skin_joints=np.zeros((4, 1), np.int32), skin_weights=np.ones((4, 1)), source="procedural")
-    jw = np.tile(eye, (N_FRAMES, 2, 1, 1))
+def _scene(rest_from: int, centre=(0.3, 1.0, 0.0), away=(1.2, 1.0, 0.0), radius=RADIUS):
+    """Joint 'root' still; joint 'arm' carries a sphere (`radius`), away from a skirt pinned to the
+    root (top ring: radius 0.3 at y = 1) until frame `rest_from`, then lying on its waistband at
+    `centre`."""
+    ch = root_and_arm()
+    jw = np.tile(np.eye(4), (N_FRAMES, 2, 1, 1))
     jw[:, 1, :3, 3] = away
     jw[rest_from:, 1, :3, 3] = centre
     mo = Motion("rest", np.arange(N_FRAMES) / 30.0, jw, np.zeros((N_FRAMES, 3)))
-    cs = ColliderSet(hulls=(), spheres=(SphereCollider(1, "arm", np.zeros(3), RADIUS, np.zeros((0, 3))),),
+    cs = ColliderSet(hulls=(), spheres=(SphereCollider(1, "arm", np.zeros(3), radius, np.zeros((0, 3))),),
                      delta=DELTA, min_triangles=4)
     x, tri = tube_skirt(0.3, 0.35, 0.3, 24, 4, center=(0.0, 1.0, 0.0))
     return ch, mo, cs, x, tri
+
+
+def _band(rest_from, centre, away):
+    """A big sphere (0.35) on the skirt's band: (bind pose, skirt points, its band's points and joints,
+    the sphere's band_contacts)."""
+    ch, mo, cs, x, tri = _scene(rest_from, centre=centre, away=away, radius=0.35)
+    bind = bind_pose(ch, mo, cs)
+    top = np.flatnonzero(np.isclose(x[:, 1], 1.0))
+    joints = np.zeros(top.size, np.int32)
+    return bind, x, x[top], joints, band_contacts(bind, x[top], joints, DELTA)
 
 
 def _build(rest_from, **kw):
@@ -105,29 +112,19 @@ def test_a_limb_that_only_passes_the_band_pushes_it(rest_from):
 def test_a_limb_the_garment_wraps_never_passes():
     # the sphere inside the skirt, bigger than its waist: it holds the whole band at every frame,
     # but the skirt is round it (a thigh in a skirt)
-    ch, mo, cs, x, tri = _scene(0, centre=(0.0, 1.0, 0.0), away=(0.0, 1.0, 0.0))
-    cs = ColliderSet(hulls=(), spheres=(SphereCollider(1, "arm", np.zeros(3), 0.35, np.zeros((0, 3))),),
-                     delta=DELTA, min_triangles=4)
-    bind = bind_pose(ch, mo, cs)
-    top = np.flatnonzero(np.isclose(x[:, 1], 1.0))
-    joints = np.zeros(top.size, np.int32)
-    (bone, _, held, frames), = band_contacts(bind, x[top], joints, DELTA)
+    bind, x, band, joints, contacts = _band(0, centre=(0.0, 1.0, 0.0), away=(0.0, 1.0, 0.0))
+    (bone, _, held, frames), = contacts
     assert bone == 1 and held.all() and frames.all()
-    assert resting_limbs(bind, x, x[top], joints, DELTA) == []
+    assert resting_limbs(bind, x, band, joints, DELTA) == []
 
 
 def test_the_trunk_never_passes():
     # a bone above the skirt at frame 0 (not wrapped), then resting on its whole band from above, the
     # band's centre line through it: a chest behind a high waistband, not a limb beside the body
-    ch, mo, cs, x, tri = _scene(10, centre=(0.0, 1.1, 0.0), away=(0.0, 1.6, 0.0))
-    cs = ColliderSet(hulls=(), spheres=(SphereCollider(1, "arm", np.zeros(3), 0.35, np.zeros((0, 3))),),
-                     delta=DELTA, min_triangles=4)
-    bind = bind_pose(ch, mo, cs)
-    top = np.flatnonzero(np.isclose(x[:, 1], 1.0))
-    joints = np.zeros(top.size, np.int32)
-    (bone, _, _, frames), = band_contacts(bind, x[top], joints, DELTA)
+    bind, x, band, joints, contacts = _band(10, centre=(0.0, 1.1, 0.0), away=(0.0, 1.6, 0.0))
+    (_, _, _, frames), = contacts
     assert frames.mean() >= REST_SHARE
-    assert resting_limbs(bind, x, x[top], joints, DELTA) == []
+    assert resting_limbs(bind, x, band, joints, DELTA) == []
 
 
 def test_the_simulation_lets_a_passing_limb_through():

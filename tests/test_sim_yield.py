@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from stages.garments.simple import tube_skirt
-from stages.garments.types import attach_top_loop, bind_pose, build_garment, swept_attachments
+from stages.garments.band import swept_attachments
+from stages.garments.types import attach_top_loop, bind_pose, build_garment
 from stages.hulls.types import ColliderSet, SphereCollider
 from stages.rig.types import Character, Motion
 from stages.sim import SimParams, simulate
@@ -14,16 +15,21 @@ RADIUS, DELTA = 0.1, 0.01
 N_FRAMES = 40
 
 
+def root_and_arm() -> Character:
+    """Joints 'root' and 'arm' (its child), both at the origin, and a tiny body far away (-5 m)."""
+    eye = np.eye(4)
+    tet = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]) * 0.01 - 5.0
+    return Character(name="arm", vertices=tet, triangles=np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]], np.int32),
+                     primitive_ids=np.zeros(4, np.int32), joint_names=("root", "arm"), parents=np.array([-1, 0], np.int32),
+                     rest_local=np.stack([eye, eye]), inverse_bind=np.stack([eye, eye]),
+                     skin_joints=np.zeros((4, 1), np.int32), skin_weights=np.ones((4, 1)), source="procedural")
+
+
 def _arm_scene():
     """Joint 0 'root' still; joint 1 'arm' carries a sphere along x at waist height, through the
     waistband of a skirt pinned to the root (top ring: radius 0.3 at y = 1)."""
-    eye = np.eye(4)
-    tet = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]]) * 0.01 - 5.0   # a far-away body
-    ch = Character(name="arm", vertices=tet, triangles=np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]], np.int32),
-                   primitive_ids=np.zeros(4, np.int32), joint_names=("root", "arm"), parents=np.array([-1, 0], np.int32),
-                   rest_local=np.stack([eye, eye]), inverse_bind=np.stack([eye, eye]),
-                   skin_joints=np.zeros((4, 1), np.int32), skin_weights=np.ones((4, 1)), source="procedural")
-    jw = np.tile(eye, (N_FRAMES, 2, 1, 1))
+    ch = root_and_arm()
+    jw = np.tile(np.eye(4), (N_FRAMES, 2, 1, 1))
     jw[:, 1, 0, 3] = np.linspace(-0.8, 0.8, N_FRAMES)   # the arm sweeps along x ...
     jw[:, 1, 1, 3] = 1.0                                # ... at the waistband's height
     mo = Motion("sweep", np.arange(N_FRAMES) / 30.0, jw, np.zeros((N_FRAMES, 3)))

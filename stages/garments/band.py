@@ -73,15 +73,22 @@ def _joint_name(name: str) -> str:
     return re.sub(r"_ball\d+$", "", name)
 
 
+def held_by(contacts: list, n: int, skip=()):
+    """((n,) bool the attached particles some collider of `contacts` (band_contacts) holds, names of
+    those colliders' joints), leaving out the colliders of the bones in `skip`."""
+    hit = np.zeros(n, bool)
+    names = []
+    for bone, name, held, _ in contacts:
+        if bone not in skip:
+            hit |= held
+            names.append(name)
+    return hit, list(dict.fromkeys(_joint_name(n) for n in names))
+
+
 def swept_attachments(bind, local: np.ndarray, joints: np.ndarray, depth: float, ignore=()):
     """Attached particles that a collider of another bone holds deeper than `depth` (m) at some
     frame of bind.poses: ((M,) bool, names of those colliders' joints); see band_contacts."""
-    hit = np.zeros(len(joints), bool)
-    names = []
-    for _, name, held, _ in band_contacts(bind, local, joints, depth, ignore):
-        hit |= held
-        names.append(name)
-    return hit, list(dict.fromkeys(_joint_name(n) for n in names))
+    return held_by(band_contacts(bind, local, joints, depth, ignore), len(joints))
 
 
 def collider_points(bind, bone: int) -> np.ndarray:
@@ -137,14 +144,17 @@ def beside(limb: np.ndarray, centre: np.ndarray) -> bool:
 
 
 def resting_limbs(bind, points: np.ndarray, local: np.ndarray, joints: np.ndarray, depth: float,
-                  ignore=()) -> list[int]:
+                  ignore=(), contacts: list | None = None) -> list[int]:
     """Joints (sorted) whose colliders rest on the garment's attached band: they hold one of its
     attached particles (local (M, 3) bone-local, joints (M,)) deeper than `depth` in REST_SHARE of
     bind.poses' frames or more, lie beside the band's vertical centre line at frame 0 (`beside`: a
     limb, not the trunk), and the garment (points (N, 3), frame 0) does not wrap them. Their
-    colliders then pass through the garment (Garment.passing_joints)."""
+    colliders then pass through the garment (Garment.passing_joints). contacts: band_contacts of these
+    arguments when already computed."""
+    if contacts is None:
+        contacts = band_contacts(bind, local, joints, depth, ignore)
     share: dict[int, np.ndarray] = {}
-    for bone, _, _, frames in band_contacts(bind, local, joints, depth, ignore):
+    for bone, _, _, frames in contacts:
         share[bone] = share.get(bone, np.zeros(frames.size, bool)) | frames
     parents = bind.parents
     band = np.einsum("mij,mj->mi", bind.joint_world[joints][:, :3, :3], local) + bind.joint_world[joints][:, :3, 3]

@@ -24,7 +24,8 @@ import numpy as np
 from stages.checks import ContractError, check_array, check_index
 from stages.errors import InputError
 from stages.garments.band import collider_list as _colliders
-from stages.garments.band import resting_limbs, signed_distance as _signed_distance, swept_attachments
+from stages.garments.band import band_contacts, held_by, resting_limbs
+from stages.garments.band import signed_distance as _signed_distance
 
 STRETCH = 0  # spring kind: mesh edge (stretch / shear)
 COMMON_BONE = "common"   # Attachment.joint: the lowest common ancestor of the nearest bones
@@ -494,14 +495,15 @@ def build_garment(name: str, positions, triangles, *, rest_positions=None, densi
         if yield_swept and bind.colliders is not None:
             att = np.flatnonzero(rigid)
             ignore = set(int(j) for j in ignore_joints)
-            passing = resting_limbs(bind, x, attach_local[att], attach_joint[att], bind.colliders.delta, ignore)
+            local, joints, delta = attach_local[att], attach_joint[att], bind.colliders.delta
+            contacts = band_contacts(bind, local, joints, delta, ignore)      # once: every frame x collider
+            passing = resting_limbs(bind, x, local, joints, delta, contacts=contacts)
             if passing:
                 warnings.warn(f"garment {name!r}: the colliders of {', '.join(bind.joint_names[j] for j in passing)} "
                               f"rest on its attached band in most frames and pass through the garment (a limb it "
                               f"does not wrap lying where the band must be; the body audit counts the cloth under "
                               f"it as inside the body)", stacklevel=2)
-            swept, names = swept_attachments(bind, attach_local[att], attach_joint[att], bind.colliders.delta,
-                                             ignore=ignore | set(passing))
+            swept, names = held_by(contacts, att.size, skip=passing)
             if swept.any():
                 warnings.warn(f"garment {name!r}: {int(swept.sum())} of {att.size} attached particles yield to "
                               f"collisions: the colliders {', '.join(names)} pass through them during "
