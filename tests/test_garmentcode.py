@@ -313,6 +313,31 @@ def test_a_sewn_pattern_starts_without_edges_through_itself(tmp_path):
 
 
 @needs_assets
+def test_a_waist_is_pinned_to_the_trunk_not_to_the_hand_beside_it(tmp_path):
+    # CesiumMan's left hand hangs beside the flare skirt's waist: pinned to the nearest collider's
+    # bone, 4 of its waist particles followed the hand, which dragged them 14 cm off the hips and
+    # stretched the waistband 641 % (the run stopped as diverged at frame 24 of the corpus scene)
+    from pipeline.dressing import build_garmentcode_garment
+    from pipeline.run import frame_times, load_character, split_and_fit
+    from pipeline.scene import load_scene
+    from pipeline.scene_motion import sample_scene_motion
+    from stages.maps.build import build_maps
+    from stages.rig.humanoid import limb_joint_sets
+    p = tmp_path / "flare.yaml"
+    p.write_text(f"character: {{source: gltf, path: {assets_dir() / 'CesiumMan.glb'}, clip: 0}}\n"
+                 "frames: {start: 0.8, count: 2}\n"
+                 f"garments: [{{type: garmentcode, path: {ASSETS / 'examples' / 'flare_skirt_specification.json'}}}]\n")
+    scene = load_scene(p)
+    c = load_character(scene)
+    m = sample_scene_motion(scene, c, frame_times(scene, None))
+    _, cols = split_and_fit(scene, c, m)
+    g, _, _ = build_garmentcode_garment(scene, 0, c, m, cols, build_maps(cols))
+    pinned = set(g.attach_joint[g.attach_joint >= 0].tolist())
+    limbs = set().union(*limb_joint_sets(c).values())
+    assert pinned and not pinned & limbs, [c.joint_names[j] for j in pinned]
+
+
+@needs_assets
 def test_trouser_legs_are_wrapped_round_each_leg_so_the_crotch_and_inseams_start_closed(tmp_path):
     # GarmentCode lays a trouser's four panels flat in front of and behind its body, the front
     # halves 14 cm apart at the waist; wrapped round the body's axis like a skirt the inseams were

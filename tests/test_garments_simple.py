@@ -100,6 +100,28 @@ def test_attachments_bind_exactly_and_select():
         build_garment("s", x, tri, attachments=[attach_top_loop()])  # no bind pose
 
 
+def test_trunk_bone_pins_a_waist_next_to_a_hand_to_the_trunk():
+    """joint 'trunk': a particle next to a hand (a waistband beside a hanging arm) follows the
+    nearest bone that is not on a limb; the nearest bone alone would be the hand's."""
+    from stages.garments.types import TRUNK_BONE
+    from stages.rig.procedural import procedural_character
+    from stages.rig.skinning import sample_motion
+    ch = procedural_character()
+    mo = sample_motion(ch, "walk", np.arange(3) / 30.0)
+    bind = bind_pose(ch, mo)
+    hand, pelvis = ch.joint_names.index("hand_l"), ch.joint_names.index("pelvis")
+    x = np.vstack([bind.joint_origins[hand] + [0.0, 0.0, 0.001], bind.joint_origins[pelvis] + [0.0, 0.0, 0.1],
+                   bind.joint_origins[pelvis] + [0.0, -0.1, 0.1]])
+    tri = np.array([[0, 1, 2]])
+    nearest = build_garment("w", x, tri, attachments=[attach_indices([0, 1])], bind=bind)
+    assert nearest.attach_joint[0] == hand
+    g = build_garment("w", x, tri, attachments=[attach_indices([0, 1], TRUNK_BONE)], bind=bind)
+    limbs = {j for j, n in enumerate(ch.joint_names) if n.split("_")[0] in ("upperarm", "forearm", "hand", "thigh",
+                                                                           "shin", "foot", "toes")}
+    assert bind.limb_joints == limbs
+    assert g.attach_joint[0] not in limbs and g.attach_joint[1] == pelvis and g.attach_joint[2] == -1
+
+
 def test_common_bone_pins_a_run_to_the_lowest_common_ancestor():
     """joint 'common': a run whose particles lie at the neck, a clavicle and an upper arm follows
     one bone, the chest (their common ancestor), instead of being torn between the three."""

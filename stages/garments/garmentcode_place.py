@@ -21,6 +21,7 @@ from stages.errors import InputError
 from stages.garments.garmentcode import GCPattern, edge_points, panel_part
 from stages.garments.garmentcode_wrap import wrap_legs, wrap_ring, wrap_sleeves
 from stages.garments.patterns import Edge, Panel, Pattern, PatternAttachment, Placement, Seam, SeamSide
+from stages.garments.types import TRUNK_BONE
 
 # GarmentCode's default body, under the real assets folder (pipeline.assets.assets_dir)
 DEFAULT_BODY = Path("garmentcode") / "bodies" / "mean_all.yaml"
@@ -184,7 +185,7 @@ def to_pattern(gc: GCPattern, edge_length: float, name: str, density: float = 0.
             raise InputError(gc.source, f"pattern.panels.{p.name}: cannot be meshed: {err}") from None
     seams = tuple(Seam(SeamSide(st.a[0], f"e{st.a[1]}"), SeamSide(st.b[0], f"e{st.b[1]}"), reverse=not st.right_wrong)
                   for st in gc.stitches)
-    held = tuple(PatternAttachment(p.name, f"e{k}", sewing=True)
+    held = tuple(PatternAttachment(p.name, f"e{k}", joint=TRUNK_BONE, sewing=True)
                  for p in gc.panels for k, e in enumerate(p.edges) if e.label in ("lower_interface",))
     try:
         return Pattern(name, tuple(panels), seams, edge_length, held, density=density), signs
@@ -398,8 +399,8 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
     pattern's own translation / rotation mapped onto the character (body_map); vertices inside the
     body are pushed out; the waist seam GarmentCode attaches while simulating (lower_interface) is
     brought onto the body (placement.hug, to the body's axis) and held there while sewing (the
-    middle half, seam vertices free), and after sewing stays pinned to its nearest bone (the waist
-    holds a skirt up); collars are left free (HOLD_LABELS)."""
+    middle half, seam vertices free), and after sewing stays pinned to its nearest bone of the trunk
+    (the waist holds a skirt up); collars are left free (HOLD_LABELS)."""
     from stages.garments.library import GarmentBuild, hug_targets, seam_label
     from stages.garments.placement import bind_geometry, hug, respace
     from stages.garments.sewing import SewParams, gathered_rest, merged_mesh, seam_gaps, sew
@@ -435,7 +436,9 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
         f = s / max(s[-1], 1e-12)
         return np.setdiff1d(idx[(f >= 0.25) & (f <= 0.75)], seam_v)
 
-    pins = [attach_indices(m, None) for m in (middle_half(i) for i in held) if m.size]
+    # the trunk's bones only: a waist on CesiumMan lies next to its hanging hand, whose bone the
+    # nearest collider would give (the hand then dragged the waistband 14 cm off the hips)
+    pins = [attach_indices(m, TRUNK_BONE) for m in (middle_half(i) for i in held) if m.size]
     shift = np.concatenate([[0.0], np.cumsum([np.ptp(p.uv[:, 0]) + 0.1 for p in flat.panels])])[:-1]
     flat3 = np.concatenate([np.c_[p.uv[:, 0] - p.uv[:, 0].min() + s, p.uv[:, 1], np.zeros(len(p.uv))]
                             for p, s in zip(flat.panels, shift)])
@@ -445,7 +448,7 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
                     progress=progress)
     pos, mtri, remap = merged_mesh(sewn, tri, flat.seam_pairs)
     pos, log = untangle_sewn(pos, mtri, log)
-    atts = [attach_indices(np.unique(remap[i]), None) for i in waist]
+    atts = [attach_indices(np.unique(remap[i]), TRUNK_BONE) for i in waist]
     g = build_garment(name, pos, mtri, density=density, triangle_rest=tri_rest, attachments=atts,
                       bind=pose if atts else None, ignore_joints=ignore_joints)
     gaps = seam_gaps(sewn, flat.seam_pairs)

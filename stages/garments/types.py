@@ -29,6 +29,7 @@ from stages.garments.band import signed_distance as _signed_distance
 
 STRETCH = 0  # spring kind: mesh edge (stretch / shear)
 COMMON_BONE = "common"   # Attachment.joint: the lowest common ancestor of the nearest bones
+TRUNK_BONE = "trunk"     # Attachment.joint: per particle, the bone of the nearest collider not on a limb
 BEND = 1     # spring kind: opposite vertices of two adjacent triangles
 
 
@@ -136,7 +137,9 @@ class Attachment:
         nearest collider (or nearest joint origin when no colliders are given), per particle;
         COMMON_BONE = one bone for all: the lowest common ancestor of those per-particle bones (a
         run pinned to bones that move apart, a T-shirt's shoulder line on neck, clavicle and upper
-        arm, would be torn between them).
+        arm, would be torn between them); TRUNK_BONE = per particle, the bone of the nearest collider
+        of a joint that is not on a limb (BindPose.limb_joints): a waistband follows the hips and
+        spine, never the hand hanging beside it, which would drag it along.
     radius: metres, for 'near'.
     """
 
@@ -177,6 +180,8 @@ class BindPose:
     parents: optional (J,) int32, the joint hierarchy (-1 = root; for Attachment joint COMMON_BONE).
     collider_frames: optional (F, J + B, 4, 4) float64, ColliderSet.frame_poses over the poses (the
         joints, then the skinned balls); None when the colliders have no balls (= poses).
+    limb_joints: the joints of the character's arms and legs (stages.rig.humanoid.limb_joint_sets;
+        for Attachment joint TRUNK_BONE); empty when none are found.
     """
 
     joint_world: np.ndarray
@@ -186,6 +191,7 @@ class BindPose:
     poses: np.ndarray | None = None
     parents: np.ndarray | None = None
     collider_frames: np.ndarray | None = None
+    limb_joints: frozenset = frozenset()
 
     def frames_of_colliders(self) -> np.ndarray | None:
         """(F, J + B, 4, 4) the transforms colliders are posed by (ColliderSet pose_index), or None."""
@@ -228,7 +234,13 @@ def bind_pose(character, motion, colliders=None) -> BindPose:
         frames = np.ascontiguousarray(colliders.frame_poses(character.inverse_bind, motion.joint_world))
     return BindPose(jw, np.ascontiguousarray(jw[:, :3, 3]), tuple(character.joint_names), colliders,
                     np.ascontiguousarray(motion.joint_world, dtype=np.float64),
-                    np.ascontiguousarray(character.parents, dtype=np.int32), frames)
+                    np.ascontiguousarray(character.parents, dtype=np.int32), frames, _limb_joints(character))
+
+
+def _limb_joints(character) -> frozenset:
+    """The joints of the character's arms and legs, found by name or shape (empty when none are)."""
+    from stages.rig.humanoid import limb_joint_sets
+    return frozenset(int(j) for part in limb_joint_sets(character).values() for j in part)
 
 
 def _collider_distances(bind: BindPose, points: np.ndarray):
@@ -241,11 +253,19 @@ def _collider_distances(bind: BindPose, points: np.ndarray):
     return d, np.array([b for b, _, _, _ in cols], np.int32), [n for _, n, _, _ in cols]
 
 
-def _nearest_bone(bind: BindPose, points: np.ndarray) -> np.ndarray:
+def _nearest_bone(bind: BindPose, points: np.ndarray, skip=frozenset()) -> np.ndarray:
+    """Per point, the bone of the nearest collider (or joint origin without colliders), bones in
+    `skip` left out unless that leaves none."""
     if bind.colliders is not None and (bind.colliders.hulls or bind.colliders.spheres):
         d, bones, _ = _collider_distances(bind, points)
+        keep = np.array([int(b) not in skip for b in bones], bool)
+        if keep.any():
+            d, bones = d[keep], bones[keep]
         return bones[np.argmin(d, axis=0)]
     d = np.linalg.norm(points[None, :, :] - bind.joint_origins[:, None, :], axis=2)
+    keep = np.array([j not in skip for j in range(d.shape[0])], bool)
+    if keep.any():
+        d[~keep] = np.inf
     return np.argmin(d, axis=0).astype(np.int32)
 
 
@@ -305,6 +325,8 @@ def _select(att: Attachment, x0: np.ndarray, triangles: np.ndarray, remap: np.nd
         return idx, joints
     if att.joint == COMMON_BONE:
         joints = np.full(idx.size, _common_ancestor(bind, _nearest_bone(bind, x0[idx])), np.int32)
+    elif att.joint == TRUNK_BONE:
+        joints = _nearest_bone(bind, x0[idx], skip=bind.limb_joints)
     elif att.joint is not None:
         joints = np.full(idx.size, bind.joint_index(att.joint), np.int32)
     else:
