@@ -243,10 +243,12 @@ def _limb_joints(character) -> frozenset:
     return frozenset(int(j) for part in limb_joint_sets(character).values() for j in part)
 
 
-def _collider_distances(bind: BindPose, points: np.ndarray):
+def _collider_distances(bind: BindPose, points: np.ndarray, joints=None):
     """(C, N) signed distances of points to every collider in the bind pose (`_signed_distance`),
-    the (C,) bones they follow and their names."""
+    the (C,) bones they follow and their names; only the colliders of the bones in `joints` if given."""
     cols = _colliders(bind.colliders)
+    if joints is not None:
+        cols = [c for c in cols if int(c[0]) in joints]
     if not cols:
         return np.zeros((0, points.shape[0])), np.zeros(0, np.int32), []
     d = np.array([_signed_distance(c, bind.collider_to_local(frame, points)) for _, _, c, frame in cols])
