@@ -371,7 +371,7 @@ def _run_stages(scene, out, times, meshes, formats, export_dir, summary, announc
                 state["result"] = result
                 r.sizes.update(steps=result.steps)
             # strain and distance: a fast particle is caught in the step
-            blown = check_blown_up(result, skinned + motion.root_translation[:, None, :], height)
+            blown = check_blown_up(result, skinned + motion.root_translation[:, None, :], height, garments)
             if blown is not None:   # logged to the end (what tore it is in the recording), then raised
                 logs.log_text(rec, "meta/diverged", str(blown))
             note = speed_limit_note(result)

@@ -75,3 +75,20 @@ def test_run_keeps_no_file_for_bad_input(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     assert main(["run", str(scene), "-q"]) == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.yaml"]
+
+
+def test_an_edge_crushed_at_frame_0_is_judged_against_its_rest_length():
+    # sewing left an edge of GarmentCode's dress_s1001 0.07 mm long at frame 0 (rest 23.4 mm): back at
+    # its own length it read as stretched 17,955 % against frame 0 and the run stopped as diverged
+    crushed = SHEET.copy()
+    crushed[3] = crushed[1] + [0.0, 0.0, 0.0001]            # edge 1-3: 0.1 mm at frame 0 (rest 0.1 m)
+    frames = [crushed, SHEET, SHEET, SHEET]
+    edges = np.array([[0, 1], [0, 2], [1, 2], [1, 3], [2, 3]])
+    rest = np.linalg.norm(SHEET[edges[:, 0]] - SHEET[edges[:, 1]], axis=1)
+    garment = SimpleNamespace(springs=np.vstack([edges, [[0, 3]]]), rest_lengths=np.append(rest, 0.05))
+    assert check_blown_up(_result(frames), BODY, 1.7) is not None           # against frame 0 alone
+    assert check_blown_up(_result(frames), BODY, 1.7, [garment]) is None
+    torn = SHEET.copy()
+    torn[3] += [0.1 * (MAX_STRAIN + 1.5), 0.0, 0.0]          # past the bound from its rest length too
+    err = check_blown_up(_result([crushed, SHEET, torn, torn]), BODY, 1.7, [garment])
+    assert err is not None and err.frame == 2
