@@ -424,7 +424,7 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
             idx = run_vertices(pattern, flat, SeamSide(p.name, (f"e{j}",)))
             if mode is not None:
                 placed[idx] = hug(placed[idx], hug_targets(character, origins, placed[idx], mode), character,
-                                  skinned0, pose, through_limbs=mode == "axis")
+                                  skinned0, pose, through_arms=mode == "axis")
                 placed[idx] = respace(placed[idx], uv[idx])
             held.append(idx)
             if e.label == "lower_interface":

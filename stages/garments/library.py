@@ -493,7 +493,8 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
             if below is not None:
                 over[idx] = cKDTree(below).query(placed[idx], distance_upper_bound=UNDER_REACH + under_gap)[0] < np.inf
             placed[idx] = hug(placed[idx], hug_targets(character, origins, placed[idx], pattern.fit_hug), character,
-                              skinned0, pose, under=below, under_gap=under_gap, through_limbs=pattern.fit_hug == "axis")
+                              skinned0, pose, under=below, under_gap=under_gap,
+                              through_arms=pattern.fit_hug == "axis" and (side.panel, side.edges) in pinned)
             if (side.panel, side.edges) in pinned:    # a waistband, pinned where it ends up: evenly
                 placed[idx] = respace(placed[idx], uv[idx])   # spaced (a free collar: as hugged)
             if pattern.fit_band is not None:

@@ -560,7 +560,7 @@ def respace(points: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
 
 def hug(points: np.ndarray, targets: np.ndarray, character, skinned: np.ndarray, bind, gap: float = HUG_GAP,
-        under: np.ndarray | None = None, under_gap: float = 0.0, through_limbs: bool = False) -> np.ndarray:
+        under: np.ndarray | None = None, under_gap: float = 0.0, through_arms: bool = False) -> np.ndarray:
     """(N, 3) `points` (a waistband, a collar) each moved on the straight line towards its target
     (N, 3) as far as it stays `gap` outside every collider and outside the body: walking in from where
     it was placed, it stops before the first blocked position (and never passes its target). A band
@@ -572,10 +572,11 @@ def hug(points: np.ndarray, targets: np.ndarray, character, skinned: np.ndarray,
     starts UNDER_REACH farther out, so the band ends outside what it is worn over (a waistband over a
     tucked-in shirt) where the placement put it inside.
 
-    through_limbs: the limbs (bind.limb_joints) do not block the walk, neither their colliders nor the
+    through_arms: the arms (bind.arm_joints) do not block the walk, neither their colliders nor the
     skin inside them: a waistband hugs the trunk. A chibi's arms stand out from its waist in the bind
     pose; stopped by them, its skirt's waistband was hugged round the arms' roots, 0.59 m wide on a
-    0.3 m waist, and the skirt started stretched (p99 60 %)."""
+    0.3 m waist, and the skirt started stretched (p99 60 %). The legs still block it: a waistband
+    sits over the thighs' tops."""
     from scipy.spatial import cKDTree
 
     from stages.garments.band import collider_list as _collider_list
@@ -597,12 +598,12 @@ def hug(points: np.ndarray, targets: np.ndarray, character, skinned: np.ndarray,
     s = np.minimum(steps[:, None], length[None, :])                 # (S, N)
     cand = p[None] + (s / np.maximum(length, 1e-12)[None, :])[..., None] * d[None]
     flat = cand.reshape(-1, 3)
-    limbs = bind.limb_joints if through_limbs and bind is not None else frozenset()
-    if limbs:
+    arms = bind.arm_joints if through_arms and bind is not None else frozenset()
+    if arms:
         every = {int(c[0]) for c in _collider_list(bind.colliders)} if bind.colliders is not None else set()
-        blocked = near_colliders(bind, flat, gap, joints=every - limbs)
+        blocked = near_colliders(bind, flat, gap, joints=every - arms)
         blocked |= (winding_number(skinned, character.triangles, flat) >= 0.5) & ~near_colliders(bind, flat, 0.0,
-                                                                                                  joints=limbs)
+                                                                                                  joints=arms)
     else:
         blocked = near_colliders(bind, flat, gap)
         blocked |= winding_number(skinned, character.triangles, flat) >= 0.5

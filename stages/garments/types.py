@@ -181,7 +181,7 @@ class BindPose:
     collider_frames: optional (F, J + B, 4, 4) float64, ColliderSet.frame_poses over the poses (the
         joints, then the skinned balls); None when the colliders have no balls (= poses).
     limb_joints: the joints of the character's arms and legs (stages.rig.humanoid.limb_joint_sets;
-        for Attachment joint TRUNK_BONE); empty when none are found.
+        for Attachment joint TRUNK_BONE); empty when none are found. arm_joints: those of its arms.
     """
 
     joint_world: np.ndarray
@@ -192,6 +192,7 @@ class BindPose:
     parents: np.ndarray | None = None
     collider_frames: np.ndarray | None = None
     limb_joints: frozenset = frozenset()
+    arm_joints: frozenset = frozenset()
 
     def frames_of_colliders(self) -> np.ndarray | None:
         """(F, J + B, 4, 4) the transforms colliders are posed by (ColliderSet pose_index), or None."""
@@ -234,13 +235,16 @@ def bind_pose(character, motion, colliders=None) -> BindPose:
         frames = np.ascontiguousarray(colliders.frame_poses(character.inverse_bind, motion.joint_world))
     return BindPose(jw, np.ascontiguousarray(jw[:, :3, 3]), tuple(character.joint_names), colliders,
                     np.ascontiguousarray(motion.joint_world, dtype=np.float64),
-                    np.ascontiguousarray(character.parents, dtype=np.int32), frames, _limb_joints(character))
+                    np.ascontiguousarray(character.parents, dtype=np.int32), frames, *_limb_joints(character))
 
 
-def _limb_joints(character) -> frozenset:
-    """The joints of the character's arms and legs, found by name or shape (empty when none are)."""
+def _limb_joints(character) -> tuple[frozenset, frozenset]:
+    """The joints of the character's arms and legs, and of its arms, found by name or shape (empty
+    when none are)."""
     from stages.rig.humanoid import limb_joint_sets
-    return frozenset(int(j) for part in limb_joint_sets(character).values() for j in part)
+    parts = limb_joint_sets(character)
+    return (frozenset(int(j) for part in parts.values() for j in part),
+            frozenset(int(j) for k in ("arm_l", "arm_r") for j in parts[k]))
 
 
 def _collider_distances(bind: BindPose, points: np.ndarray, joints=None):
