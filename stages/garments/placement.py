@@ -599,18 +599,27 @@ def hug(points: np.ndarray, targets: np.ndarray, character, skinned: np.ndarray,
     cand = p[None] + (s / np.maximum(length, 1e-12)[None, :])[..., None] * d[None]
     flat = cand.reshape(-1, 3)
     arms = bind.arm_joints if through_arms and bind is not None else frozenset()
+    inside_skin = winding_number(skinned, character.triangles, flat) >= 0.5
     if arms:
         every = {int(c[0]) for c in _collider_list(bind.colliders)} if bind.colliders is not None else set()
-        blocked = near_colliders(bind, flat, gap, joints=every - arms)
-        blocked |= (winding_number(skinned, character.triangles, flat) >= 0.5) & ~near_colliders(bind, flat, 0.0,
-                                                                                                  joints=arms)
+        on_arm = near_colliders(bind, flat, gap, joints=arms)
+        blocked = near_colliders(bind, flat, gap, joints=every - arms) | (inside_skin & ~on_arm)
+        on_arm = on_arm.reshape(s.shape)
     else:
-        blocked = near_colliders(bind, flat, gap)
-        blocked |= winding_number(skinned, character.triangles, flat) >= 0.5
+        blocked = near_colliders(bind, flat, gap) | inside_skin
     if has_under:
         blocked |= tree.query(flat, distance_upper_bound=under_gap)[0] < under_gap
     blocked = blocked.reshape(s.shape)
     blocked[-1] = True                                              # never past the target
     first = np.argmax(blocked, axis=0)                              # first blocked step per point
+    if arms:
+        # an arm is walked through only where it joins the trunk on the way in (the walk never
+        # leaves arm or trunk between them: a chibi's arm block); an arm with free space between
+        # it and the trunk (a forearm hanging beside the hips) stops the walk, as any collider does
+        stop = on_arm | blocked
+        at_arm = np.argmax(stop, axis=0)
+        step = np.arange(s.shape[0])[:, None]
+        free_between = ((step >= at_arm) & (step < first) & ~stop).any(axis=0)
+        first = np.where(free_between, at_arm, first)
     k = np.maximum(first - 1, 0)
     return cand[k, np.arange(p.shape[0])]
