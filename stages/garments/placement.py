@@ -25,6 +25,7 @@ from stages.rig.humanoid import Limb, limb, limb_joint_sets, subtree
 
 SLAB = 0.03        # m, half height of the body slab measured for one cross-section level
 LEVEL_STEP = 0.01  # m, spacing of cross-section levels along the axis
+MIDLINE_GAP = 0.015  # m, a leg tube's inner side off the body's mid-plane
 LIMB_REACH = 0.04  # m, how far beyond a limb's skin its own colliders can stand (delta, slack, hull offset)
 
 
@@ -59,8 +60,7 @@ def part_joints(character, part: str, joint_origins: np.ndarray) -> set:
 
 
 def part_limb(character, part: str) -> Limb:
-    """The Limb ('arm_l', 'leg_r', ...) a sleeve or trouser leg is placed on: a chain or a limb of
-    one or two joints (stages.rig.humanoid.limb)."""
+    """The Limb ('arm_l', 'leg_r', ...) a sleeve or trouser leg is placed on (humanoid.limb)."""
     kind, side = part.split("_")
     found = limb(character, kind, side)
     if found is None:
@@ -71,8 +71,8 @@ def part_limb(character, part: str) -> Limb:
 
 
 def body_axis(character, part: str, joint_world: np.ndarray) -> BodyAxis:
-    """The axis of `part` in the pose joint_world (J, 4, 4): the trunk's vertical axis through the
-    root, a limb's from its upper towards its lower point (Limb.points)."""
+    """`part`'s axis in the pose joint_world (J, 4, 4): the trunk's, vertical through the root; a
+    limb's, pointing from its lower to its upper point (Limb.points)."""
     y, z = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
     joint_world = np.asarray(joint_world)
     if part in ("torso", "hips"):
@@ -196,8 +196,7 @@ def _collider_joints(character, part: str, joint_origins: np.ndarray, with_arms:
 
 def place_panel(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, character, joint_world: np.ndarray,
                 skinned: np.ndarray, dominant: np.ndarray, col_points=()) -> np.ndarray:
-    """(N, 3) positions of one panel's vertices (see the module docstring); joint_world (J, 4, 4):
-    the bind pose (frame 0 of the motion)."""
+    """(N, 3) positions of one panel's vertices (module docstring); joint_world (J, 4, 4): the bind pose."""
     if pl.body == "plane":
         n = np.asarray(pl.normal, dtype=np.float64)
         n = n / np.linalg.norm(n)
@@ -212,6 +211,7 @@ def place_panel(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, characte
     cj = _collider_joints(character, pl.body, joint_origins, pl.arms)
     if pl.body.startswith("leg_"):
         mid = float(joint_origins[character.root_joint, 0])
+        margin = _midline_margin(_part_points(joints, skinned, dominant, col_points, cj), axis, mid)
         # a trouser leg below the knee wraps the shin: the part beyond the thigh's length is placed
         # around the shin's own axis (from the knee), so it follows a bent knee (a one-joint leg's
         # lower point: halfway down its skin, the same straight bone)
@@ -228,13 +228,22 @@ def place_panel(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, characte
             shin = BodyAxis(o, a, q, np.cross(a, q))
             out = np.empty((uv.shape[0], 3))
             out[~low] = _wrap(uv[~low], boundary_uv, pl, axis, _part_points({ch[0]}, skinned, dominant, col_points),
-                              mid)
+                              mid, margin)
             out[low] = _wrap(uv[low], boundary_uv, replace(pl, shift=pl.shift + thigh), shin,
-                             _part_points({ch[1]}, skinned, dominant, col_points), mid)
+                             _part_points({ch[1]}, skinned, dominant, col_points), mid, margin)
             return out
-    mid = float(joint_origins[character.root_joint, 0]) if pl.body.startswith("leg_") else None
+        return _wrap(uv, boundary_uv, pl, axis, _part_points(joints, skinned, dominant, col_points, cj), mid, margin)
     arm = axis if pl.body.startswith("arm_") else None
-    return _wrap(uv, boundary_uv, pl, axis, _part_points(joints, skinned, dominant, col_points, cj, arm), mid)
+    return _wrap(uv, boundary_uv, pl, axis, _part_points(joints, skinned, dominant, col_points, cj, arm))
+
+
+def _midline_margin(pts: np.ndarray, axis: BodyAxis, midline_x: float) -> float:
+    """How far a leg tube's inner side stays off the mid-plane: MIDLINE_GAP, or halfway to a leg (skin
+    and colliders, `pts`) nearer to it than 2 MIDLINE_GAP (a chibi's block legs, 6 mm: the tube's side
+    lay inside them); a leg reaching across it (a thigh's colliders) keeps MIDLINE_GAP."""
+    side = 1.0 if axis.origin[0] >= midline_x else -1.0
+    inner = float((side * (pts[:, 0] - midline_x)).min())
+    return 0.5 * inner if 0.0 < inner < 2 * MIDLINE_GAP else MIDLINE_GAP
 
 
 def _part_points(joints: set, skinned, dominant, col_points, collider_joints: set | None = None,
@@ -258,9 +267,9 @@ def _part_points(joints: set, skinned, dominant, col_points, collider_joints: se
 
 
 def _wrap(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, axis: BodyAxis, pts: np.ndarray,
-          midline_x: float | None = None) -> np.ndarray:
+          midline_x: float | None = None, margin: float = MIDLINE_GAP) -> np.ndarray:
     """Panel vertices wrapped around `axis` on the cross-sections of `pts` (see place_panel);
-    midline_x: legs: x of the body's mid-plane, which the tube's inner side must not cross."""
+    midline_x: legs: x of the body's mid-plane, which the tube's inner side stays `margin` off."""
     t = uv[:, 1] + pl.shift
     levels = np.arange(t.min() - LEVEL_STEP, t.max() + 2 * LEVEL_STEP, LEVEL_STEP)
     ex = float(pl.exponent)
@@ -299,7 +308,7 @@ def _wrap(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, axis: BodyAxis
             # be inside the other leg); a wider tube grows outwards and front / back instead
             c = axis.origin + levels[k] * axis.a
             gap = (midline_x - c[0]) / (axis.p[0] if abs(axis.p[0]) > 1e-6 else 1e-6)
-            a_in = float(np.clip(abs(gap) - 0.015, 0.02, a))
+            a_in = float(np.clip(abs(gap) - margin, 0.02, a))
             inner_pos = gap > 0
 
             def table(f):
