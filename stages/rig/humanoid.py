@@ -12,9 +12,9 @@ below the neck. A limb of fewer than 3 joints (Kenney's single `arm-left`) is re
 (`HumanoidJoints.short`, with rest positions of its shoulder / elbow / wrist points taken from its
 skin, `HumanoidJoints.points`) but is not a chain (`limb_chain` is None). The garments read every
 limb, chain or short, through `limb` (a `Limb`: its three points, the joint each point moves with,
-its joint set): sleeves and trouser legs are placed on those points, a one-joint limb's three
-carried by its only joint. A garment whose anchors cannot be found gets one error saying why, what
-was looked for and the joints the rig has (`HumanoidJoints.require`).
+its joint set): trouser legs are placed on a leg's points, a one-joint leg's three carried by its only
+joint; a sleeve needs an arm chain (SHORT_OK). A garment whose anchors cannot be found gets one error
+saying why, what was looked for and the joints the rig has (`HumanoidJoints.require`).
 """
 from __future__ import annotations
 
