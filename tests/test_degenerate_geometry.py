@@ -289,15 +289,18 @@ def test_placement_on_coincident_joints_is_one_line():
     from types import SimpleNamespace
 
     from stages.garments import placement
+    from stages.rig.humanoid import Limb
     ch = SimpleNamespace(joint_names=("hip", "knee", "ankle"), parents=np.array([-1, 0, 1]), root_joint=0)
     origins = np.array([[0.1, 0.9, 0.0], [0.1, 0.9, 0.0], [0.1, 0.1, 0.0]])
-    orig = placement.limb_chain
+    pose = np.tile(np.eye(4), (3, 1, 1))
+    pose[:, :3, 3] = origins
+    orig = placement.limb
     try:
-        placement.limb_chain = lambda character, kind, side: [0, 1, 2]
+        placement.limb = lambda character, kind, side: Limb((0, 1, 2), (0, 1, 2), origins, frozenset({0, 1, 2}))
         with pytest.raises(InputError) as err:
-            placement.body_axis(ch, "leg_l", origins)
+            placement.body_axis(ch, "leg_l", pose)
     finally:
-        placement.limb_chain = orig
+        placement.limb = orig
     assert "'hip'" in str(err.value) and "'knee'" in str(err.value) and "same place" in str(err.value)
 
 

@@ -116,3 +116,113 @@ def test_a_cape_s_top_is_gathered_onto_the_neck_not_left_compressed(chibi, tmp_p
         run_scene(load_scene(p), output=tmp_path / "cape.rrd", progress=False, state=state)
     (audit,) = state["audit"].garments
     assert audit.strain_p99[-1] < 0.2
+
+
+def _bind(chibi, tmp_path, garments: str, clip: str = "static", start: float = 0.04):
+    """(scene, motion, colliders) of a short scene on the chibi, as `run` builds them."""
+    from pipeline.run import frame_times, load_character, split_and_fit
+    from pipeline.scene import load_scene
+    from pipeline.scene_motion import sample_scene_motion
+    p = tmp_path / "chibi.yaml"
+    p.write_text(f"character: {{source: gltf, path: {chibi.source}, clip: {clip}}}\n"
+                 f"frames: {{start: {start}, count: 2}}\ngarments: {garments}\n")
+    scene = load_scene(p)
+    c = load_character(scene)
+    m = sample_scene_motion(scene, c, frame_times(scene, None))
+    _, cols = split_and_fit(scene, c, m)
+    return scene, c, m, cols
+
+
+def _largest_angle_gap(points: np.ndarray, origin: np.ndarray, axis: np.ndarray) -> float:
+    """Largest gap (degrees) between the directions of `points` round the line (origin, axis)."""
+    a = axis / np.linalg.norm(axis)
+    q = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 0.0, 1.0])
+    q /= np.linalg.norm(q)
+    rel = points - origin
+    ang = np.sort(np.degrees(np.arctan2(rel @ np.cross(a, q), rel @ q)))
+    return float(np.max(np.diff(np.concatenate([ang, [ang[0] + 360.0]]))))
+
+
+@pytest.mark.parametrize("kind", ["shorts", "trousers"])
+def test_shorts_and_trousers_go_round_both_one_joint_legs(chibi, tmp_path, kind):
+    # a Kenney leg is one joint (a block): refused until the legs' points (hip, knee, ankle) were
+    # measured on the skin; now each leg tube is sewn round its leg: at the knee point's height (below
+    # the crotch), the cloth nearer that leg's axis than the other's surrounds it (no gap wider than
+    # 60 degrees) and spans the block's width
+    import warnings
+
+    from pipeline.dressing import build_scene_garments
+    from stages.maps.build import build_maps
+    from stages.rig.humanoid import limb
+    from stages.rig.skinning import skin
+    scene, c, m, cols = _bind(chibi, tmp_path, f"[{{type: pattern, kind: {kind}}}]")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        (g,), _ = build_scene_garments(scene, c, m, cols, build_maps(cols), {})
+    pose = m.joint_world[0]
+    legs = [limb(c, "leg", side) for side in ("l", "r")]
+    knees = np.array([leg.points(c, pose)[1] for leg in legs])
+    x = g.positions[np.abs(g.positions[:, 1] - knees[:, 1].mean()) < 0.015]
+    nearer = np.argmin(np.linalg.norm(x[:, None, [0, 2]] - knees[None, :, [0, 2]], axis=2), axis=1)
+    skinned = skin(c, m, frames=[0])[0]
+    for k, leg in enumerate(legs):
+        hip, knee, _ = leg.points(c, pose)
+        near = x[nearer == k]
+        assert len(near) >= 8
+        assert _largest_angle_gap(near, knee, knee - hip) < 60.0
+        block = skinned[np.isin(c.skin_joints[:, 0], list(leg.joint_set)) & (np.abs(skinned[:, 1] - knee[1]) < 0.015)]
+        assert np.ptp(near[:, 0]) > np.ptp(block[:, 0])      # round the block, not inside it
+
+
+def test_a_one_joint_limb_s_points_follow_its_only_bone(chibi, tmp_path):
+    # a one-joint arm's shoulder / elbow / hand points (measured on its skin at rest) are carried by
+    # its joint as its skin is: in a pose of the walk, each stays as far from the arm's skin vertices
+    # as at rest (a rigid bone, no elbow to bend), and they stay on a line
+    from stages.rig.humanoid import limb
+    from stages.rig.skinning import skin
+    _, c, m, _ = _bind(chibi, tmp_path, "[]", clip="walk", start=0.3)
+    arm = limb(c, "arm", "l")
+    assert len(arm.joints) == 1 and arm.follow == arm.joints * 3 and not arm.is_chain
+    only = (c.skin_weights.max(axis=1) > 0.999) & (c.skin_joints[np.arange(len(c.vertices)),
+                                                                 np.argmax(c.skin_weights, axis=1)] == arm.joints[0])
+    posed = skin(c, m, frames=[1])[0][only]
+    pts = arm.points(c, m.joint_world[1])
+    rest = np.asarray(c.vertices)[only]
+    for k in range(3):
+        assert np.allclose(np.linalg.norm(posed - pts[k], axis=1), np.linalg.norm(rest - arm.rest[k], axis=1), atol=1e-5)
+    assert not np.allclose(pts, arm.rest, atol=1e-3)        # the walk moves the arm
+    assert np.linalg.norm(np.cross(pts[1] - pts[0], pts[2] - pts[0])) < 1e-6
+
+
+def test_a_chain_s_points_and_axis_are_its_joints(tmp_path):
+    # three-joint limbs are placed as before: their points are the joints' origins exactly and a
+    # sleeve's axis runs from the upper arm joint away from the elbow (the built-in character)
+    from stages.garments.placement import body_axis
+    from stages.rig.humanoid import limb, limb_chain
+    from stages.rig.procedural import procedural_character
+    from stages.rig.skinning import rest_motion
+    c = procedural_character()
+    pose = rest_motion(c, 1, 1.0 / 30.0).joint_world[0]
+    for kind in ("arm", "leg"):
+        for side in ("l", "r"):
+            ch = limb_chain(c, kind, side)
+            found = limb(c, kind, side)
+            assert found.is_chain and list(found.joints) == ch and found.follow == tuple(ch)
+            assert np.array_equal(found.points(c, pose), pose[ch, :3, 3])
+            ax = body_axis(c, f"{kind}_{side}", pose)
+            d = pose[ch[1], :3, 3] - pose[ch[0], :3, 3]
+            assert np.array_equal(ax.origin, pose[ch[0], :3, 3]) and np.array_equal(ax.a, -d / np.linalg.norm(d))
+
+
+def test_a_tshirt_on_one_joint_arms_is_refused_in_one_line(chibi):
+    # shorts and trousers are dressed on one-joint legs; a sleeve is not sewn on a one-joint arm (the
+    # Kenney arm is as tall as the torso and its top lies under the head: the cap stayed 13-16 mm
+    # off the armhole): one line saying why
+    from stages.errors import InputError
+    from stages.garments.anchors import require_anchors
+    require_anchors("shorts", chibi, "garment 'shorts'")
+    require_anchors("trousers", chibi, "garment 'trousers'")
+    with pytest.raises(InputError) as err:
+        require_anchors("tshirt", chibi, "garment 'tshirt'")
+    assert "is a single joint: a sleeve needs shoulder, elbow and wrist joints" in str(err.value)
+    assert "\n" not in str(err.value)

@@ -454,7 +454,8 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
     from stages.garments.triangulate import run_vertices, triangulate_pattern
     from scipy.spatial import cKDTree
 
-    from stages.garments.placement import (UNDER_REACH, bind_geometry, hug, place_pattern, push_over, respace,
+    from stages.garments.over import push_over
+    from stages.garments.placement import (UNDER_REACH, bind_geometry, hug, place_pattern, respace,
                                           triangle_grid_points)
     from stages.garments.separation import OVER_CLEARANCE, leg_plane, separate_legs
     from stages.garments.types import attach_indices, bind_pose, build_garment

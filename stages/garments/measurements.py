@@ -18,42 +18,40 @@ def garment_measurements(character, colliders=None, motion=None, *, clearance: f
     clearance_measurements); the patterns then size themselves to clear them. under: (K, 3) points
     of the garments worn under this one (relative frame at frame 0), cleared as the body is.
     """
-    from stages.rig.humanoid import humanoid_joints, limb_chain
+    from stages.rig.humanoid import humanoid_joints, limb
     from stages.rig.procedural import body_measurements
     from stages.rig.transforms import forward_kinematics
     m = dict(body_measurements(character))
-    w = forward_kinematics(character.parents, character.rest_local)[:, :3, 3]
+    rest = forward_kinematics(character.parents, character.rest_local)
+    w = rest[:, :3, 3]
     h = m["height"]
     y0 = float(character.vertices[:, 1].min())
     root = w[character.root_joint]
-    arm = limb_chain(character, "arm", "l")
+    parts = humanoid_joints(character)
+    # each limb's upper / lower / end points (stages.rig.humanoid.Limb), a chain's joints or a short
+    # limb's measured on its skin (a chibi's one-joint arm: shoulder, halfway, hand)
+    arm = limb(character, "arm", "l", parts)
     if arm is not None:
-        m["shoulder_y"] = float(w[arm[0], 1])
-        m["shoulder_half"] = float(abs(w[arm[0], 0] - root[0]))
+        top, low = arm.rest[0], arm.rest[1]
+        m["shoulder_y"] = float(top[1])
+        m["shoulder_half"] = float(abs(top[0] - root[0]))
         dom = character.skin_joints[np.arange(len(character.vertices)), np.argmax(character.skin_weights, axis=1)]
-        v = character.vertices[dom == arm[0]]
+        v = character.vertices[dom == arm.follow[0]]
         if len(v) >= 4:
-            d = w[arm[1]] - w[arm[0]]
+            d = low - top
             d /= np.linalg.norm(d)
-            rel = v - w[arm[0]]
+            rel = v - top
             r = np.linalg.norm(rel - np.outer(rel @ d, d), axis=1)
             m["arm_girth"] = float(2 * np.pi * np.percentile(r, 90))
     for side in ("l", "r"):
-        leg = limb_chain(character, "leg", side)
+        leg = limb(character, "leg", side, parts)
         if leg is not None:
-            lw = forward_kinematics(character.parents, character.rest_local)[:, :3, 3] if motion is None \
-                else motion.joint_world[0][:, :3, 3]
-            d = lw[leg[0]] - lw[leg[1]]
-            m[f"hip_joint_y_{side}"] = float(lw[leg[0], 1])
+            hip, knee, ankle = leg.points(character, rest if motion is None else motion.joint_world[0])
+            d = hip - knee
+            m[f"hip_joint_y_{side}"] = float(hip[1])
             m[f"thigh_up_y_{side}"] = float(d[1] / np.linalg.norm(d))
             m[f"thigh_len_{side}"] = float(np.linalg.norm(d))
-            m[f"shin_len_{side}"] = float(np.linalg.norm(lw[leg[2]] - lw[leg[1]]))
-    parts = humanoid_joints(character)
-    if arm is None and "arm_l" in parts.points:
-        # an arm of one joint (a chibi's): its upper point, measured on the skeleton like a chain's
-        top = parts.points["arm_l"][0]
-        m["shoulder_y"] = float(top[1])
-        m["shoulder_half"] = float(abs(top[0] - root[0]))
+            m[f"shin_len_{side}"] = float(np.linalg.norm(ankle - knee))
     m.setdefault("shoulder_y", y0 + 0.81 * h)
     m.setdefault("shoulder_half", 0.105 * h)
     m.setdefault("arm_girth", 0.21 * h)
@@ -101,7 +99,7 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
         the other measures: a waistband is hugged over what is tucked under it (make_garment), and
         shorts cut round a T-shirt's tail were too wide to sew on the BVH walk.
     """
-    from stages.rig.humanoid import humanoid_joints, limb_chain, limb_joint_sets, subtree
+    from stages.rig.humanoid import humanoid_joints, limb, limb_joint_sets, subtree
     from stages.garments.placement import (_cross_sections, bind_geometry, body_axis,
                                            collider_points, frame_poses0, part_joints)
     from stages.rig.skinning import rest_motion
@@ -122,9 +120,9 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
     limbs = limb_joint_sets(character, parts)
     leg_joints = limbs["leg_l"] | limbs["leg_r"]
     arm_joints = limbs["arm_l"] | limbs["arm_r"]
-    # each arm's upper joint, of a chain or of a shorter arm (a chibi's single joint)
-    arm_upper = [(parts.limb("arm", s) or parts.short.get(f"arm_{s}"))[0] for s in ("l", "r")
-                 if parts.limb("arm", s) or parts.short.get(f"arm_{s}")]
+    # each limb as a Limb: a chain or a shorter one (a chibi's single joint); each arm's upper joint
+    limbs_of = {(k, s): limb(character, k, s, parts) for k in ("arm", "leg") for s in ("l", "r")}
+    arm_upper = [limbs_of["arm", s].follow[0] for s in ("l", "r") if limbs_of["arm", s] is not None]
     neck_j = parts.neck
     headneck = subtree(parents, neck_j) if neck_j >= 0 else set()
     neckpts = np.isin(owner, list(headneck))
@@ -167,10 +165,11 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
     m = torso & ~neckpts & (pts[:, 1] >= b["chest_y"]) & (pts[:, 1] <= out["shoulder_top"])
     out["torso_depth"] = (float(np.abs(rel[m, 2]).max()) if m.any() else 0.07 * b["height"]) + clearance
     for key, kind in (("arm", "arm"), ("thigh", "leg")):
-        ch = limb_chain(character, kind, "l")
-        if ch is None:
+        found = limbs_of[kind, "l"]
+        if found is None:
             continue
-        o, e = origins[ch[0]], origins[ch[1]]
+        ch = found.follow
+        o, e = found.points(character, motion.joint_world[0])[:2]
         d = e - o
         L = float(np.linalg.norm(d))
         d /= L
@@ -219,7 +218,7 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
     # the girths of the cross-sections the 'hips' placement wraps panels on (offset = clearance),
     # so that a panel this wide is placed without stretch
     ys = np.arange(max(out["crotch_y"] - 0.10, b["hips_y"] - 0.2 * b["height"]), out["skirt_top"] + 0.005, 0.01)
-    ab = _cross_sections(pts[trunk], body_axis(character, "hips", origins), ys, clearance, True)
+    ab = _cross_sections(pts[trunk], body_axis(character, "hips", motion.joint_world[0]), ys, clearance, True)
     girth = np.array([_ellipse_perimeter(a, b_) for a, b_ in ab])
     out["clear_top"] = float(girth[-1])
     out["clear_skirt"] = float(girth.max())
@@ -237,10 +236,11 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
         out["band_top"] = float(np.linalg.norm(ring - np.roll(ring, 1, axis=0), axis=1).sum())
     # leg tubes: the thigh below the crotch (its hull and the knee sphere) and the shin
     for key, k in (("thigh_low_radius", 0), ("shin_radius", 1)):
-        ch = limb_chain(character, "leg", "l")
-        if ch is None:
+        found = limbs_of["leg", "l"]
+        if found is None:
             continue
-        o, e = origins[ch[k]], origins[ch[k + 1]]
+        ch = found.follow
+        o, e = found.points(character, motion.joint_world[0])[k:k + 2]
         d = (e - o) / np.linalg.norm(e - o)
         mm = np.isin(owner, [ch[k], ch[k + 1]] if k == 0 else [ch[k]])
         r = pts[mm] - o

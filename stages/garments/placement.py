@@ -21,10 +21,11 @@ import numpy as np
 from stages.errors import InputError
 from stages.garments.patterns import Pattern, Placement
 from stages.garments.triangulate import FlatPattern
-from stages.rig.humanoid import limb_chain, limb_joint_sets, subtree
+from stages.rig.humanoid import Limb, limb, limb_joint_sets, subtree
 
 SLAB = 0.03        # m, half height of the body slab measured for one cross-section level
 LEVEL_STEP = 0.01  # m, spacing of cross-section levels along the axis
+MIDLINE_GAP = 0.015  # m, a leg tube's inner side off the body's mid-plane
 LIMB_REACH = 0.04  # m, how far beyond a limb's skin its own colliders can stand (delta, slack, hull offset)
 
 
@@ -55,29 +56,38 @@ def part_joints(character, part: str, joint_origins: np.ndarray) -> set:
         return (legs | {root}) - arms
     if part == "torso":
         return set(range(len(parents))) - legs - arms
+    return {part_limb(character, part).follow[0]}
+
+
+def part_limb(character, part: str) -> Limb:
+    """The Limb ('arm_l', 'leg_r', ...) a sleeve or trouser leg is placed on (humanoid.limb)."""
     kind, side = part.split("_")
-    ch = limb_chain(character, kind, side)
-    if ch is None:
-        raise InputError(f"placement {part!r}", f"no {kind} chain found in {character.name!r}: expected joints named "
-                         "like upperarm_l/forearm_l/hand_l, LeftArm/LeftForeArm/LeftHand (or thigh/shin/foot)")
-    return {ch[0]}
+    found = limb(character, kind, side)
+    if found is None:
+        raise InputError(f"placement {part!r}", f"no {kind} found in {character.name!r}: expected joints named "
+                         "like upperarm_l/forearm_l/hand_l, LeftArm/LeftForeArm/LeftHand (or thigh/shin/foot), or "
+                         "a branch shaped like one")
+    return found
 
 
-def body_axis(character, part: str, joint_origins: np.ndarray) -> BodyAxis:
+def body_axis(character, part: str, joint_world: np.ndarray) -> BodyAxis:
+    """`part`'s axis in the pose joint_world (J, 4, 4): the trunk's, vertical through the root; a
+    limb's, pointing from its lower to its upper point (Limb.points)."""
     y, z = np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    joint_world = np.asarray(joint_world)
     if part in ("torso", "hips"):
-        o = joint_origins[character.root_joint].copy()
+        o = joint_world[character.root_joint, :3, 3].copy()
         o[1] = 0.0
         return BodyAxis(o, y, z, np.cross(y, z))
-    kind, side = part.split("_")
-    ch = limb_chain(character, kind, side)
-    if ch is None:
-        part_joints(character, part, joint_origins)  # raises the explanation
-    o = joint_origins[ch[0]]
-    d = joint_origins[ch[1]] - o
+    kind = part.split("_")[0]
+    found = part_limb(character, part)
+    pts = found.points(character, joint_world)
+    o = pts[0]
+    d = pts[1] - o
     if not np.linalg.norm(d) > 1e-9:     # a rig with two joints at one place (a robot's stacked pivots)
         names = character.joint_names
-        raise InputError(f"placement {part!r}", f"joints {names[ch[0]]!r} and {names[ch[1]]!r} are at the same place "
+        u, lo = found.follow[0], found.follow[1]
+        raise InputError(f"placement {part!r}", f"joints {names[u]!r} and {names[lo]!r} are at the same place "
                          f"({np.linalg.norm(d):.3g} m apart): the {kind}'s axis needs a bone of some length")
     a = -d / np.linalg.norm(d)
     ref = y if kind == "arm" else z
@@ -177,16 +187,16 @@ def _collider_joints(character, part: str, joint_origins: np.ndarray, with_arms:
         arms = limbs["arm_l"] | limbs["arm_r"]
         keep = set()
         for side in ("l", "r"):
-            ch = limb_chain(character, "arm", side)
-            if ch is not None and part == "torso" and with_arms:
-                keep.add(ch[0])
+            arm = limb(character, "arm", side)
+            if arm is not None and arm.is_chain and part == "torso" and with_arms:
+                keep.add(arm.joints[0])
         return (set(range(character.n_joints)) - arms) | keep
     return part_joints(character, part, joint_origins)
 
 
-def place_panel(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, character, joint_origins: np.ndarray,
+def place_panel(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, character, joint_world: np.ndarray,
                 skinned: np.ndarray, dominant: np.ndarray, col_points=()) -> np.ndarray:
-    """(N, 3) positions of one panel's vertices (see the module docstring)."""
+    """(N, 3) positions of one panel's vertices (module docstring); joint_world (J, 4, 4): the bind pose."""
     if pl.body == "plane":
         n = np.asarray(pl.normal, dtype=np.float64)
         n = n / np.linalg.norm(n)
@@ -195,31 +205,45 @@ def place_panel(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, characte
         av /= np.linalg.norm(av)
         pu = np.cross(av, n)
         return np.asarray(pl.center, dtype=np.float64) + uv[:, :1] * pu + uv[:, 1:] * av
-    axis = body_axis(character, pl.body, joint_origins)
+    joint_origins = np.asarray(joint_world)[:, :3, 3]
+    axis = body_axis(character, pl.body, joint_world)
     joints = part_joints(character, pl.body, joint_origins)
     cj = _collider_joints(character, pl.body, joint_origins, pl.arms)
     if pl.body.startswith("leg_"):
         mid = float(joint_origins[character.root_joint, 0])
+        margin = _midline_margin(_part_points(joints, skinned, dominant, col_points, cj), axis, mid)
         # a trouser leg below the knee wraps the shin: the part beyond the thigh's length is placed
-        # around the shin's own axis (from the knee), so it follows a bent knee
-        ch = limb_chain(character, "leg", pl.body[-1])
-        thigh = float(np.linalg.norm(joint_origins[ch[1]] - joint_origins[ch[0]]))
+        # around the shin's own axis (from the knee), so it follows a bent knee (a one-joint leg's
+        # lower point: halfway down its skin, the same straight bone)
+        leg = part_limb(character, pl.body)
+        ch = leg.follow
+        up, knee, end = leg.points(character, joint_world)
+        thigh = float(np.linalg.norm(knee - up))
         low = uv[:, 1] + pl.shift < -thigh
         if low.any() and (~low).any():
-            o, e = joint_origins[ch[1]], joint_origins[ch[2]]
+            o, e = knee, end
             a = (o - e) / np.linalg.norm(o - e)
             q = np.array([0.0, 0.0, 1.0]) - a[2] * a
             q /= np.linalg.norm(q)
             shin = BodyAxis(o, a, q, np.cross(a, q))
             out = np.empty((uv.shape[0], 3))
             out[~low] = _wrap(uv[~low], boundary_uv, pl, axis, _part_points({ch[0]}, skinned, dominant, col_points),
-                              mid)
+                              mid, margin)
             out[low] = _wrap(uv[low], boundary_uv, replace(pl, shift=pl.shift + thigh), shin,
-                             _part_points({ch[1]}, skinned, dominant, col_points), mid)
+                             _part_points({ch[1]}, skinned, dominant, col_points), mid, margin)
             return out
-    mid = float(joint_origins[character.root_joint, 0]) if pl.body.startswith("leg_") else None
-    limb = axis if pl.body.startswith("arm_") else None
-    return _wrap(uv, boundary_uv, pl, axis, _part_points(joints, skinned, dominant, col_points, cj, limb), mid)
+        return _wrap(uv, boundary_uv, pl, axis, _part_points(joints, skinned, dominant, col_points, cj), mid, margin)
+    arm = axis if pl.body.startswith("arm_") else None
+    return _wrap(uv, boundary_uv, pl, axis, _part_points(joints, skinned, dominant, col_points, cj, arm))
+
+
+def _midline_margin(pts: np.ndarray, axis: BodyAxis, midline_x: float) -> float:
+    """How far a leg tube's inner side stays off the mid-plane: MIDLINE_GAP, or halfway to a leg (skin
+    and colliders, `pts`) nearer to it than 2 MIDLINE_GAP (a chibi's block legs, 6 mm: the tube's side
+    lay inside them); a leg reaching across it (a thigh's colliders) keeps MIDLINE_GAP."""
+    side = 1.0 if axis.origin[0] >= midline_x else -1.0
+    inner = float((side * (pts[:, 0] - midline_x)).min())
+    return 0.5 * inner if 0.0 < inner < 2 * MIDLINE_GAP else MIDLINE_GAP
 
 
 def _part_points(joints: set, skinned, dominant, col_points, collider_joints: set | None = None,
@@ -243,9 +267,9 @@ def _part_points(joints: set, skinned, dominant, col_points, collider_joints: se
 
 
 def _wrap(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, axis: BodyAxis, pts: np.ndarray,
-          midline_x: float | None = None) -> np.ndarray:
+          midline_x: float | None = None, margin: float = MIDLINE_GAP) -> np.ndarray:
     """Panel vertices wrapped around `axis` on the cross-sections of `pts` (see place_panel);
-    midline_x: legs: x of the body's mid-plane, which the tube's inner side must not cross."""
+    midline_x: legs: x of the body's mid-plane, which the tube's inner side stays `margin` off."""
     t = uv[:, 1] + pl.shift
     levels = np.arange(t.min() - LEVEL_STEP, t.max() + 2 * LEVEL_STEP, LEVEL_STEP)
     ex = float(pl.exponent)
@@ -284,7 +308,7 @@ def _wrap(uv: np.ndarray, boundary_uv: np.ndarray, pl: Placement, axis: BodyAxis
             # be inside the other leg); a wider tube grows outwards and front / back instead
             c = axis.origin + levels[k] * axis.a
             gap = (midline_x - c[0]) / (axis.p[0] if abs(axis.p[0]) > 1e-6 else 1e-6)
-            a_in = float(np.clip(abs(gap) - 0.015, 0.02, a))
+            a_in = float(np.clip(abs(gap) - margin, 0.02, a))
             inner_pos = gap > 0
 
             def table(f):
@@ -434,13 +458,14 @@ def place_pattern(pattern: Pattern, flat: FlatPattern, character, motion, collid
     collider is moved out 1 cm at a time (sleeves: along the arm, outwards; others: more offset)."""
     from dataclasses import replace
 
-    skinned, origins, dominant = bind_geometry(character, motion)
+    skinned, _, dominant = bind_geometry(character, motion)
+    pose = motion.joint_world[0]
     cp = collider_points(colliders, frame_poses0(colliders, character, motion))
     out, used = [], {}
     for panel, fp in zip(pattern.panels, flat.panels):
         pl = panel.placement
         for attempt in range(max_tries + 1):
-            x = place_panel(fp.uv, fp.uv[:fp.n_boundary], pl, character, origins, skinned, dominant, cp)
+            x = place_panel(fp.uv, fp.uv[:fp.n_boundary], pl, character, pose, skinned, dominant, cp)
             # the body mesh must be clear; particles starting inside an (inflated) collider are
             # pushed out by the sewing simulation's collision response
             bad = inside_body(character, skinned, x)
@@ -468,7 +493,7 @@ def place_pattern(pattern: Pattern, flat: FlatPattern, character, motion, collid
         for i, (panel, fp) in enumerate(zip(pattern.panels, flat.panels)):
             if panel.name in names and used[panel.name].offset < top:
                 used[panel.name] = replace(used[panel.name], offset=top)
-                out[i] = place_panel(fp.uv, fp.uv[:fp.n_boundary], used[panel.name], character, origins, skinned,
+                out[i] = place_panel(fp.uv, fp.uv[:fp.n_boundary], used[panel.name], character, pose, skinned,
                                      dominant, cp)
     return np.concatenate(out), used
 
@@ -500,46 +525,6 @@ def triangle_grid_points(positions: np.ndarray, triangles: np.ndarray, n: int = 
     w = np.array([(i, j, n - i - j) for i in range(n + 1) for j in range(n + 1 - i)], np.float64) / n
     tri = np.asarray(positions, np.float64)[np.asarray(triangles)]
     return np.einsum("sk,tkd->tsd", w, tri).reshape(-1, 3)
-
-
-def farthest_hits(origins: np.ndarray, points: np.ndarray, positions: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """(N,) distance from each origin, along the ray through its point, to the ray's farthest hit on
-    the triangle mesh (Moller-Trumbore), -inf where it misses."""
-    tri = np.asarray(positions, np.float64)[np.asarray(triangles)]
-    a, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    out = np.full(points.shape[0], -np.inf)
-    for k in range(points.shape[0]):
-        d = points[k] - origins[k]
-        d = d / max(float(np.linalg.norm(d)), 1e-12)
-        pv = np.cross(d, e2)
-        det = np.einsum("ij,ij->i", e1, pv)
-        ok = np.abs(det) > 1e-15
-        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-        tv = origins[k] - a
-        u = np.einsum("ij,ij->i", tv, pv) * inv
-        qv = np.cross(tv, e1)
-        v = (qv @ d) * inv
-        t = np.einsum("ij,ij->i", e2, qv) * inv
-        hit = ok & (u >= 0.0) & (v >= 0.0) & (u + v <= 1.0) & (t > 0.0)
-        if hit.any():
-            out[k] = t[hit].max()
-    return out
-
-
-def push_over(points: np.ndarray, origins: np.ndarray, under, gap: float) -> np.ndarray:
-    """(N, 3) points moved out along the rays from their origins (a band's hug targets on the body's
-    axis) to `gap` beyond the farthest hit on any garment of `under` (Garments), where they are
-    closer to the origin than that; the others as they are."""
-    p = np.asarray(points, np.float64).copy()
-    o = np.asarray(origins, np.float64)
-    reach = np.full(p.shape[0], -np.inf)
-    for g in under:
-        reach = np.maximum(reach, farthest_hits(o, p, g.positions, g.triangles))
-    d = p - o
-    r = np.linalg.norm(d, axis=1)
-    move = np.isfinite(reach) & (r < reach + gap)
-    p[move] = o[move] + d[move] * ((reach[move] + gap) / np.maximum(r[move], 1e-12))[:, None]
-    return p
 
 
 def respace(points: np.ndarray, uv: np.ndarray) -> np.ndarray:

@@ -6,7 +6,7 @@ apart geometrically:
 - `separate_legs`: a two-legged garment's legs each on their own side of the plane between the
   thighs (tubes wrapped around close thighs met and passed through each other at that plane);
 - a garment worn over others is moved out along rays from the body's vertical axis beyond them
-  (`placement.push_over`, OVER_CLEARANCE), far enough that their folds do not poke through it.
+  (`over.push_over`, OVER_CLEARANCE), far enough that their folds do not poke through it.
 """
 from __future__ import annotations
 
@@ -25,11 +25,13 @@ OVER_CLEARANCE = 0.01
 def leg_plane(character, origins: np.ndarray):
     """(point (3,), unit normal (3,) towards the wearer's left leg) of the vertical plane halfway
     between the thighs' upper joints (bind pose `origins` (J, 3)); None without two legs."""
-    from stages.rig.humanoid import humanoid_joints
+    from stages.rig.humanoid import humanoid_joints, limb
     hj = humanoid_joints(character)
-    if hj.leg_l is None or hj.leg_r is None:
+    legs = [limb(character, "leg", s, hj) for s in ("l", "r")]
+    if None in legs:
         return None
-    a, b = origins[hj.leg_l[0]], origins[hj.leg_r[0]]
+    # each leg's upper joint: a chain's hip, a one-joint leg's only joint (its upper point)
+    a, b = origins[legs[0].joints[0]], origins[legs[1].joints[0]]
     n = np.array([a[0] - b[0], 0.0, a[2] - b[2]])
     ln = float(np.linalg.norm(n))
     if ln < 1e-6:

@@ -10,8 +10,10 @@ an arm is a branch off the spine on one side reaching far sideways and not down 
 Garments anchor on these: sleeves on the upper arms, legs of trousers on the thighs, a collar
 below the neck. A limb of fewer than 3 joints (Kenney's single `arm-left`) is recorded
 (`HumanoidJoints.short`, with rest positions of its shoulder / elbow / wrist points taken from its
-skin, `HumanoidJoints.points`) but is not a chain: the garments place sleeves and trouser legs on
-the joints' own frames (upper, lower, end). A garment whose anchors cannot be found gets one error
+skin, `HumanoidJoints.points`) but is not a chain (`limb_chain` is None). The garments read every
+limb, chain or short, through `limb` (a `Limb`: its three points, the joint each point moves with,
+its joint set): trouser legs are placed on a leg's points, a one-joint leg's three carried by its only
+joint; a sleeve needs an arm chain (SHORT_OK). A garment whose anchors cannot be found gets one error
 saying why, what was looked for and the joints the rig has (`HumanoidJoints.require`).
 """
 from __future__ import annotations
@@ -34,9 +36,12 @@ LEG_CHAINS = (("thigh_l", "shin_l", "foot_l"), ("thigh_l", "calf_l", "foot_l"), 
               ("L_UpperLeg", "L_LowerLeg", "L_Foot"))
 LIMB_PARTS = {"arm": ("clavicle", "shoulder", "upperarm", "lowerarm", "hand"),
               "leg": ("hip", "thigh", "leg", "shin", "foot")}
-# what a sleeve / trouser leg is placed on
-NEEDS = {"arm": "a sleeve needs shoulder, elbow and wrist joints",
-         "leg": "a trouser leg needs hip, knee and ankle joints"}
+# the limbs a garment is placed on also when they have fewer than 3 joints: a trouser leg round a
+# one-joint leg (Kenney's block legs). Not arms: a Kenney mini's one-joint arm is as tall as its torso
+# (16 of 17 cm) and its top lies under the head's overhang, where a sleeve's cap was not sewn to the
+# armhole (13-16 mm open after 120 sewing iterations)
+SHORT_OK = ("leg",)
+SLEEVE_NEEDS = "a sleeve needs shoulder, elbow and wrist joints"
 
 
 def _bare(name: str) -> str:
@@ -296,7 +301,7 @@ def shape_arm(b: Body, side: str, legs: set):
 
 def find_limbs(character, b: Body | None = None) -> dict:
     """part ('arm_l', ...) -> (joints or None, how: 'name' | 'shape' | 'missing', points (3, 3) or
-    None, why: '' or why the part is missing / not a chain). Legs first: the arms are looked for off
+    None, why: '' or why the part is missing or, for an arm, not a chain (SHORT_OK)). Legs first: the arms are looked for off
     the legs."""
     b = b or rest_body(character)
     labels = [label(n) for n in character.joint_names]
@@ -319,8 +324,8 @@ def find_limbs(character, b: Body | None = None) -> dict:
                 tried.append(f"{'joints named as the' if how == 'name' else 'the branch'} {what}: {bad}")
                 joints = None
             if joints:
-                why = "" if len(joints) >= 3 else _short_why(character, kind, joints)
-                out[f"{kind}_{side}"] = (list(joints), how, pts, why)
+                short = len(joints) < 3 and kind not in SHORT_OK
+                out[f"{kind}_{side}"] = (list(joints), how, pts, _short_why(character, kind, joints) if short else "")
                 if kind == "leg":
                     legs |= subtree(b.parents, _branch_start(b, joints[0], 1.0 if side == "l" else -1.0))
             else:
@@ -333,13 +338,13 @@ def _short_why(character, kind: str, joints) -> str:
     names = character.joint_names
     what = (f"{kind} {names[joints[0]]!r} is a single joint" if len(joints) == 1
             else f"{kind} {' > '.join(names[j] for j in joints)!r} has only {len(joints)} joints")
-    return f"{what}: {NEEDS[kind]}"
+    return f"{what}: {SLEEVE_NEEDS}"
 
 
 def limb_chain(character, kind: str, side: str):
     """Joint indices [upper, lower, end] of the arm or leg on `side` ('l' = the wearer's left, +X),
     found by name (any naming, checked against the shape) or by the skeleton's shape; None when
-    neither finds one or the limb has fewer than 3 joints (see `humanoid_joints` for why)."""
+    neither finds one or the limb has fewer than 3 joints (`limb` gives any limb as the garments use it)."""
     joints = find_limbs(character)[f"{kind}_{side}"][0]
     return joints if joints is not None and len(joints) == 3 else None
 
@@ -372,7 +377,8 @@ class HumanoidJoints:
     found: part -> 'name' | 'shape' | 'missing' (limbs and the neck). short: limb part -> its
     joints, for a limb of fewer than 3 joints (its chain is None). points: limb part -> (3, 3)
     rest positions (upper, lower, end; a short limb's from its skin). why: part -> one line saying
-    why it is missing or not a chain.
+    why it is missing or (an arm) not a chain. A garment anchored on a leg takes a chain or a short
+    leg alike (`require`, SHORT_OK; placed through `limb`).
     """
 
     root: int
@@ -407,11 +413,13 @@ class HumanoidJoints:
                          if not (self.limb("leg", s) or self.short.get(f"leg_{s}")) and self.why.get(f"leg_{s}"))
 
     def require(self, parts, what: str) -> None:
-        """Raise one InputError naming `what` (e.g. "garment 'tshirt'") when a part is missing."""
-        missing = [p for p in parts if (getattr(self, p) is None or getattr(self, p) == -1)]
+        """Raise one InputError naming `what` (e.g. "garment 'tshirt'") when a part is missing (a leg
+        of any number of joints is there, an arm needs a chain: SHORT_OK)."""
+        missing = [p for p in parts if (getattr(self, p) is None or getattr(self, p) == -1)
+                   and not (p in self.short and p.split("_")[0] in SHORT_OK)]
         if not missing:
             return
-        # what was looked for, for the parts not found at all (a short limb was found: its reason says it)
+        # what was looked for, for the parts not found at all (a short arm was found: its reason says it)
         kinds = sorted({"leg" if p == "hips" else p.split("_")[0] for p in missing if p not in self.short})
         looked = []
         for kind in kinds:
@@ -494,9 +502,56 @@ def limb_joint_sets(character, parts: HumanoidJoints | None = None) -> dict:
     arm is still an arm: its skin is not the torso's). Empty where none is found. parts: the
     character's humanoid_joints when the caller has them (not found again)."""
     parts = parts or humanoid_joints(character)
-    parents = np.asarray(character.parents)
     out = {}
     for part in ("arm_l", "arm_r", "leg_l", "leg_r"):
-        joints = getattr(parts, part) or parts.short.get(part)
-        out[part] = subtree(parents, joints[0]) if joints else set()
+        found = limb(character, part[:3], part[-1], parts)
+        out[part] = set(found.joint_set) if found else set()
     return out
+
+
+@dataclass(frozen=True)
+class Limb:
+    """An arm or leg as the garments use it, a chain of three joints or a shorter limb alike.
+
+    joints: its joints (a chain's upper, lower, end; a short limb's one or two). follow: the joint
+    each of its points (upper, lower, end) moves with: a chain's own joints; a one-joint limb's only
+    joint for all three (no elbow to bend: a sleeve follows its only bone); a two-joint limb's first
+    for the upper point, its second for the lower and end points. rest: (3, 3) the points' rest
+    positions (HumanoidJoints.points: a short limb's measured on its skin). joint_set: the joints
+    whose skin is the limb (limb_joint_sets)."""
+
+    joints: tuple
+    follow: tuple
+    rest: np.ndarray = field(compare=False)
+    joint_set: frozenset
+
+    @property
+    def is_chain(self) -> bool:
+        return len(self.joints) >= 3
+
+    def points(self, character, joint_world: np.ndarray) -> np.ndarray:
+        """(3, 3) the points in a pose (joint_world (J, 4, 4)): a chain's joint origins; a short
+        limb's each carried from its rest place by the joint it follows, as its skin is (inverse bind)."""
+        jw = np.asarray(joint_world)
+        if self.is_chain:
+            return jw[list(self.joints[:3]), :3, 3]
+        out = np.empty((3, 3))
+        for k, j in enumerate(self.follow):
+            m = jw[j] @ np.asarray(character.inverse_bind[j], np.float64)
+            out[k] = m[:3, :3] @ self.rest[k] + m[:3, 3]
+        return out
+
+
+def limb(character, kind: str, side: str, parts: HumanoidJoints | None = None) -> Limb | None:
+    """The arm or leg on `side` ('l': the wearer's left) as a Limb, a chain or a limb of one or two
+    joints alike; None where none is found. parts: the character's humanoid_joints when the caller
+    has them (not found again)."""
+    parts = parts or humanoid_joints(character)
+    part = f"{kind}_{side}"
+    joints = parts.limb(kind, side) or parts.short.get(part)
+    if not joints or part not in parts.points:
+        return None
+    joints = tuple(int(j) for j in joints)
+    follow = joints[:3] if len(joints) >= 3 else (joints[0], joints[-1], joints[-1])
+    return Limb(joints, follow, np.asarray(parts.points[part], np.float64),
+                frozenset(subtree(np.asarray(character.parents), joints[0])))
