@@ -164,7 +164,7 @@ def build_pattern_garment(scene: Scene, index: int, character, motion, colliders
     """A sewn garment from a built-in pattern: (Garment, SewingLog, GarmentBuild). Seams that do
     not close within the tolerance are a SceneError naming the seam and the gap. under: the
     garments worn under it (its waistband is hugged over them, HUG_GAP + the cloth thickness off)."""
-    from stages.garments.placement import HUG_GAP
+    from stages.garments.hug import HUG_GAP
     from stages.checks import ContractError
     from stages.errors import InputError
     from stages.garments.library import make_garment

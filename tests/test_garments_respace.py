@@ -1,8 +1,8 @@
-"""placement.respace: a pinned band's vertices spaced along their hugged polyline as on the pattern."""
+"""hug.respace: a pinned band's vertices spaced along their hugged polyline as on the pattern."""
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from stages.garments.placement import respace
+from stages.garments.hug import respace
 
 
 def _on_polyline(q, p):

@@ -398,11 +398,12 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
     Returns (Garment, SewingLog, GarmentBuild, warning or None). The panels are placed by the
     pattern's own translation / rotation mapped onto the character (body_map); vertices inside the
     body are pushed out; the waist seam GarmentCode attaches while simulating (lower_interface) is
-    brought onto the body (placement.hug, to the body's axis) and held there while sewing (the
+    brought onto the body (hug.hug, to the body's axis) and held there while sewing (the
     middle half, seam vertices free), and after sewing stays pinned to its nearest bone of the trunk
     (the waist holds a skirt up); collars are left free (HOLD_LABELS)."""
     from stages.garments.library import GarmentBuild, hug_targets, seam_label
-    from stages.garments.placement import bind_geometry, hug, respace
+    from stages.garments.hug import hug, respace
+    from stages.garments.placement import bind_geometry
     from stages.garments.sewing import SewParams, gathered_rest, merged_mesh, seam_gaps, sew
     from stages.garments.untangle import untangle_sewn
     from stages.garments.triangulate import run_vertices

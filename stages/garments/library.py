@@ -398,7 +398,7 @@ def _band_rest(tri: np.ndarray, tri_rest: np.ndarray, run: np.ndarray, placed: n
 
 
 def hug_targets(character, origins: np.ndarray, points: np.ndarray, mode: str) -> np.ndarray:
-    """(N, 3) where fit-edge points walk to (placement.hug): 'axis', horizontally to the body's
+    """(N, 3) where fit-edge points walk to (hug.hug): 'axis', horizontally to the body's
     vertical axis through the root; 'neck', to the base of the neck (a cape's top onto the
     shoulders)."""
     from stages.rig.humanoid import humanoid_joints
@@ -455,8 +455,8 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
     from scipy.spatial import cKDTree
 
     from stages.garments.over import push_over
-    from stages.garments.placement import (UNDER_REACH, bind_geometry, hug, place_pattern, respace,
-                                          triangle_grid_points)
+    from stages.garments.hug import hug, respace
+    from stages.garments.placement import UNDER_REACH, bind_geometry, place_pattern, triangle_grid_points
     from stages.garments.separation import OVER_CLEARANCE, leg_plane, separate_legs
     from stages.garments.types import attach_indices, bind_pose, build_garment
 

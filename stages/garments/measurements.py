@@ -90,7 +90,7 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
         of the bone, plus the colliders' delta. arm_angle: the upper arm's angle below horizontal, rad.
     thigh_radius: the same for the thigh. crotch_y: lowest point where a leg (or its collider)
         reaches the body's mid-plane. band_top (with colliders): length of the loop a band at
-        skirt_top makes once hugged onto the colliders and the body (placement.hug).
+        skirt_top makes once hugged onto the colliders and the body (hug.hug).
     under: (K, 3) points of garments worn under it (relative frame at frame 0): in the slab girths
         (clear_chest / clear_waist / clear_hips) as part of the body, each with the body part of its
         nearest skin vertex: a T-shirt worn over shorts is cut to go round them (pushed out over
@@ -223,10 +223,10 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
     out["clear_top"] = float(girth[-1])
     out["clear_skirt"] = float(girth.max())
     out["clear_seat"] = float(girth[ys >= out["crotch_y"]].max(initial=girth[-1]))
-    # band_top: the length of the loop a waistband makes hugged (placement.hug, as make_garment
+    # band_top: the length of the loop a waistband makes hugged (hug.hug, as make_garment
     # does) onto the body and colliders at skirt_top: what a snug waistband is cut to
     if colliders is not None:
-        from stages.garments.placement import hug
+        from stages.garments.hug import hug
         ang = np.linspace(0.0, 2 * np.pi, 73)[:-1]
         axis = np.array([root[0], out["skirt_top"], root[2]])
         # from the ellipse the 'hips' placement wraps the band on at skirt_top
