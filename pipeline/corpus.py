@@ -117,20 +117,21 @@ def pattern_cases(c: CorpusCharacter, patterns: list[Path]) -> list[dict]:
             for i, p in enumerate(patterns)]
 
 
-def cases_of(c: CorpusCharacter, *, full: bool = False) -> list[dict]:
-    """The sweep cases of one character: (clip, kind) pairs and the layered outfit."""
+def cases_of(c: CorpusCharacter, *, full: bool = False, kinds=None, outfit: bool = True) -> list[dict]:
+    """The sweep cases of one character: (clip, kind) pairs of the kinds it wears (of `kinds`, None:
+    all) and, with `outfit`, the layered outfit."""
     clips = c.clips or [("rest", 0.0)]
-    if not c.wears:
-        return []
-    if full:
-        pairs = [(clip, kind) for clip in clips for kind in c.wears]
-    else:
-        n = max(len(clips), len(c.wears))
-        pairs = [(clips[i % len(clips)], c.wears[i % len(c.wears)]) for i in range(n)]
+    wears = [k for k in c.wears if kinds is None or k in kinds]
+    pairs = []
+    if wears and full:
+        pairs = [(clip, kind) for clip in clips for kind in wears]
+    elif wears:
+        n = max(len(clips), len(wears))
+        pairs = [(clips[i % len(clips)], wears[i % len(wears)]) for i in range(n)]
     out = []
     for (clip, duration), kind in pairs:
         out.append(_case(c, clip, duration, [{"type": "pattern", "name": kind, "kind": kind}], kind))
-    if all(k in c.wears for k in OUTFIT):
+    if outfit and all(k in c.wears for k in OUTFIT):
         clip, duration = clips[0]
         # listed inner first: the shorts are layer 0, the T-shirt over them layer 1 (the list's order)
         out.append(_case(c, clip, duration, [{"type": "pattern", "name": k, "kind": k} for k in OUTFIT[::-1]],
@@ -182,7 +183,15 @@ def run_corpus(folder: Path, *, frames: int = 30, characters: list[str] | None =
     all, []: none); patterns: only these GarmentCode patterns; with_patterns False: none of them."""
     from pipeline.matrix import KINDS
     from pipeline.sweep import run_sweep
-    kinds = list(KINDS if kinds is None else kinds)
+    unknown = [k for k in kinds or () if k not in KINDS and k != "outfit"]
+    if unknown:
+        from pipeline.schema import SceneError
+        raise SceneError(f"matrix --corpus --garment: {', '.join(map(repr, unknown))} is not a built-in kind; "
+                         f"expected one of: {', '.join(map(repr, KINDS + ('outfit',)))}")
+    outfit = kinds is None or "outfit" in kinds         # the layered outfit: --garment outfit asks for it alone
+    kinds = [k for k in (KINDS if kinds is None else kinds) if k != "outfit"]
+    asked = list(kinds)
+    kinds += [k for k in OUTFIT if outfit and k not in kinds]
     gc_files = pattern_files(assets_dir(), patterns) if with_patterns else []
     specs = character_specs(assets_dir())
     if characters:
@@ -202,9 +211,10 @@ def run_corpus(folder: Path, *, frames: int = 30, characters: list[str] | None =
             continue
         echo(f"{label}: {len(c.clips)} clip(s), wears {', '.join(c.wears) or 'no built-in kind'}"
              f"{f' and {len(gc_files)} GarmentCode pattern(s)' if gc_files else ''}")
-        cases += [dict(k, _character=label) for k in cases_of(c, full=full) + pattern_cases(c, gc_files)]
+        cases += [dict(k, _character=label) for k in cases_of(c, full=full, kinds=asked, outfit=outfit)
+                  + pattern_cases(c, gc_files)]
         refused += [{"character": label, "pair": kind, "status": "refused", "verdict": [why]}
-                    for kind, why in c.refused.items()]
+                    for kind, why in c.refused.items() if kind in asked]
     by_label = {k["label"]: k.pop("_character") for k in cases}
     rows = []
     if cases:

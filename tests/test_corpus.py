@@ -103,3 +103,17 @@ def test_every_garmentcode_pattern_is_a_scene_on_every_character(tmp_path):
     from pipeline.sweep_file import load_sweep
     c = CorpusCharacter("builtin", {"source": "procedural"}, [("walk", 1.2)], [])
     assert len(load_sweep(write_sweep(tmp_path / "s", pattern_cases(c, files), frames=5, timeout=10.0)).jobs) == 2
+
+
+def test_the_outfit_is_asked_for_by_name_and_an_unknown_kind_is_one_error(tmp_path):
+    # `matrix --corpus --garment outfit` wrote a case of kind 'outfit', which the sweep refused
+    import pytest
+
+    from pipeline.schema import SceneError
+    c = _character(3, ["tshirt", "shorts", "cape"])
+    only = cases_of(c, kinds=[], outfit=True)
+    assert [[g["kind"] for g in k["garments"]] for k in only] == [["shorts", "tshirt"]]
+    assert {k["garments"][0]["kind"] for k in cases_of(c, kinds=["cape"], outfit=False)} == {"cape"}
+    with pytest.raises(SceneError, match="'robe' is not a built-in kind"):
+        run_corpus(tmp_path, frames=2, characters=["builtin"], kinds=["robe"], jobs=1, with_patterns=False,
+                   echo=lambda *a: None)
