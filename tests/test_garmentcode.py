@@ -293,7 +293,9 @@ def test_stitches_that_fold_a_panel_onto_itself_are_one_error_naming_them():
 @needs_assets
 def test_a_sewn_pattern_starts_without_edges_through_itself(tmp_path):
     # the flare skirt on the built-in walk from 0.5 s: 3 edges through its own triangles after sewing,
-    # kept by the simulation to the last frame (p99 12.5 %); untangled: 0 at every frame (p99 10.1 %)
+    # kept by the simulation to the last frame (p99 12.5 %); untangled: 0 at every frame (p99 10.1 %).
+    # Sewn with at least 20 rounds (RELAX_ITERATIONS) it comes out of the sewing without crossings,
+    # so the untangling has nothing to do here (tests/test_garments_untangle.py tests it)
     from pipeline.dressing import build_garmentcode_garment
     from pipeline.run import frame_times, load_character, split_and_fit
     from pipeline.scene import load_scene
@@ -307,9 +309,8 @@ def test_a_sewn_pattern_starts_without_edges_through_itself(tmp_path):
     c = load_character(scene)
     m = sample_scene_motion(scene, c, frame_times(scene, None))
     _, cols = split_and_fit(scene, c, m)
-    g, log, _ = build_garmentcode_garment(scene, 0, c, m, cols, build_maps(cols))
+    g, _, _ = build_garmentcode_garment(scene, 0, c, m, cols, build_maps(cols))
     assert crossing_count(g.positions, g.triangles) == 0
-    assert any(n.startswith("untangled") for n in log.notes)
 
 
 @needs_assets
