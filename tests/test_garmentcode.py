@@ -293,7 +293,9 @@ def test_stitches_that_fold_a_panel_onto_itself_are_one_error_naming_them():
 @needs_assets
 def test_a_sewn_pattern_starts_without_edges_through_itself(tmp_path):
     # the flare skirt on the built-in walk from 0.5 s: 3 edges through its own triangles after sewing,
-    # kept by the simulation to the last frame (p99 12.5 %); untangled: 0 at every frame (p99 10.1 %)
+    # kept by the simulation to the last frame (p99 12.5 %); untangled: 0 at every frame (p99 10.1 %).
+    # Sewn with at least 20 rounds (RELAX_ITERATIONS) it comes out of the sewing without crossings,
+    # so the untangling has nothing to do here (tests/test_garments_untangle.py tests it)
     from pipeline.dressing import build_garmentcode_garment
     from pipeline.run import frame_times, load_character, split_and_fit
     from pipeline.scene import load_scene
@@ -307,9 +309,8 @@ def test_a_sewn_pattern_starts_without_edges_through_itself(tmp_path):
     c = load_character(scene)
     m = sample_scene_motion(scene, c, frame_times(scene, None))
     _, cols = split_and_fit(scene, c, m)
-    g, log, _ = build_garmentcode_garment(scene, 0, c, m, cols, build_maps(cols))
+    g, _, _ = build_garmentcode_garment(scene, 0, c, m, cols, build_maps(cols))
     assert crossing_count(g.positions, g.triangles) == 0
-    assert any(n.startswith("untangled") for n in log.notes)
 
 
 @needs_assets
@@ -342,7 +343,9 @@ def test_trouser_legs_are_wrapped_round_each_leg_so_the_crotch_and_inseams_start
     # GarmentCode lays a trouser's four panels flat in front of and behind its body, the front
     # halves 14 cm apart at the waist; wrapped round the body's axis like a skirt the inseams were
     # 418 mm open as placed on the built-in walk and the crotch seams 144-162 mm; wrapped round each
-    # leg below the crotch (the character's leg joints), halves stitched side by side: under 90 mm
+    # leg below the crotch (the character's leg joints), halves stitched side by side: under 90 mm.
+    # The built-in body's hips-to-waist span is 0.66 of the pattern body's; heights kept within
+    # SLOPE_BOUNDS (0.75 at least) put the crotch 2.3 cm lower, and one back crotch seam at 92 mm
     from pipeline.run import frame_times, load_character, split_and_fit
     from pipeline.scene import load_scene
     from pipeline.scene_motion import sample_scene_motion
@@ -362,7 +365,7 @@ def test_trouser_legs_are_wrapped_round_each_leg_so_the_crotch_and_inseams_start
     crotch_and_inseams = ["pant_f_r.e3 / pant_f_l.e3", "pant_f_r.e2 / pant_f_l.e4", "pant_b_r.e9 / pant_b_l.e4",
                           "pant_b_r.e10 / pant_b_l.e3", "pant_f_l.e5 / pant_b_l.e2", "pant_f_r.e1 / pant_b_r.e11"]
     for s in crotch_and_inseams:
-        assert by_seam[s] < 0.09, (s, by_seam[s])
+        assert by_seam[s] < 0.095, (s, by_seam[s])
 
 
 def test_panel_spans_across_each_level_match_a_brute_force_scan():
@@ -380,3 +383,95 @@ def test_panel_spans_across_each_level_match_a_brute_force_scan():
             assert lo[k] == pytest.approx(min(hits)) and hi[k] == pytest.approx(max(hits))
         else:
             assert lo[k] == np.inf and hi[k] == -np.inf
+
+
+def test_limited_heights_keep_the_anchor_and_bound_every_slope():
+    from stages.garments.garmentcode_place import SLOPE_BOUNDS, limited_heights
+    rng = np.random.default_rng(7)
+    lo, hi = SLOPE_BOUNDS
+    for _ in range(50):
+        src = np.cumsum(rng.uniform(0.05, 0.4, 6)) - 0.05
+        dst = np.cumsum(rng.uniform(0.01, 0.6, 6))
+        anchor = float(rng.uniform(src[0], src[-1]))
+        s, d = limited_heights(src, dst, anchor)
+        slope = np.diff(d) / np.diff(s)
+        assert np.all(slope >= lo - 1e-9) and np.all(slope <= hi + 1e-9)
+        # at the anchor: the landmarks' own height
+        assert np.interp(anchor, s, d) == pytest.approx(np.interp(anchor, src, dst))
+        # a reference: the clamped slope integrated on a fine grid out from the anchor
+        grid = np.linspace(src[0], src[-1], 4001)
+        g = np.unique(np.r_[grid, src, anchor])
+        k = int(np.searchsorted(g, anchor))
+        mid = 0.5 * (g[1:] + g[:-1])
+        seg = np.clip(np.searchsorted(src, mid) - 1, 0, src.size - 2)
+        m = np.clip((dst[seg + 1] - dst[seg]) / (src[seg + 1] - src[seg]), lo, hi) * np.diff(g)
+        ref = np.empty_like(g)
+        ref[k] = np.interp(anchor, src, dst)
+        ref[k + 1:] = ref[k] + np.cumsum(m[k:])
+        ref[:k] = ref[k] - np.cumsum(m[:k][::-1])[::-1]
+        assert np.allclose(np.interp(g, s, d), ref, atol=1e-9)
+    # landmarks within the bounds are kept as they are
+    src, dst = np.array([0.0, 0.8, 1.0, 1.2, 1.4]), np.array([0.0, 0.85, 1.05, 1.22, 1.45])
+    s, d = limited_heights(src, dst, 1.4)
+    assert np.allclose(np.interp(src, s, d), dst)
+
+
+def test_a_detached_panel_and_an_arm_are_moved_onto_the_panels_they_are_sewn_to():
+    from types import SimpleNamespace
+
+    from stages.garments.garmentcode_place import DETACHED_GAP, align_to_stitches
+    # panel 0: the torso (4 points); panel 1: a hood 30 cm off its neckline; panels 2 and 4: a
+    # sleeve's halves, 12 cm off the armhole and stitched to each other; panel 3: a back panel 2 cm
+    # off the torso's side; panel 5: the torso's other half, sewn to it edge to edge (a centre seam)
+    torso = np.array([[0.0, 1.0, 0.1], [0.1, 1.0, 0.1], [0.2, 1.0, 0.1], [0.0, 0.5, 0.1]])
+    hood = torso[:3] + [0.0, 0.3, 0.0]
+    sleeve = torso[:3] + [0.12, 0.0, 0.0]
+    back = torso + [0.02, 0.0, 0.0]
+    under = sleeve + [0.0, 0.0, -0.01]
+    x = np.concatenate([torso, hood, sleeve, back, under, torso])
+    pv = np.repeat([0, 1, 2, 3, 4, 5], [4, 3, 3, 4, 3, 4])
+    pairs = np.array([[0, 4], [1, 5], [2, 6], [7, 0], [8, 1], [9, 2], [0, 10], [1, 11], [2, 12], [3, 13],
+                      [7, 14], [8, 15], [9, 16], [0, 17], [1, 18], [2, 19], [3, 20]])
+    flat = SimpleNamespace(panel_of_vertex=pv, seam_pairs=pairs)
+    out = align_to_stitches(x, flat, [None, None, 1.0, None, 1.0, None])
+    assert np.allclose(out[pv == 1], torso[:3])          # the hood, 30 cm > DETACHED_GAP off: moved
+    assert np.allclose(out[pv == 2], torso[:3])          # the sleeve: moved onto its armhole,
+    assert np.allclose(out[pv == 4], torso[:3] + [0.0, 0.0, -0.01])   # both halves together
+    assert np.allclose(out[pv == 3], back) and np.allclose(out[pv == 0], torso)   # 2 cm: left as placed
+    x[pv == 2] -= [0.08, 0.0, 0.0]                       # a sleeve 4 cm off: left as placed
+    x[pv == 4] -= [0.08, 0.0, 0.0]
+    assert np.allclose(align_to_stitches(x, flat, [None, None, 1.0, None, 1.0, None])[pv == 2], x[pv == 2])
+    assert 0.02 < DETACHED_GAP < 0.3
+
+
+@needs_assets
+def test_a_hooded_top_is_placed_on_cesium_man_unsquashed_with_its_hood_at_the_neckline(tmp_path):
+    # CesiumMan's bust-to-shoulder span is 3.8 cm against the pattern body's 22.5: mapped through the
+    # landmarks, the hooded top's upper part was squashed 6x (its front panels 27 cm high for 44 cm
+    # of cloth, the V neckline a 2 cm high line) and its hood sat beside the head, 15-20 cm from the
+    # neckline; the sewing left edges at 1.4 % and 430 % of their rest lengths, the simulation's
+    # first frame relaxed them and the corpus run stopped as diverged at frame 1 (an edge 4,813 % of
+    # its frame-0 length)
+    from pipeline.run import frame_times, load_character, split_and_fit
+    from pipeline.scene import load_scene
+    from pipeline.scene_motion import sample_scene_motion
+    from stages.garments.garmentcode_place import body_of, place_gc_garment
+    from stages.garments.library import seam_label
+    path = ASSETS / "examples" / "hoody_mean_specification.json"
+    p = tmp_path / "hoody.yaml"
+    p.write_text(f"character: {{source: gltf, path: {assets_dir() / 'CesiumMan.glb'}, clip: 0}}\n"
+                 "frames: {start: 0.8, count: 2}\n")
+    scene = load_scene(p)
+    c = load_character(scene)
+    m = sample_scene_motion(scene, c, frame_times(scene, None))
+    _, cols = split_and_fit(scene, c, m)
+    graded, pattern, flat, placed, _ = place_gc_garment(read_pattern(path), body_of(path, assets_dir() / DEFAULT_BODY),
+                                                        c, m, cols)
+    for k, panel in enumerate(graded.panels):
+        if "torso" in panel.name:   # cloth height kept within the slope bounds (0.75 at least)
+            flat_h = float(np.ptp(panel.to_3d(panel.vertices)[:, 1]))
+            assert np.ptp(placed[flat.panel_of_vertex == k, 1]) > 0.7 * flat_h, panel.name
+    gaps = np.linalg.norm(placed[flat.seam_pairs[:, 0]] - placed[flat.seam_pairs[:, 1]], axis=1)
+    for j, s in enumerate(pattern.seams):
+        if "hood" in seam_label(s) and "torso" in seam_label(s):   # the hood's neck seams
+            assert np.median(gaps[flat.seam_index == j]) < 0.15, seam_label(s)

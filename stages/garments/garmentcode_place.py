@@ -3,10 +3,13 @@ Triangle), their 3D placement on the pattern's body (GarmentCode's translation /
 onto the character's bind pose from the two bodies' measurements, then sewn.
 
 The map (`BodyMap`): heights piecewise linear through matching landmarks (floor, hips, waist, bust,
-shoulders, top of the head); horizontal offsets from the body's vertical axis scaled by the ratio of
+shoulders, top of the head), met where the garment hangs from (its top, at most the shoulders) and
+elsewhere with each span's slope kept within SLOPE_BOUNDS (a body's short torso does not squash a
+top 6x); horizontal offsets from the body's vertical axis scaled by the ratio of
 the character's girth to the pattern body's at that height (hips, waist, bust); arm panels (label
 'arm') turned about the pattern body's shoulder point by the difference of the two arm angles and
-carried to the character's shoulder joint.
+carried to the character's shoulder joint. Panels that then start far from the panels they are
+sewn to (a hood beside the head, sleeves off their armholes) are moved onto them (align_to_stitches).
 """
 from __future__ import annotations
 
@@ -291,8 +294,37 @@ class BodyMap:
         return (p - c) @ rot.T + self.shoulders_dst[side]
 
 
-def body_map(body: GCBody, meas: dict, character, origins: np.ndarray) -> BodyMap:
-    """The BodyMap from `body` to the character measured in `meas` (garment_measurements)."""
+# a panel's height is mapped with a slope within these bounds: CesiumMan's bust-to-shoulder span is
+# 3.8 cm against the pattern body's 22.5 cm, and the landmarks' own slope (0.17) squashed the top of
+# the hooded top 6x: its V neckline became a 2 cm high line, the sewn cloth held edges at 1.4 % and
+# 430 % of their rest lengths, and the run stopped at frame 1 (an edge 4,813 % of its frame-0 length)
+SLOPE_BOUNDS = (0.75, 1.33)
+
+
+def limited_heights(src: np.ndarray, dst: np.ndarray, anchor: float, bounds=SLOPE_BOUNDS) -> tuple:
+    """(src', dst'): the piecewise linear height map through (src, dst) (ascending) with `anchor`
+    (a pattern-body height) added as a breakpoint kept where the landmarks put it, and every segment's
+    slope clamped to `bounds`, integrated out from the anchor: near the anchor the garment sits on
+    the character's landmark, and no span of cloth is squashed or stretched more than the bounds."""
+    a = float(np.clip(anchor, src[0], src[-1]))
+    s = np.unique(np.r_[src, a])
+    d = np.interp(s, src, dst)
+    slope = np.clip(np.diff(d) / np.diff(s), *bounds)
+    k = int(np.searchsorted(s, a))
+    out = np.empty_like(d)
+    out[k] = d[k]
+    for i in range(k + 1, s.size):
+        out[i] = out[i - 1] + slope[i - 1] * (s[i] - s[i - 1])
+    for i in range(k - 1, -1, -1):
+        out[i] = out[i + 1] - slope[i] * (s[i + 1] - s[i])
+    return s, out
+
+
+def body_map(body: GCBody, meas: dict, character, origins: np.ndarray, anchor: float | None = None) -> BodyMap:
+    """The BodyMap from `body` to the character measured in `meas` (garment_measurements). anchor:
+    the pattern-body height the garment hangs from (the top of its torso panels, at most the
+    shoulders: garment_anchor), where it meets the character's landmark; heights away from it keep
+    the landmarks' slope within SLOPE_BOUNDS (limited_heights); None: the landmarks themselves."""
     from stages.rig.humanoid import limb_chain
     floor = meas.get("floor_y", 0.0)
     top = floor + meas["height"]
@@ -301,6 +333,8 @@ def body_map(body: GCBody, meas: dict, character, origins: np.ndarray) -> BodyMa
     dst = [floor, meas["hips_y"], meas["waist_y"], meas["chest_y"], sh, top]
     keep = [0] + [i for i in range(1, 6) if dst[i] > dst[i - 1] + 1e-3 and src[i] > src[i - 1]]
     src, dst = np.array(src)[keep], np.array(dst)[keep]
+    if anchor is not None:
+        src, dst = limited_heights(src, dst, anchor)
     ratio = np.array([meas.get("clear_hips", meas["hips"]) / body.hips, meas.get("clear_waist", meas["waist"]) / body.waist,
                       meas.get("clear_chest", meas["chest"]) / body.bust])
     ratio = np.where(np.isfinite(ratio) & (ratio > 0), ratio, 1.0)
@@ -340,6 +374,14 @@ def mismatch_warning(body: GCBody, meas: dict, name: str, k: float = 1.0, sy: fl
             f"(character vs pattern body); dressed graded x{k:.3f} across and x{sy:.3f} up")
 
 
+def garment_anchor(gc: GCPattern, body: GCBody) -> float:
+    """The pattern-body height a garment hangs from: the top of its panels that are not arms,
+    at most the body's shoulders (a top, a dress: the shoulders; a skirt, trousers: the waist; a
+    hood above the head is carried by the shoulders)."""
+    ys = [p.to_3d(p.vertices)[:, 1].max() for p in gc.panels if panel_part(p) != "arm"]
+    return min(max(ys), body.shoulder_y) if ys else body.shoulder_y
+
+
 def place_gc(gc: GCPattern, flat, signs: dict, bmap: BodyMap, body: GCBody | None = None) -> np.ndarray:
     """(N, 3) positions of the meshed panels (flat: FlatPattern of to_pattern's Pattern, same panel
     order) in the character's relative frame at frame 0; with `body`, upright panels wrapped round
@@ -357,7 +399,50 @@ def place_gc(gc: GCPattern, flat, signs: dict, bmap: BodyMap, body: GCBody | Non
             out.append(bmap.arm(x, side))
         else:
             out.append(bmap.torso(x))
-    return np.concatenate(out)
+    placed = np.concatenate(out)
+    if body is not None:
+        sides = [None if panel_part(p) != "arm" else (1.0 if float(np.mean(x[:, 0])) >= 0 else -1.0)
+                 for p, x in zip(gc.panels, pts)]
+        placed = align_to_stitches(placed, flat, sides)
+    return placed
+
+
+DETACHED_GAP = 0.08   # m: a panel whose stitches to other panels are mostly this far open is moved to them
+
+
+def align_to_stitches(placed: np.ndarray, flat, arm_side: list) -> np.ndarray:
+    """placed (N, 3) with detached groups of panels translated by the mean offset of their stitches'
+    pairs to the panels they are sewn to that are not detached. A group: each side's arm panels
+    together (arm_side: +1 / -1, None for a panel that is not an arm), every other panel alone;
+    detached: its stitches to panels outside it start mostly (median) more than DETACHED_GAP open.
+    GarmentCode lays a hood beside the head, its neck edges 15-20 cm from the neckline they are
+    sewn to, and the sewing dragged the top up and back (edges crushed to 1 % of their length); a
+    shirt's sleeves mapped to CesiumMan's shoulder joints start 8-10 cm from armholes that the
+    torso's map put lower, and their seams did not close (8.6 mm open after 40 rounds)."""
+    pv, pairs = flat.panel_of_vertex, flat.seam_pairs
+    if pairs.size == 0:
+        return placed
+    a, b = pv[pairs[:, 0]], pv[pairs[:, 1]]
+    gap = np.linalg.norm(placed[pairs[:, 0]] - placed[pairs[:, 1]], axis=1)
+    groups = [np.flatnonzero([s == side for s in arm_side]) for side in (1.0, -1.0)]
+    groups = [g for g in groups if g.size] + [np.array([i]) for i, s in enumerate(arm_side) if s is None]
+    detached = np.zeros(len(arm_side), bool)
+    for grp in groups:
+        m = np.isin(a, grp) != np.isin(b, grp)           # stitches to panels outside the group
+        detached[grp] = m.any() and float(np.median(gap[m])) > DETACHED_GAP
+    out = placed.copy()
+    for grp in groups:
+        if not detached[grp[0]]:
+            continue
+        own = np.isin(a, grp) & ~detached[b]
+        other = np.isin(b, grp) & ~detached[a]
+        if own.sum() + other.sum() < 3:
+            continue
+        shift = np.concatenate([placed[pairs[own, 1]] - placed[pairs[own, 0]],
+                                placed[pairs[other, 0]] - placed[pairs[other, 1]]]).mean(axis=0)
+        sel = np.isin(pv, grp)
+        out[sel] = placed[sel] + shift
+    return out
 
 
 # GarmentCode's simulator holds the waist seam at the waist level and the collars at the neck's width;
@@ -367,6 +452,12 @@ def place_gc(gc: GCPattern, flat, signs: dict, bmap: BodyMap, body: GCBody | Non
 # them the shoulder seams could not close over the shoulders (15 cm open)
 HOLD_LABELS = {"lower_interface": "axis", "left_collar": None, "right_collar": None}
 CLEARANCE = 0.01   # m: vertices placed inside the body are pushed this far out of the skin
+# sewing rounds at least: stiff seam springs (128 correction rounds) close a hood's or a sleeve's
+# seams in 6 rounds and leave the cloth round them crushed (edges at 18-29 % of their rest length)
+# or stretched (x1.9-3.5); the simulation's first frame then relaxes them, and an edge growing 6x is
+# read as a blow-up (hoody_mean, shirt_mean on CesiumMan: stopped at frame 1). Rounds after the seams
+# closed let the panels relax with the seams held: 20 rounds, the shortest edge 29 %, the longest x1.9
+RELAX_ITERATIONS = 20
 
 
 def place_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, *, edge_length: float = 0.025,
@@ -384,7 +475,8 @@ def place_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, 
     flat = triangulate_pattern(pattern)
     check_stitch_chains(graded, pattern, flat)
     skinned0, origins, _ = bind_geometry(character, motion)
-    placed = place_gc(graded, flat, signs, body_map(gbody, meas, character, origins), gbody)
+    placed = place_gc(graded, flat, signs, body_map(gbody, meas, character, origins, garment_anchor(graded, gbody)),
+                      gbody)
     bad = inside_body(character, skinned0, placed)
     if bad.any():
         placed[bad] = push_out(placed[bad], character, skinned0, CLEARANCE)
@@ -444,6 +536,8 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
     flat3 = np.concatenate([np.c_[p.uv[:, 0] - p.uv[:, 0].min() + s, p.uv[:, 1], np.zeros(len(p.uv))]
                             for p, s in zip(flat.panels, shift)])
     sp = sew_params if sew_params is not None else SewParams()
+    from dataclasses import replace as dc_replace
+    sp = dc_replace(sp, min_iterations=max(sp.min_iterations, min(RELAX_ITERATIONS, sp.max_iterations)))
     sewn, log = sew(name, placed, tri, tri_rest, flat.seam_pairs, character, motion, colliders, maps, sp,
                     density=density, flat_positions=flat3, pair_stage=None, pins=pins, bind=pose if pins else None,
                     progress=progress)
