@@ -102,7 +102,8 @@ def test_a_waistband_hugs_the_trunk_under_arms_held_out_at_its_height(chibi, tmp
 def test_a_cape_s_top_is_gathered_onto_the_neck_not_left_compressed(chibi, tmp_path):
     # walked towards the neck's base, the top of a chibi's cape ends a third shorter than cut; its
     # pinned edges stayed compressed at every frame (p99 strain 36 % on every clip). Finished with a
-    # band cut to the hugged length (fit_band 1): 14 % on the female's static pose
+    # band cut to the hugged length (fit_band 1): 14 % on the female's static pose; its panel gathered
+    # below it too (hug.gather_below): 1.8 %
     import warnings
 
     from pipeline.run import run_scene
@@ -115,7 +116,7 @@ def test_a_cape_s_top_is_gathered_onto_the_neck_not_left_compressed(chibi, tmp_p
         warnings.simplefilter("ignore")
         run_scene(load_scene(p), output=tmp_path / "cape.rrd", progress=False, state=state)
     (audit,) = state["audit"].garments
-    assert audit.strain_p99[-1] < 0.2
+    assert audit.strain_p99[-1] < 0.05
 
 
 def _bind(chibi, tmp_path, garments: str, clip: str = "static", start: float = 0.04):

@@ -1,6 +1,7 @@
 """Bands brought onto the body: a waistband, a collar or a cape's top walked in towards the body
 until the colliders or the skin stop it (`hug`), and a pinned band's vertices spaced along where it
-ended as on the pattern (`respace`)."""
+ended as on the pattern (`respace`); the band's rest lengths cut to that loop (`band_rest`) and its
+panel gathered below it where it is much shorter than cut (`gather_below`)."""
 from __future__ import annotations
 
 import numpy as np
@@ -92,3 +93,43 @@ def hug(points: np.ndarray, targets: np.ndarray, character, skinned: np.ndarray,
         first = np.where(free_between, at_arm, first)
     k = np.maximum(first - 1, 0)
     return cand[k, np.arange(p.shape[0])]
+
+
+GATHER_FROM = 0.8    # a band hugged shorter than this share of its cut length is gathered into its panel
+
+
+def gather_below(tri: np.ndarray, tri_rest: np.ndarray, uv: np.ndarray, run: np.ndarray, placed: np.ndarray,
+                 panel_of_vertex: np.ndarray) -> None:
+    """In place: where a fit edge (`run`, its vertices in order) is hugged to less than GATHER_FROM of
+    its cut length, its panel's rest shape is gathered to that length along it, easing back to the
+    cut `GATHER_BAND` into the panel (sewing.ease, as the longer side of a gathered seam): a cape's
+    top walked onto a chibi's neck ends a third shorter than cut, and the edges from it to the row
+    below stayed compressed at every frame (p99 |strain| 11-21 %)."""
+    from stages.garments.sewing import GATHER_BAND, ease
+    if len(run) < 3:
+        return
+    cut = float(np.linalg.norm(np.diff(uv[run], axis=0), axis=1).sum())
+    hugged = float(np.linalg.norm(np.diff(placed[run], axis=0), axis=1).sum())
+    if not (cut > 0.0 and hugged < GATHER_FROM * cut):
+        return
+    verts = np.flatnonzero(panel_of_vertex == panel_of_vertex[run[0]])
+    x = np.array(uv, np.float64, copy=True)
+    ease(x, run, verts, hugged / cut, GATHER_BAND)
+    own = np.isin(tri, verts).all(axis=1)
+    tri_rest[own] = np.linalg.norm(x[tri[own][:, [1, 2, 0]]] - x[tri[own]], axis=2)
+
+
+def band_rest(tri: np.ndarray, tri_rest: np.ndarray, run: np.ndarray, placed: np.ndarray, factor: float) -> None:
+    """In place: the rest length of every triangle edge joining consecutive vertices of `run` (a
+    fit edge's vertices in order) becomes `factor` times its placed (hugged) length, never longer
+    than the pattern's (where the hug stretched the band around a collider, a rest length that long
+    held the band's end away from its seam: 8.9 mm open on CesiumMan's walk pose)."""
+    n = placed.shape[0]
+    want = {}
+    for a, b in zip(run[:-1], run[1:]):
+        want[min(a, b) * n + max(a, b)] = factor * float(np.linalg.norm(placed[a] - placed[b]))
+    for k in range(3):
+        a, b = tri[:, k], tri[:, (k + 1) % 3]
+        code = np.minimum(a, b) * n + np.maximum(a, b)
+        for t in np.flatnonzero(np.isin(code, list(want))):
+            tri_rest[t, k] = min(max(want[int(code[t])], 1e-4), tri_rest[t, k])

@@ -381,22 +381,6 @@ def library_pattern(kind: str, measurements: dict, **overrides) -> Pattern:
     raise InputError("garment library", f"unknown kind {kind!r}; kinds: {', '.join(KINDS)}")
 
 
-def _band_rest(tri: np.ndarray, tri_rest: np.ndarray, run: np.ndarray, placed: np.ndarray, factor: float) -> None:
-    """In place: the rest length of every triangle edge joining consecutive vertices of `run` (a
-    fit edge's vertices in order) becomes `factor` times its placed (hugged) length, never longer
-    than the pattern's (where the hug stretched the band around a collider, a rest length that long
-    held the band's end away from its seam: 8.9 mm open on CesiumMan's walk pose)."""
-    n = placed.shape[0]
-    want = {}
-    for a, b in zip(run[:-1], run[1:]):
-        want[min(a, b) * n + max(a, b)] = factor * float(np.linalg.norm(placed[a] - placed[b]))
-    for k in range(3):
-        a, b = tri[:, k], tri[:, (k + 1) % 3]
-        code = np.minimum(a, b) * n + np.maximum(a, b)
-        for t in np.flatnonzero(np.isin(code, list(want))):
-            tri_rest[t, k] = min(max(want[int(code[t])], 1e-4), tri_rest[t, k])
-
-
 def hug_targets(character, origins: np.ndarray, points: np.ndarray, mode: str) -> np.ndarray:
     """(N, 3) where fit-edge points walk to (hug.hug): 'axis', horizontally to the body's
     vertical axis through the root; 'neck', to the base of the neck (a cape's top onto the
@@ -455,7 +439,7 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
     from scipy.spatial import cKDTree
 
     from stages.garments.over import push_over
-    from stages.garments.hug import hug, respace
+    from stages.garments.hug import band_rest, gather_below, hug, respace
     from stages.garments.placement import UNDER_REACH, bind_geometry, place_pattern, triangle_grid_points
     from stages.garments.separation import OVER_CLEARANCE, leg_plane, separate_legs
     from stages.garments.types import attach_indices, bind_pose, build_garment
@@ -499,7 +483,8 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
             if (side.panel, side.edges) in pinned:    # a waistband, pinned where it ends up: evenly
                 placed[idx] = respace(placed[idx], uv[idx])   # spaced (a free collar: as hugged)
             if pattern.fit_band is not None:
-                _band_rest(tri, tri_rest, idx, placed, pattern.fit_band)
+                gather_below(tri, tri_rest, uv, idx, placed, flat.panel_of_vertex)
+                band_rest(tri, tri_rest, idx, placed, pattern.fit_band)
 
     def middle_half(idx):
         """The middle half of a run (by length) without its seam vertices: the ends stay free so that

@@ -232,12 +232,12 @@ def gathered_rest(triangles: np.ndarray, uv: np.ndarray, pairs: np.ndarray, seam
             continue
         side = 0 if la > lb else 1
         ratios[int(s)] = max(la, lb) / min(la, lb)
-        _ease(x, p[:, side], np.flatnonzero(panel_of_vertex == panel_of_vertex[p[0, side]]), 1.0 / ratios[int(s)], band)
+        ease(x, p[:, side], np.flatnonzero(panel_of_vertex == panel_of_vertex[p[0, side]]), 1.0 / ratios[int(s)], band)
     rest = np.linalg.norm(x[triangles[:, [1, 2, 0]]] - x[triangles], axis=2)
     return rest, ratios
 
 
-def _ease(x: np.ndarray, edge: np.ndarray, verts: np.ndarray, scale: float, band: float) -> None:
+def ease(x: np.ndarray, edge: np.ndarray, verts: np.ndarray, scale: float, band: float) -> None:
     """Draw the points `verts` of x (in place) along the polyline x[edge] towards its middle: by
     `scale` on it, by 1 (not at all) `band` away from it, smoothly between."""
     poly = x[edge].copy()
