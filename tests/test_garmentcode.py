@@ -18,6 +18,7 @@ from stages.garments.garmentcode_place import (DEFAULT_BODY, GATHER_NOTED, gathe
                                                to_pattern)
 from stages.garments.garmentcode_wrap import cone_apex, wrap_ring
 from stages.garments.triangulate import triangulate_pattern
+from tests.scene_setup import scene_parts
 
 ASSETS = assets_dir() / "garmentcode"        # GARMENT_ASSETS overrides the folder
 ASSETS_BODY = assets_dir() / DEFAULT_BODY
@@ -297,18 +298,12 @@ def test_a_sewn_pattern_starts_without_edges_through_itself(tmp_path):
     # Sewn with at least 20 rounds (RELAX_ITERATIONS) it comes out of the sewing without crossings,
     # so the untangling has nothing to do here (tests/test_garments_untangle.py tests it)
     from pipeline.dressing import build_garmentcode_garment
-    from pipeline.run import frame_times, load_character, split_and_fit
-    from pipeline.scene import load_scene
-    from pipeline.scene_motion import sample_scene_motion
     from stages.maps.build import build_maps
     from tests.test_garments_untangle import crossing_count
     p = tmp_path / "flare.yaml"
     p.write_text("character: {clip: walk}\nframes: {start: 0.5, count: 30}\n"
                  f"garments: [{{type: garmentcode, path: {ASSETS / 'examples' / 'flare_skirt_specification.json'}}}]\n")
-    scene = load_scene(p)
-    c = load_character(scene)
-    m = sample_scene_motion(scene, c, frame_times(scene, None))
-    _, cols = split_and_fit(scene, c, m)
+    scene, c, m, cols = scene_parts(p)
     g, _, _ = build_garmentcode_garment(scene, 0, c, m, cols, build_maps(cols))
     assert crossing_count(g.positions, g.triangles) == 0
 
@@ -319,19 +314,13 @@ def test_a_waist_is_pinned_to_the_trunk_not_to_the_hand_beside_it(tmp_path):
     # bone, 4 of its waist particles followed the hand, which dragged them 14 cm off the hips and
     # stretched the waistband 641 % (the run stopped as diverged at frame 24 of the corpus scene)
     from pipeline.dressing import build_garmentcode_garment
-    from pipeline.run import frame_times, load_character, split_and_fit
-    from pipeline.scene import load_scene
-    from pipeline.scene_motion import sample_scene_motion
     from stages.maps.build import build_maps
     from stages.rig.humanoid import limb_joint_sets
     p = tmp_path / "flare.yaml"
     p.write_text(f"character: {{source: gltf, path: {assets_dir() / 'CesiumMan.glb'}, clip: 0}}\n"
                  "frames: {start: 0.8, count: 2}\n"
                  f"garments: [{{type: garmentcode, path: {ASSETS / 'examples' / 'flare_skirt_specification.json'}}}]\n")
-    scene = load_scene(p)
-    c = load_character(scene)
-    m = sample_scene_motion(scene, c, frame_times(scene, None))
-    _, cols = split_and_fit(scene, c, m)
+    scene, c, m, cols = scene_parts(p)
     g, _, _ = build_garmentcode_garment(scene, 0, c, m, cols, build_maps(cols))
     pinned = set(g.attach_joint[g.attach_joint >= 0].tolist())
     limbs = set().union(*limb_joint_sets(c).values())
@@ -452,19 +441,13 @@ def test_a_hooded_top_is_placed_on_cesium_man_unsquashed_with_its_hood_at_the_ne
     # neckline; the sewing left edges at 1.4 % and 430 % of their rest lengths, the simulation's
     # first frame relaxed them and the corpus run stopped as diverged at frame 1 (an edge 4,813 % of
     # its frame-0 length)
-    from pipeline.run import frame_times, load_character, split_and_fit
-    from pipeline.scene import load_scene
-    from pipeline.scene_motion import sample_scene_motion
     from stages.garments.garmentcode_place import body_of, place_gc_garment
     from stages.garments.library import seam_label
     path = ASSETS / "examples" / "hoody_mean_specification.json"
     p = tmp_path / "hoody.yaml"
     p.write_text(f"character: {{source: gltf, path: {assets_dir() / 'CesiumMan.glb'}, clip: 0}}\n"
                  "frames: {start: 0.8, count: 2}\n")
-    scene = load_scene(p)
-    c = load_character(scene)
-    m = sample_scene_motion(scene, c, frame_times(scene, None))
-    _, cols = split_and_fit(scene, c, m)
+    _, c, m, cols = scene_parts(p)
     graded, pattern, flat, placed, _ = place_gc_garment(read_pattern(path), body_of(path, assets_dir() / DEFAULT_BODY),
                                                         c, m, cols)
     for k, panel in enumerate(graded.panels):

@@ -7,6 +7,7 @@ import pytest
 
 from stages.garments.library import library_pattern, waistband_y
 from stages.garments.measurements import garment_measurements
+from tests.scene_setup import scene_parts
 
 
 @pytest.fixture(scope="module", params=["kenney_mini_male_a.glb", "kenney_mini_female_b.glb"])
@@ -77,17 +78,11 @@ def test_a_waistband_hugs_the_trunk_under_arms_held_out_at_its_height(chibi, tmp
     import warnings
 
     from pipeline.dressing import build_scene_garments
-    from pipeline.run import frame_times, load_character, split_and_fit
-    from pipeline.scene import load_scene
-    from pipeline.scene_motion import sample_scene_motion
     from stages.maps.build import build_maps
     p = tmp_path / "skirt.yaml"
     p.write_text(f"character: {{source: gltf, path: {chibi.source}, clip: static}}\nframes: {{start: 0.04, count: 2}}\n"
                  "garments: [{type: pattern, kind: short_skirt}]\n")
-    scene = load_scene(p)
-    c = load_character(scene)
-    m = sample_scene_motion(scene, c, frame_times(scene, None))
-    _, cols = split_and_fit(scene, c, m)
+    scene, c, m, cols = scene_parts(p)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         (g,), _ = build_scene_garments(scene, c, m, cols, build_maps(cols), {})

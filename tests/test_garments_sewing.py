@@ -6,6 +6,7 @@ from stages.garments.library import library_pattern, make_garment
 from stages.garments.measurements import garment_measurements
 from stages.garments.sewing import merge_pairs
 from stages.garments.types import STRETCH, boundary_loops
+from tests.scene_setup import scene_parts
 
 
 @pytest.fixture(scope="module")
@@ -164,17 +165,11 @@ def test_cesium_shorts_sew_closed_and_untangled(assets_dir, tmp_path):
     # edges, the left inseam's hem end stalled at 4.7 mm from iteration 4 on (40 or 120 iterations
     # alike; tolerance 4 mm): "sewing did not close seam leg_l.under_a / leg_l.under_b"
     from pipeline.dressing import build_pattern_garment
-    from pipeline.run import frame_times, load_character, split_and_fit
-    from pipeline.scene import load_scene
-    from pipeline.scene_motion import sample_scene_motion
     from stages.maps.build import build_maps
     p = tmp_path / "shorts.yaml"
     p.write_text(f"character: {{source: gltf, path: {assets_dir / 'CesiumMan.glb'}, clip: 0}}\n"
                  "frames: {start: 0.5, count: 30}\ngarments: [{type: pattern, kind: shorts}]\n")
-    scene = load_scene(p)
-    c = load_character(scene)
-    m = sample_scene_motion(scene, c, frame_times(scene, None))
-    _, cols = split_and_fit(scene, c, m)
+    scene, c, m, cols = scene_parts(p)
     g, log, build = build_pattern_garment(scene, 0, c, m, cols, build_maps(cols))
     assert log.converged and log.gap_max[-1] <= 0.004
     assert any(n.startswith("bend stiffness") for n in log.notes)
