@@ -104,7 +104,10 @@ def gather_below(tri: np.ndarray, tri_rest: np.ndarray, uv: np.ndarray, run: np.
     its cut length, its panel's rest shape is gathered to that length along it, easing back to the
     cut `GATHER_BAND` into the panel (sewing.ease, as the longer side of a gathered seam): a cape's
     top walked onto a chibi's neck ends a third shorter than cut, and the edges from it to the row
-    below stayed compressed at every frame (p99 |strain| 11-21 %)."""
+    below stayed compressed at every frame (p99 |strain| 11-21 %). Used for bands walked towards a
+    point (a cape's top onto the neck's base); a chibi's skirt waist, walked to the body's axis, ends
+    at 0.74-0.77 of its cut and gathered so its skirt drapes worse (idle long skirt p99 6.4 -> 19.3 %,
+    11 crossings)."""
     from stages.garments.sewing import GATHER_BAND, ease
     if len(run) < 3:
         return

@@ -483,7 +483,8 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
             if (side.panel, side.edges) in pinned:    # a waistband, pinned where it ends up: evenly
                 placed[idx] = respace(placed[idx], uv[idx])   # spaced (a free collar: as hugged)
             if pattern.fit_band is not None:
-                gather_below(tri, tri_rest, uv, idx, placed, flat.panel_of_vertex)
+                if pattern.fit_hug == "neck":   # walked towards a point, a band always ends shorter than cut
+                    gather_below(tri, tri_rest, uv, idx, placed, flat.panel_of_vertex)
                 band_rest(tri, tri_rest, idx, placed, pattern.fit_band)
 
     def middle_half(idx):
