@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from stages.garments.types import STRETCH
 from stages.sim import SimulationDiverged
 
 MAX_STRAIN = 5.0          # an edge 6 times its reference length: cloth stretches by tens of per cent
@@ -45,10 +46,14 @@ def check_blown_up(result, body_world: np.ndarray, height: float, garments=None)
     worst = None
     for k_g, track in enumerate(result.garments):
         x = np.asarray(track.positions, np.float64)                   # (F, N, 3)
-        e = _edges(np.asarray(track.triangles))
-        rest = np.linalg.norm(x[0, e[:, 0]] - x[0, e[:, 1]], axis=1)
-        if garments is not None:
-            rest = np.maximum(rest, _rest_of(garments[k_g], e))
+        if garments is None:
+            e = _edges(np.asarray(track.triangles))
+            rest = np.linalg.norm(x[0, e[:, 0]] - x[0, e[:, 1]], axis=1)
+        else:                   # the stretch springs are the triangles' edges, with their rest lengths
+            stretch = garments[k_g].kinds == STRETCH
+            e = garments[k_g].springs[stretch]
+            rest = np.maximum(np.linalg.norm(x[0, e[:, 0]] - x[0, e[:, 1]], axis=1),
+                              garments[k_g].rest_lengths[stretch])
         ok = rest > 1e-9
         n = min(len(x), len(lo))
         for f in range(n):
@@ -69,19 +74,6 @@ def check_blown_up(result, body_world: np.ndarray, height: float, garments=None)
                     worst = found
                 break
     return None if worst is None else ClothBlewUp(*worst, partial=result)
-
-
-def _rest_of(garment, edges: np.ndarray) -> np.ndarray:
-    """(E,) the rest length of the spring on each edge (sorted pairs) of a Garment, 0 where none is."""
-    if garment.springs.size == 0 or edges.size == 0:
-        return np.zeros(len(edges))
-    n = max(int(garment.springs.max()), int(edges.max())) + 1
-    code = garment.springs[:, 0].astype(np.int64) * n + garment.springs[:, 1]
-    order = np.argsort(code)
-    want = edges[:, 0].astype(np.int64) * n + edges[:, 1]
-    at = np.minimum(np.searchsorted(code[order], want), len(code) - 1)
-    hit = code[order][at] == want
-    return np.where(hit, garment.rest_lengths[order][at], 0.0)
 
 
 def speed_limit_note(result) -> str | None:

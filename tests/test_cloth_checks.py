@@ -85,7 +85,8 @@ def test_an_edge_crushed_at_frame_0_is_judged_against_its_rest_length():
     frames = [crushed, SHEET, SHEET, SHEET]
     edges = np.array([[0, 1], [0, 2], [1, 2], [1, 3], [2, 3]])
     rest = np.linalg.norm(SHEET[edges[:, 0]] - SHEET[edges[:, 1]], axis=1)
-    garment = SimpleNamespace(springs=np.vstack([edges, [[0, 3]]]), rest_lengths=np.append(rest, 0.05))
+    garment = SimpleNamespace(springs=np.vstack([edges, [[0, 3]]]), rest_lengths=np.append(rest, 0.05),
+                              kinds=np.array([0, 0, 0, 0, 0, 1], np.int8))     # 5 stretch, 1 bend
     assert check_blown_up(_result(frames), BODY, 1.7) is not None           # against frame 0 alone
     assert check_blown_up(_result(frames), BODY, 1.7, [garment]) is None
     torn = SHEET.copy()
