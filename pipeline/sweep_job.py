@@ -238,12 +238,13 @@ def run_job(spec: dict, warm_up_s: float | None = None) -> dict:
     timeout = spec.get("timeout")
     alarm = bool(timeout) and threading.current_thread() is threading.main_thread() and hasattr(signal, "setitimer")
     old_handler = None
-    armed = [True]
+    armed, fired = [True], [False]
 
     def on_alarm(signum, frame):
         # raised again every second until the job stops: library code that catches everything (rtree's
         # library finder prints "unexpected error" and goes on) may swallow one
         if armed[0]:
+            fired[0] = True
             raise JobTimeout(f"the job ran longer than {timeout:g} s")
 
     with warnings.catch_warnings(record=True) as caught, contextlib.redirect_stdout(log), \
@@ -261,7 +262,12 @@ def run_job(spec: dict, warm_up_s: float | None = None) -> dict:
             if isinstance(e, KeyboardInterrupt):
                 raise
             err = e
-            if _failure(e) == "crash":
+            if fired[0] and _timeout_in(e) is None:
+                # raised inside C code that replaced the timeout by an error of its own (numpy's
+                # structured-array comparison raises TypeError): past the deadline, it is the timeout
+                err = JobTimeout(f"the job ran longer than {timeout:g} s")
+                err.__cause__ = e
+            if _failure(err) == "crash":
                 log.write(f"{where.current()}\n" + traceback.format_exc())
         finally:
             armed[0] = False

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -284,3 +285,24 @@ def test_a_timeout_raised_inside_a_kernel_call_is_labelled_timeout():
         wrapped = err
     assert J._failure(wrapped) == "timeout" and "0.5 s" in str(J._timeout_in(wrapped))
     assert J._failure(SystemError("something else")) == "crash"
+
+
+def test_a_timeout_that_library_code_turned_into_another_error_is_still_a_timeout(tmp_path, monkeypatch):
+    # numpy's structured-array comparison catches the deadline's exception and raises a TypeError
+    # without chaining it: past the deadline, whatever stopped the job is the timeout
+    import pipeline.run
+
+    def swallowing_run(scene, **kw):
+        try:
+            while True:
+                pass
+        except BaseException:
+            raise TypeError("Cannot compare structured arrays unless they have a common dtype") from None
+
+    monkeypatch.setattr(pipeline.run, "run_scene", swallowing_run)
+    text = textwrap.dedent(SWEEP.split("timeout:")[0].replace("base:\n", ""))
+    spec = {"id": "j-1", "text": text, "source": "slow.yaml[j-1]", "base_dir": str(tmp_path),
+            "dir": str(tmp_path / "j-1"), "labels": {}, "timeout": 0.2}
+    row = S.run_job(spec)
+    assert row["status"] == "failed" and row["failure"] == "timeout", row
+    assert "longer than 0.2 s" in row["message"]
