@@ -328,6 +328,28 @@ def test_a_waist_is_pinned_to_the_trunk_not_to_the_hand_beside_it(tmp_path):
 
 
 @needs_assets
+def test_a_skirt_is_worn_where_the_built_in_skirts_are_below_the_arms(tmp_path):
+    # CesiumMan's measured waist (0.93 m) is where its upper arms come down beside the torso: the
+    # built-in skirts are worn lower (waistband_y, 0.78 m); GarmentCode skirts and trousers were
+    # worn at the measured waist, the arms swung through their waistbands and 3 of 5 stopped as
+    # diverged (flare, pencil skirt, pants)
+    from pipeline.dressing import build_garmentcode_garment
+    from stages.garments.library import waistband_y
+    from stages.garments.measurements import garment_measurements
+    from stages.maps.build import build_maps
+    p = tmp_path / "pencil.yaml"
+    p.write_text(f"character: {{source: gltf, path: {assets_dir() / 'CesiumMan.glb'}, clip: 0}}\n"
+                 "frames: {start: 0.8, count: 2}\n"
+                 f"garments: [{{type: garmentcode, path: {ASSETS / 'sampled' / 'skirt_pencil_s1098' / 'skirt_pencil_s1098_specification.json'}}}]\n")
+    scene, c, m, cols = scene_parts(p)
+    meas = garment_measurements(c, cols, m)
+    assert meas["waist_y"] - waistband_y(meas) > 0.1       # the case: arms beside the waist
+    g, _, _ = build_garmentcode_garment(scene, 0, c, m, cols, build_maps(cols))
+    waist = g.positions[g.attach_joint >= 0, 1]
+    assert waist.size and abs(float(np.median(waist)) - waistband_y(meas)) < 0.03, (np.median(waist), waistband_y(meas))
+
+
+@needs_assets
 def test_trouser_legs_are_wrapped_round_each_leg_so_the_crotch_and_inseams_start_closed(tmp_path):
     # GarmentCode lays a trouser's four panels flat in front of and behind its body, the front
     # halves 14 cm apart at the waist; wrapped round the body's axis like a skirt the inseams were

@@ -469,18 +469,38 @@ def place_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, 
     from stages.garments.placement import bind_geometry, inside_body, push_out
     from stages.garments.triangulate import triangulate_pattern
     meas = garment_measurements(character, colliders, motion)
-    k, sy = grading(gc, body, meas)
+    worn = worn_from_waistband(meas) if garment_anchor(gc, body) < 0.5 * (body.waist_y + body.bust_y) else meas
+    k, sy = grading(gc, body, worn)
     graded, gbody = grade(gc, k, sy), graded_body(body, k, sy)
     pattern, signs = to_pattern(graded, edge_length, name or gc.name, density)
     flat = triangulate_pattern(pattern)
     check_stitch_chains(graded, pattern, flat)
     skinned0, origins, _ = bind_geometry(character, motion)
-    placed = place_gc(graded, flat, signs, body_map(gbody, meas, character, origins, garment_anchor(graded, gbody)),
+    placed = place_gc(graded, flat, signs, body_map(gbody, worn, character, origins, garment_anchor(graded, gbody)),
                       gbody)
     bad = inside_body(character, skinned0, placed)
     if bad.any():
         placed[bad] = push_out(placed[bad], character, skinned0, CLEARANCE)
     return graded, pattern, flat, placed, mismatch_warning(body, meas, name or gc.name, k, sy)
+
+
+def worn_from_waistband(meas: dict) -> dict:
+    """The measurements a skirt or trousers (a garment hung from the waist) is placed by: its waist at
+    waistband_y, where the built-in ones are worn. On CesiumMan that is 0.78 m, below the upper arms'
+    colliders where they come down beside the measured waist (0.93 m): worn there, the arms swung
+    through the waistbands and the flare skirt, the pencil skirt and the pants stopped as diverged.
+    Lowered, the waist takes the girth the body and colliders need there (clear_top), the hips go
+    down with it (the waist-to-hips span scaled as the floor-to-waist one) and take the widest girth
+    below the band (clear_skirt)."""
+    from stages.garments.library import waistband_y
+    band, waist, floor = waistband_y(meas), meas["waist_y"], meas.get("floor_y", 0.0)
+    if band >= waist - 1e-3 or "clear_top" not in meas:
+        return meas
+    hips = min(meas["hips_y"], band - (waist - meas["hips_y"]) * (band - floor) / (waist - floor))
+    out = dict(meas, waist_y=band, hips_y=hips, clear_waist=meas["clear_top"])
+    if "clear_skirt" in meas:
+        out["clear_hips"] = max(meas.get("clear_hips", 0.0), meas["clear_skirt"])
+    return out
 
 
 def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, maps, *, edge_length: float = 0.025,
