@@ -480,3 +480,66 @@ def test_a_hooded_top_is_placed_on_cesium_man_unsquashed_with_its_hood_at_the_ne
     for j, s in enumerate(pattern.seams):
         if "hood" in seam_label(s) and "torso" in seam_label(s):   # the hood's neck seams
             assert np.median(gaps[flat.seam_index == j]) < 0.15, seam_label(s)
+
+
+def test_lift_band_raises_the_waist_seam_and_squashes_only_the_span_up_to_the_top():
+    from stages.garments.garmentcode_band import MIN_SQUASH, lift_band
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        src = np.cumsum(rng.uniform(0.05, 0.4, 6)) - 0.05
+        dst = np.cumsum(rng.uniform(0.05, 0.5, 6))
+        band, anchor = np.sort(rng.uniform(src[0], src[-1], 2))
+        lift = float(rng.uniform(0.0, 0.2))
+        s, d = lift_band(src, dst, anchor, band, lift)
+        f = lambda y: np.interp(y, src, dst)
+        g = lambda y: np.interp(y, s, d)
+        assert np.all(np.diff(d) > 0)                                   # still a height map
+        assert g(band) == pytest.approx(f(band) + lift)                 # the band lifted by `lift`
+        below = np.linspace(src[0], band, 20)
+        assert np.allclose(g(below), f(below) + lift)                   # below it: shifted, unstretched
+        mid = np.linspace(band, anchor, 20)
+        ratio = np.diff(g(mid)) / np.maximum(np.diff(f(mid)), 1e-12)
+        squash = ratio[np.diff(f(mid)) > 1e-9]
+        assert np.allclose(squash, squash[0]) and MIN_SQUASH - 1e-9 <= squash[0] <= 1.0 + 1e-9
+        above = np.linspace(anchor, src[-1], 20)                       # above the top: shifted alike
+        assert np.allclose(g(above) - f(above), g(anchor) - f(anchor))
+        if squash[0] > MIN_SQUASH + 1e-9:                               # squashed to fit: the top stays
+            assert g(anchor) == pytest.approx(f(anchor))
+    s, d = lift_band(src, dst, anchor, band, 0.0)                       # nothing to lift: the same map
+    assert np.allclose(np.interp(src, s, d), dst)
+
+
+def test_band_floor_is_above_the_hip_joints_and_at_most_the_waist():
+    from stages.garments.garmentcode_band import BAND_OVER_HIPS, band_floor
+    m = {"height": 1.5, "waist_y": 0.95, "skirt_top": 0.9, "hip_joint_y_l": 0.6, "hip_joint_y_r": 0.62}
+    assert band_floor(m) == pytest.approx(0.61 + BAND_OVER_HIPS * 1.5)
+    assert band_floor({**m, "hip_joint_y_l": 0.88, "hip_joint_y_r": 0.88}) == pytest.approx(0.9)   # skirt_top
+    assert band_floor({k: v for k, v in m.items() if k != "hip_joint_y_r"}) is None
+
+
+@needs_assets
+def test_a_low_waist_seam_is_lifted_above_the_legs_of_the_cmu_walk(tmp_path):
+    # the CMU walk's hip joints sit at 59 % of its height; the pencil dress hangs from its top, and
+    # its skirt's top (lower_interface, pinned to the trunk) was placed 11 cm below them: the thighs
+    # swept through the pinned band and the corpus run stopped as diverged at frame 19 (an edge
+    # 1,090 % long, 40 particles in the body). The sampled dress's waistband sat level with them
+    # (diverged at frame 27)
+    from stages.garments.garmentcode_band import band_floor, band_vertices
+    from stages.garments.garmentcode_place import body_of, place_gc_garment
+    from stages.garments.measurements import garment_measurements
+    p = tmp_path / "walk.yaml"
+    p.write_text(f"character: {{source: bvh, path: {assets_dir() / 'cmu_131_01_walk.bvh'}}}\n"
+                 "frames: {start: 3.313, count: 30}\n"   # with a garment: frame 0 is the bind pose, blended in
+                 f"garments: [{{type: garmentcode, path: {ASSETS / 'examples' / 'dress_pencil_specification.json'}}}]\n")
+    _, c, m, cols = scene_parts(p)
+    meas = garment_measurements(c, cols, m)
+    hips = 0.5 * (meas["hip_joint_y_l"] + meas["hip_joint_y_r"])
+    floor = band_floor(meas)
+    assert floor > hips + 0.02
+    for path in (ASSETS / "examples" / "dress_pencil_specification.json",
+                 ASSETS / "sampled" / "dress_s1001" / "dress_s1001_specification.json"):
+        graded, pattern, flat, placed, _ = place_gc_garment(read_pattern(path), body_of(path, ASSETS_BODY), c, m, cols)
+        band = band_vertices(graded, pattern, flat)
+        assert placed[band, 1].min() > floor - 0.01, path.name
+        # the garment's top still below the shoulders' top (its span to the band squashed, not shifted)
+        assert placed[:, 1].max() < meas["shoulder_top"], (path.name, placed[:, 1].max(), meas["shoulder_top"])

@@ -22,6 +22,7 @@ import yaml
 
 from stages.errors import InputError
 from stages.garments.garmentcode import GCPattern, edge_points, panel_part
+from stages.garments.garmentcode_band import band_floor, band_vertices, lift_band, worn_from_waistband
 from stages.garments.garmentcode_wrap import wrap_legs, wrap_ring, wrap_sleeves
 from stages.garments.patterns import Edge, Panel, Pattern, PatternAttachment, Placement, Seam, SeamSide
 from stages.garments.types import TRUNK_BONE
@@ -320,11 +321,13 @@ def limited_heights(src: np.ndarray, dst: np.ndarray, anchor: float, bounds=SLOP
     return s, out
 
 
-def body_map(body: GCBody, meas: dict, character, origins: np.ndarray, anchor: float | None = None) -> BodyMap:
+def body_map(body: GCBody, meas: dict, character, origins: np.ndarray, anchor: float | None = None,
+             band: tuple | None = None) -> BodyMap:
     """The BodyMap from `body` to the character measured in `meas` (garment_measurements). anchor:
     the pattern-body height the garment hangs from (the top of its torso panels, at most the
     shoulders: garment_anchor), where it meets the character's landmark; heights away from it keep
-    the landmarks' slope within SLOPE_BOUNDS (limited_heights); None: the landmarks themselves."""
+    the landmarks' slope within SLOPE_BOUNDS (limited_heights); None: the landmarks themselves.
+    band: (pattern-body height of its waist seam, m to lift it by) (garmentcode_band.lift_band)."""
     from stages.rig.humanoid import limb_chain
     floor = meas.get("floor_y", 0.0)
     top = floor + meas["height"]
@@ -335,6 +338,8 @@ def body_map(body: GCBody, meas: dict, character, origins: np.ndarray, anchor: f
     src, dst = np.array(src)[keep], np.array(dst)[keep]
     if anchor is not None:
         src, dst = limited_heights(src, dst, anchor)
+    if band is not None:
+        src, dst = lift_band(src, dst, src[-1] if anchor is None else anchor, *band)
     ratio = np.array([meas.get("clear_hips", meas["hips"]) / body.hips, meas.get("clear_waist", meas["waist"]) / body.waist,
                       meas.get("clear_chest", meas["chest"]) / body.bust])
     ratio = np.where(np.isfinite(ratio) & (ratio > 0), ratio, 1.0)
@@ -452,6 +457,7 @@ def align_to_stitches(placed: np.ndarray, flat, arm_side: list) -> np.ndarray:
 # them the shoulder seams could not close over the shoulders (15 cm open)
 HOLD_LABELS = {"lower_interface": "axis", "left_collar": None, "right_collar": None}
 CLEARANCE = 0.01   # m: vertices placed inside the body are pushed this far out of the skin
+BAND_TOLERANCE = 0.003   # m: a waist seam placed this far below garmentcode_band.band_floor is left there
 # sewing rounds at least: stiff seam springs (128 correction rounds) close a hood's or a sleeve's
 # seams in 6 rounds and leave the cloth round them crushed (edges at 18-29 % of their rest length)
 # or stretched (x1.9-3.5); the simulation's first frame then relaxes them, and an edge growing 6x is
@@ -476,31 +482,27 @@ def place_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, 
     flat = triangulate_pattern(pattern)
     check_stitch_chains(graded, pattern, flat)
     skinned0, origins, _ = bind_geometry(character, motion)
-    placed = place_gc(graded, flat, signs, body_map(gbody, worn, character, origins, garment_anchor(graded, gbody)),
-                      gbody)
+    anchor = garment_anchor(graded, gbody)
+    placed = place_gc(graded, flat, signs, body_map(gbody, worn, character, origins, anchor), gbody)
+    band, floor = band_vertices(graded, pattern, flat), band_floor(meas)
+    if band.size and floor is not None and placed[band, 1].min() < floor - BAND_TOLERANCE:
+        # the waist seam below the tops of the legs: placed again with all of it (up to its highest
+        # pattern-body point) lifted onto the trunk; the wrap moves points up and down a little
+        # and a few rounds bring its lowest point to the floor
+        src_y = np.concatenate([p.to_3d(fp.uv * np.array([signs[p.name], 1.0]))[:, 1]
+                                for p, fp in zip(graded.panels, flat.panels)])
+        lift = 0.0
+        for _ in range(4):
+            lift += floor - float(placed[band, 1].min())
+            bmap = body_map(gbody, worn, character, origins, anchor, (float(src_y[band].max()), lift))
+            placed = place_gc(graded, flat, signs, bmap, gbody)
+            if placed[band, 1].min() >= floor - BAND_TOLERANCE:
+                break
     bad = inside_body(character, skinned0, placed)
     if bad.any():
         placed[bad] = push_out(placed[bad], character, skinned0, CLEARANCE)
     return graded, pattern, flat, placed, mismatch_warning(body, meas, name or gc.name, k, sy)
 
-
-def worn_from_waistband(meas: dict) -> dict:
-    """The measurements a skirt or trousers (a garment hung from the waist) is placed by: its waist at
-    waistband_y, where the built-in ones are worn. On CesiumMan that is 0.78 m, below the upper arms'
-    colliders where they come down beside the measured waist (0.93 m): worn there, the arms swung
-    through the waistbands and the flare skirt, the pencil skirt and the pants stopped as diverged.
-    Lowered, the waist takes the girth the body and colliders need there (clear_top), the hips go
-    down with it (the waist-to-hips span scaled as the floor-to-waist one) and take the widest girth
-    below the band (clear_skirt)."""
-    from stages.garments.library import waistband_y
-    band, waist, floor = waistband_y(meas), meas["waist_y"], meas.get("floor_y", 0.0)
-    if band >= waist - 1e-3 or "clear_top" not in meas:
-        return meas
-    hips = min(meas["hips_y"], band - (waist - meas["hips_y"]) * (band - floor) / (waist - floor))
-    out = dict(meas, waist_y=band, hips_y=hips, clear_waist=meas["clear_top"])
-    if "clear_skirt" in meas:
-        out["clear_hips"] = max(meas.get("clear_hips", 0.0), meas["clear_skirt"])
-    return out
 
 
 def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, maps, *, edge_length: float = 0.025,
