@@ -40,7 +40,7 @@ LIMB_PARTS = {"arm": ("clavicle", "shoulder", "upperarm", "lowerarm", "hand"),
 # one-joint leg (Kenney's block legs). Not arms: a Kenney mini's one-joint arm is as tall as its torso
 # (16 of 17 cm) and its top lies under the head's overhang, where a sleeve's cap was not sewn to the
 # armhole (13-16 mm open after 120 sewing iterations)
-SHORT_OK = ("leg",)
+SHORT_OK = ("leg", "arm")
 SLEEVE_NEEDS = "a sleeve needs shoulder, elbow and wrist joints"
 
 
