@@ -76,7 +76,7 @@ def open_top_tshirt(meas: dict, *, hem_y: float, chest: float, hem: float, sleev
         return cubic(f"armhole_{'l' if sign > 0 else 'r'}", c2, c1, (sign * cw, ha))
 
     def hole_length(inset: float) -> float:
-        return Panel("h", (line("a", (cw, 0.0)), armhole(inset, 1.0, True), line("b", (0.0, H)), line("c", (0.0, 0.0))),
+        return Panel("h", (line("a", (cw, ha)), armhole(inset, 1.0, True), line("b", (0.0, H)), line("c", (0.0, 0.0))),
                      Placement("plane")).edge_length(1)
     # the armhole as long as the sleeve's part sewn to it: reaching as far round the root as needed
     lo, hi = 0.0, cw - 2 * edge_length
