@@ -50,9 +50,11 @@ def test_the_open_top_cut_on_one_joint_arms(chibi):
 
 
 def test_regular_bodies_keep_the_regular_cut(assets_dir):
+    from stages.rig.bvh_character import load_bvh_character
     from stages.rig.gltf import load_gltf
     from stages.rig.procedural import procedural_character
-    for c in (procedural_character(), load_gltf(assets_dir / "CesiumMan.glb")):
+    for c in (procedural_character(), load_gltf(assets_dir / "CesiumMan.glb"),
+              load_bvh_character(assets_dir / "cmu_131_01_walk.bvh")):
         p = library_pattern("tshirt", garment_measurements(c))
         names = {e.name for x in p.panels for e in x.edges}
         assert "shoulder_l" in names and "cap_top" not in names
