@@ -53,16 +53,16 @@ def bone_mapping(character) -> dict:
     """Each humanoid part -> {"joints": [names] or None, "found": 'name' | 'shape' | 'missing'};
     plus "needs": garment kind -> the parts it anchors on that are missing."""
     from stages.garments.anchors import ANCHORS, QUADRUPED_KINDS
-    from stages.rig.humanoid import SHORT_OK, humanoid_joints
+    from stages.rig.humanoid import humanoid_joints
     h = humanoid_joints(character)
     names = character.joint_names
     parts = {}
     for kind in ("arm", "leg"):
         for side in ("l", "r"):
             part = f"{kind}_{side}"
-            # a chain, or a leg of one or two joints (a trouser leg is placed on the points measured on
-            # its skin); a shorter arm is missing for a sleeve (SHORT_OK), its why says so
-            chain = h.limb(kind, side) or (h.short.get(part) if kind in SHORT_OK else None)
+            # a chain, or a limb of one or two joints (a trouser leg or a sleeve is placed on the points
+            # measured on its skin)
+            chain = h.limb(kind, side) or h.short.get(part)
             parts[part] = {"joints": None if chain is None else [names[j] for j in chain],
                            "found": "missing" if chain is None else h.found.get(part, "shape"),
                            "why": h.why.get(part, "")}

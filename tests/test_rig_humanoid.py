@@ -121,8 +121,9 @@ def test_real_rigs_scrambled_names_give_the_same_parts(assets_dir):
         assert _parts(humanoid_joints(s)) == _parts(humanoid_joints(c))
 
 
-def test_a_tshirt_on_single_joint_arms_says_why_in_one_line(tmp_path):
-    """validate a T-shirt on Kenney's 7-joint rig: exit 2, one line saying the arm is a single joint."""
+def test_a_tshirt_on_single_joint_arms_validates(tmp_path):
+    """validate a T-shirt on Kenney's 7-joint rig: its one-joint arms are arms (exit 0; it was
+    refused with "a sleeve needs shoulder, elbow and wrist joints")."""
     from pipeline.assets import assets_dir
     from tests.test_cli import cli
     kenney = assets_dir() / "kenney_mini_male_a.glb"
@@ -135,8 +136,4 @@ def test_a_tshirt_on_single_joint_arms_says_why_in_one_line(tmp_path):
     scene.write_text(f"character: {{source: gltf, path: '{kenney}', clip: 0}}\n"
                      "frames: {count: 5}\ngarments:\n  - {type: pattern, name: top, kind: tshirt}\n")
     r = cli("validate", str(scene))
-    assert r.returncode == 2
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in r.stderr
-    assert "arm 'arm-left' is a single joint: a sleeve needs shoulder, elbow and wrist joints" in lines[0]
-    assert "arm-right, head" in lines[0] and not lines[0].endswith("...")
+    assert r.returncode == 0, r.stderr

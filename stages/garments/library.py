@@ -15,6 +15,7 @@ import numpy as np
 from stages.errors import InputError
 from stages.garments.patterns import (Panel, Pattern, PatternAttachment, Placement, Seam, SeamSide, cubic, line,
                                       quad)
+from stages.garments import tshirt_open as open_top
 from stages.garments.fit import FIT_GAP_MAX, signed_skin_distance
 from stages.garments.measurements import quarter_length
 from stages.garments.types import COMMON_BONE
@@ -78,6 +79,9 @@ def tshirt(meas: dict, *, ease: float = 0.08, length_below_waist: float | None =
     depth = meas.get("torso_depth", 0.075 * h)
     neck_half = meas.get("neck_half", 0.045 * h)
     ha = y_a - hem_y
+    if open_top.fits(meas, y_a, hem_y, edge_length):     # the arm's root fills the torso's side (a chibi)
+        return open_top.open_top_tshirt(meas, hem_y=hem_y, chest=chest, hem=hem, sleeve_length=sleeve_length,
+                                        edge_length=edge_length, name=name)
     fold = max(y_s - depth - hem_y, ha + 0.03)
     lift = y_s - hem_y - fold
     u_s = min(x_p, cw - 0.03)

@@ -100,8 +100,8 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
         shorts cut round a T-shirt's tail were too wide to sew on the BVH walk.
     """
     from stages.rig.humanoid import humanoid_joints, limb, limb_joint_sets, subtree
-    from stages.garments.placement import (_cross_sections, bind_geometry, body_axis,
-                                           collider_points, frame_poses0, part_joints)
+    from stages.garments.placement import (_cross_sections, bind_geometry, body_axis, collider_points,
+                                           frame_poses0, part_joints, triangle_grid_points)
     from stages.rig.skinning import rest_motion
     if motion is None:
         motion = rest_motion(character, 1, 1.0 / 30.0)
@@ -192,6 +192,13 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
         out[f"{key}_radius"] = (0.03 * b["height"] if rad is None else float(rad)) + clearance
         if kind == "arm":
             out["arm_angle"] = float(np.arcsin(np.clip(-d[1], -1.0, 1.0)))
+            # on the skin's surface (a box arm of a low-poly toon has few vertices near its root)
+            tri = np.asarray(character.triangles)
+            owner_t = dominant[tri[:, 0]]
+            torso_skin = set(part_joints(character, "torso", origins)) - headneck - leg_joints
+            out.update(_arm_root(triangle_grid_points(skinned, tri[owner_t == ch[0]]),
+                                 triangle_grid_points(skinned, tri[np.isin(owner_t, list(torso_skin))]), root,
+                                 clearance))
     # crotch: going down the mid-plane from the hips, the first height where the line across the
     # body (front to back, 15 cm each way) is outside the body and every collider
     ys = b["hips_y"] - np.arange(0.0, 0.3 * b["height"], 0.005)
@@ -249,6 +256,30 @@ def clearance_measurements(character, colliders=None, motion=None, *, clearance:
         rad = np.linalg.norm(r[keep] - np.outer(t[keep], d), axis=1)
         out[key] = (float(rad.max()) if rad.size else 0.05 * b["height"]) + clearance
     return out
+
+
+ARM_ROOT_SLICE = 0.05   # m beyond the torso's side where the left arm's root is measured
+
+
+def _arm_root(arm: np.ndarray, torso: np.ndarray, root: np.ndarray, clearance: float) -> dict:
+    """The left arm's root beside the torso (points at rest, world; on the skin's surface): torso_side,
+    the torso's half-width (|x| from the root) at the arm's height; torso_band, the girth of the torso
+    there (the perimeter of its hull, from above); arm_root_lo / arm_root_hi, the lowest / highest point of
+    the arm's skin within ARM_ROOT_SLICE beyond that side; arm_root_front / arm_root_back, its largest
+    and smallest z from the root; each plus `clearance`. Empty where the arm has no skin there."""
+    if not len(arm) or not len(torso):
+        return {}
+    band = torso[(torso[:, 1] >= arm[:, 1].min()) & (torso[:, 1] <= arm[:, 1].max())]
+    side = float((band[:, 0] - root[0]).max()) if len(band) else float((torso[:, 0] - root[0]).max())
+    x = arm[:, 0] - root[0]
+    near = arm[(x >= side) & (x <= side + ARM_ROOT_SLICE)]
+    if not len(near):
+        return {}
+    z = near[:, 2] - root[2]
+    return {"torso_band": _slab_girth(band[:, [0, 2]] - root[[0, 2]]) + 2 * np.pi * clearance if len(band) else 0.0,
+            "torso_side": side + clearance, "arm_root_lo": float(near[:, 1].min()) - clearance,
+            "arm_root_hi": float(near[:, 1].max()) + clearance, "arm_root_front": float(z.max()) + clearance,
+            "arm_root_back": float(z.min()) - clearance}
 
 
 def _ellipse_perimeter(a: float, b: float) -> float:

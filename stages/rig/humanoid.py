@@ -12,9 +12,9 @@ below the neck. A limb of fewer than 3 joints (Kenney's single `arm-left`) is re
 (`HumanoidJoints.short`, with rest positions of its shoulder / elbow / wrist points taken from its
 skin, `HumanoidJoints.points`) but is not a chain (`limb_chain` is None). The garments read every
 limb, chain or short, through `limb` (a `Limb`: its three points, the joint each point moves with,
-its joint set): trouser legs are placed on a leg's points, a one-joint leg's three carried by its only
-joint; a sleeve needs an arm chain (SHORT_OK). A garment whose anchors cannot be found gets one error
-saying why, what was looked for and the joints the rig has (`HumanoidJoints.require`).
+its joint set): trouser legs and sleeves are placed on a limb's points, a one-joint limb's three
+carried by its only joint. A garment whose anchors cannot be found gets one error saying why, what
+was looked for and the joints the rig has (`HumanoidJoints.require`).
 """
 from __future__ import annotations
 
@@ -36,12 +36,6 @@ LEG_CHAINS = (("thigh_l", "shin_l", "foot_l"), ("thigh_l", "calf_l", "foot_l"), 
               ("L_UpperLeg", "L_LowerLeg", "L_Foot"))
 LIMB_PARTS = {"arm": ("clavicle", "shoulder", "upperarm", "lowerarm", "hand"),
               "leg": ("hip", "thigh", "leg", "shin", "foot")}
-# the limbs a garment is placed on also when they have fewer than 3 joints: a trouser leg round a
-# one-joint leg (Kenney's block legs). Not arms: a Kenney mini's one-joint arm is as tall as its torso
-# (16 of 17 cm) and its top lies under the head's overhang, where a sleeve's cap was not sewn to the
-# armhole (13-16 mm open after 120 sewing iterations)
-SHORT_OK = ("leg",)
-SLEEVE_NEEDS = "a sleeve needs shoulder, elbow and wrist joints"
 
 
 def _bare(name: str) -> str:
@@ -301,8 +295,7 @@ def shape_arm(b: Body, side: str, legs: set):
 
 def find_limbs(character, b: Body | None = None) -> dict:
     """part ('arm_l', ...) -> (joints or None, how: 'name' | 'shape' | 'missing', points (3, 3) or
-    None, why: '' or why the part is missing or, for an arm, not a chain (SHORT_OK)). Legs first: the arms are looked for off
-    the legs."""
+    None, why: '' or why the part is missing). Legs first: the arms are looked for off the legs."""
     b = b or rest_body(character)
     labels = [label(n) for n in character.joint_names]
     out, legs = {}, set()
@@ -324,21 +317,13 @@ def find_limbs(character, b: Body | None = None) -> dict:
                 tried.append(f"{'joints named as the' if how == 'name' else 'the branch'} {what}: {bad}")
                 joints = None
             if joints:
-                short = len(joints) < 3 and kind not in SHORT_OK
-                out[f"{kind}_{side}"] = (list(joints), how, pts, _short_why(character, kind, joints) if short else "")
+                out[f"{kind}_{side}"] = (list(joints), how, pts, "")
                 if kind == "leg":
                     legs |= subtree(b.parents, _branch_start(b, joints[0], 1.0 if side == "l" else -1.0))
             else:
                 why = "; ".join(tried) or "no joint named as one, no branch shaped like one"
                 out[f"{kind}_{side}"] = (None, "missing", None, why)
     return out
-
-
-def _short_why(character, kind: str, joints) -> str:
-    names = character.joint_names
-    what = (f"{kind} {names[joints[0]]!r} is a single joint" if len(joints) == 1
-            else f"{kind} {' > '.join(names[j] for j in joints)!r} has only {len(joints)} joints")
-    return f"{what}: {SLEEVE_NEEDS}"
 
 
 def limb_chain(character, kind: str, side: str):
@@ -377,8 +362,8 @@ class HumanoidJoints:
     found: part -> 'name' | 'shape' | 'missing' (limbs and the neck). short: limb part -> its
     joints, for a limb of fewer than 3 joints (its chain is None). points: limb part -> (3, 3)
     rest positions (upper, lower, end; a short limb's from its skin). why: part -> one line saying
-    why it is missing or (an arm) not a chain. A garment anchored on a leg takes a chain or a short
-    leg alike (`require`, SHORT_OK; placed through `limb`).
+    why it is missing. A garment anchored on a limb takes a chain or a short limb alike (`require`;
+    placed through `limb`).
     """
 
     root: int
@@ -413,14 +398,13 @@ class HumanoidJoints:
                          if not (self.limb("leg", s) or self.short.get(f"leg_{s}")) and self.why.get(f"leg_{s}"))
 
     def require(self, parts, what: str) -> None:
-        """Raise one InputError naming `what` (e.g. "garment 'tshirt'") when a part is missing (a leg
-        of any number of joints is there, an arm needs a chain: SHORT_OK)."""
-        missing = [p for p in parts if (getattr(self, p) is None or getattr(self, p) == -1)
-                   and not (p in self.short and p.split("_")[0] in SHORT_OK)]
+        """Raise one InputError naming `what` (e.g. "garment 'tshirt'") when a part is missing (a limb
+        of any number of joints is there)."""
+        missing = [p for p in parts if (getattr(self, p) is None or getattr(self, p) == -1) and p not in self.short]
         if not missing:
             return
-        # what was looked for, for the parts not found at all (a short arm was found: its reason says it)
-        kinds = sorted({"leg" if p == "hips" else p.split("_")[0] for p in missing if p not in self.short})
+        # what was looked for
+        kinds = sorted({"leg" if p == "hips" else p.split("_")[0] for p in missing})
         looked = []
         for kind in kinds:
             if kind in ("arm", "leg"):
