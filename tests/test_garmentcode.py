@@ -308,20 +308,25 @@ def test_a_sewn_pattern_starts_without_edges_through_itself(tmp_path):
     assert crossing_count(g.positions, g.triangles) == 0
 
 
+def _dressed_on_cesium(tmp_path, spec):
+    """(garment, character, motion, colliders): the pattern at `spec` dressed on CesiumMan's walk from 0.8 s."""
+    from pipeline.dressing import build_garmentcode_garment
+    from stages.maps.build import build_maps
+    p = tmp_path / "scene.yaml"
+    p.write_text(f"character: {{source: gltf, path: {assets_dir() / 'CesiumMan.glb'}, clip: 0}}\n"
+                 f"frames: {{start: 0.8, count: 2}}\ngarments: [{{type: garmentcode, path: {spec}}}]\n")
+    scene, c, m, cols = scene_parts(p)
+    g, _, _ = build_garmentcode_garment(scene, 0, c, m, cols, build_maps(cols))
+    return g, c, m, cols
+
+
 @needs_assets
 def test_a_waist_is_pinned_to_the_trunk_not_to_the_hand_beside_it(tmp_path):
     # CesiumMan's left hand hangs beside the flare skirt's waist: pinned to the nearest collider's
     # bone, 4 of its waist particles followed the hand, which dragged them 14 cm off the hips and
     # stretched the waistband 641 % (the run stopped as diverged at frame 24 of the corpus scene)
-    from pipeline.dressing import build_garmentcode_garment
-    from stages.maps.build import build_maps
     from stages.rig.humanoid import limb_joint_sets
-    p = tmp_path / "flare.yaml"
-    p.write_text(f"character: {{source: gltf, path: {assets_dir() / 'CesiumMan.glb'}, clip: 0}}\n"
-                 "frames: {start: 0.8, count: 2}\n"
-                 f"garments: [{{type: garmentcode, path: {ASSETS / 'examples' / 'flare_skirt_specification.json'}}}]\n")
-    scene, c, m, cols = scene_parts(p)
-    g, _, _ = build_garmentcode_garment(scene, 0, c, m, cols, build_maps(cols))
+    g, c, _, _ = _dressed_on_cesium(tmp_path, ASSETS / "examples" / "flare_skirt_specification.json")
     pinned = set(g.attach_joint[g.attach_joint >= 0].tolist())
     limbs = set().union(*limb_joint_sets(c).values())
     assert pinned and not pinned & limbs, [c.joint_names[j] for j in pinned]
@@ -333,18 +338,12 @@ def test_a_skirt_is_worn_where_the_built_in_skirts_are_below_the_arms(tmp_path):
     # built-in skirts are worn lower (waistband_y, 0.78 m); GarmentCode skirts and trousers were
     # worn at the measured waist, the arms swung through their waistbands and 3 of 5 stopped as
     # diverged (flare, pencil skirt, pants)
-    from pipeline.dressing import build_garmentcode_garment
     from stages.garments.library import waistband_y
     from stages.garments.measurements import garment_measurements
-    from stages.maps.build import build_maps
-    p = tmp_path / "pencil.yaml"
-    p.write_text(f"character: {{source: gltf, path: {assets_dir() / 'CesiumMan.glb'}, clip: 0}}\n"
-                 "frames: {start: 0.8, count: 2}\n"
-                 f"garments: [{{type: garmentcode, path: {ASSETS / 'sampled' / 'skirt_pencil_s1098' / 'skirt_pencil_s1098_specification.json'}}}]\n")
-    scene, c, m, cols = scene_parts(p)
+    g, c, m, cols = _dressed_on_cesium(tmp_path, ASSETS / "sampled" / "skirt_pencil_s1098" /
+                                       "skirt_pencil_s1098_specification.json")
     meas = garment_measurements(c, cols, m)
     assert meas["waist_y"] - waistband_y(meas) > 0.1       # the case: arms beside the waist
-    g, _, _ = build_garmentcode_garment(scene, 0, c, m, cols, build_maps(cols))
     waist = g.positions[g.attach_joint >= 0, 1]
     assert waist.size and abs(float(np.median(waist)) - waistband_y(meas)) < 0.03, (np.median(waist), waistband_y(meas))
 
