@@ -20,7 +20,8 @@ FAR_MIN = 5.0             # m
 
 
 class ClothBlewUp(SimulationDiverged):
-    """SimulationDiverged by strain or distance (the message says which bound, where and by how much)."""
+    """SimulationDiverged by strain or distance (the message says which bound, where and by how much;
+    `torn_by` can add what tore it)."""
 
     def __init__(self, frame: int, garment: str, particle: int, what: str, partial=None):
         super().__init__(frame, [particle], [garment], float("nan"), partial=partial)
@@ -74,6 +75,52 @@ def check_blown_up(result, body_world: np.ndarray, height: float, garments=None)
                     worst = found
                 break
     return None if worst is None else ClothBlewUp(*worst, partial=result)
+
+
+def torn_by(blown: ClothBlewUp, garments, result, colliders, character, motion) -> str | None:
+    """What tore the cloth, for the message of a run stopped by the strain bound: the joints whose
+    colliders the torn edges (over MAX_STRAIN at the frame, against their rest length) touch
+    (stages.sim.strain_sources), and, where one of them is a limb, what lets it pass. None when no
+    edge is over the bound against its rest length or none touches a collider."""
+    from stages.rig.humanoid import limb_joint_sets
+    from stages.sim.strain_sources import strain_sources
+    names = [g.name for g in garments]
+    if colliders is None or blown.garment_names[0] not in names:
+        return None
+    k, f = names.index(blown.garment_names[0]), blown.frame
+    g, track = garments[k], result.garments[k]
+    sel = g.kinds == STRETCH
+    e, rest = g.springs[sel], g.rest_lengths[sel]
+    x = np.asarray(track.positions[f], np.float64) - motion.root_translation[f]     # the colliders' frame
+    strain = np.linalg.norm(x[e[:, 0]] - x[e[:, 1]], axis=1) / np.maximum(rest, 1e-12) - 1.0
+    torn = strain > MAX_STRAIN
+    if not torn.any():
+        return None
+    poses = colliders.frame_poses(character.inverse_bind, motion.joint_world[f])
+    shares = strain_sources(x, e[torn], strain[torn], colliders, poses, top=1.0)
+    if not shares:
+        return None
+    limbs = set().union(*limb_joint_sets(character).values()) - _covered(x, g, result, k, colliders, character, motion)
+    named = ", ".join(character.joint_names[j] for j in list(shares)[:4])
+    hint = f"{int(torn.sum())} torn edge(s) on the colliders of {named}"
+    moving = [character.joint_names[j] for j in shares if j in limbs][:2]
+    if moving:
+        hint += (f": a limb tearing the cloth against the body; ignore_colliders: [{', '.join(moving)}] "
+                 f"in garment {g.name!r} lets it pass through the garment instead")
+    return hint
+
+
+COVER_REACH = 0.02    # m: a particle this near a limb's collider at frame 0 is round that limb
+COVER_SHARE = 0.05   # a garment with this share of its particles round a limb covers it (a sleeve)
+
+
+def _covered(x, g, result, k, colliders, character, motion) -> set:
+    """The joints whose colliders a share COVER_SHARE of garment k's particles are within COVER_REACH of
+    at frame 0: limbs it is worn round (a sleeve's arm), which ignore_colliders must not name."""
+    from stages.sim.strain_sources import collider_distances
+    x0 = np.asarray(result.garments[k].positions[0], np.float64) - motion.root_translation[0]
+    d, owner = collider_distances(colliders, colliders.frame_poses(character.inverse_bind, motion.joint_world[0]), x0)
+    return {int(j) for j in np.unique(owner) if (d[owner == j].min(axis=0) < COVER_REACH).mean() >= COVER_SHARE}
 
 
 def speed_limit_note(result) -> str | None:

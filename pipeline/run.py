@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cloth_checks import check_blown_up, speed_limit_note, strain_source_notes
+from pipeline.cloth_checks import check_blown_up, speed_limit_note, strain_source_notes, torn_by
 from pipeline.dressing import (build_scene_garments, build_scene_obstacles, dressing_layers, garment_fit_report,
                                garment_fits, ignored_joints)
 from pipeline.preflight import check_memory, check_references, preflight
@@ -373,6 +373,9 @@ def _run_stages(scene, out, times, meshes, formats, export_dir, summary, announc
             # strain and distance: a fast particle is caught in the step
             blown = check_blown_up(result, skinned + motion.root_translation[:, None, :], height, garments)
             if blown is not None:   # logged to the end (what tore it is in the recording), then raised
+                cause = torn_by(blown, garments, result, colliders, character, motion)
+                if cause:
+                    blown.args = (f"{blown.args[0]}; {cause}",)
                 logs.log_text(rec, "meta/diverged", str(blown))
             note = speed_limit_note(result)
             if note:

@@ -93,3 +93,40 @@ def test_an_edge_crushed_at_frame_0_is_judged_against_its_rest_length():
     torn[3] += [0.1 * (MAX_STRAIN + 1.5), 0.0, 0.0]          # past the bound from its rest length too
     err = check_blown_up(_result([crushed, SHEET, torn, torn]), BODY, 1.7, [garment])
     assert err is not None and err.frame == 2
+
+
+def test_a_tear_names_the_limb_and_what_lets_it_pass_unless_the_garment_is_worn_round_it(tmp_path):
+    # the message of a run stopped by the strain bound says which colliders tore the cloth, and, for a
+    # limb the garment is not worn round (a hand through trousers), the ignore_colliders that lets it
+    # pass; a sleeve's own arm is never named there (ignoring it, a tee's sleeve fell into the arm:
+    # 8 % of its particles inside the body)
+    from pipeline.cloth_checks import torn_by
+    from stages.rig.humanoid import limb_joint_sets
+    from tests.scene_setup import scene_parts
+    p = tmp_path / "rest.yaml"
+    p.write_text("character: {clip: walk}\nframes: {count: 2, blend_in: 0}\n")
+    _, c, m, cols = scene_parts(p)
+    arm = limb_joint_sets(c)["arm_l"]
+
+    def depth(j):       # ancestors within the arm
+        n = 0
+        while c.parents[j] in arm:
+            j, n = c.parents[j], n + 1
+        return n
+    hand = max(arm, key=depth)
+    at = lambda f, j: m.joint_world[f][j][:3, 3] + m.root_translation[f]
+    edges = np.array([[0, 1], [0, 2], [1, 2], [1, 3], [2, 3]])
+    garment = SimpleNamespace(name="sheet", springs=edges, kinds=np.zeros(5, np.int8),
+                              rest_lengths=np.linalg.norm(SHEET[edges[:, 0]] - SHEET[edges[:, 1]], axis=1))
+    far = SHEET + at(0, c.root_joint) + [0.0, 0.0, 1.0]      # a metre in front of the body: round no limb
+    torn = far.copy()
+    torn[3] = at(1, hand)                                    # one corner dragged into the hand
+    blown = ClothBlewUp(1, "sheet", 3, "has an edge stretched")
+    hint = torn_by(blown, [garment], _result([far, torn]), cols, c, m)
+    assert hint is not None and "ignore_colliders: [" in hint, hint
+    named = hint.split("ignore_colliders: [")[1].split("]")[0].split(", ")
+    assert named and set(named) <= {c.joint_names[j] for j in arm}
+    worn = SHEET - SHEET.mean(axis=0) + at(0, hand)          # at frame 0 on the hand: worn round it
+    hint = torn_by(blown, [garment], _result([worn, torn]), cols, c, m)
+    assert hint is not None and c.joint_names[hand] in hint.split(":")[0]       # still named as what tore it
+    assert "ignore_colliders: [" not in hint or c.joint_names[hand] not in hint.split("ignore_colliders: [")[1].split("]")[0]
