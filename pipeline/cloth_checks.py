@@ -91,16 +91,15 @@ def torn_by(blown: ClothBlewUp, garments, result, colliders, character, motion) 
     g, track = garments[k], result.garments[k]
     sel = g.kinds == STRETCH
     e, rest = g.springs[sel], g.rest_lengths[sel]
-    x = np.asarray(track.positions[f], np.float64) - motion.root_translation[f]     # the colliders' frame
+    x, poses = _at_frame(track, f, colliders, character, motion)
     strain = np.linalg.norm(x[e[:, 0]] - x[e[:, 1]], axis=1) / np.maximum(rest, 1e-12) - 1.0
     torn = strain > MAX_STRAIN
     if not torn.any():
         return None
-    poses = colliders.frame_poses(character.inverse_bind, motion.joint_world[f])
     shares = strain_sources(x, e[torn], strain[torn], colliders, poses, top=1.0)
     if not shares:
         return None
-    limbs = set().union(*limb_joint_sets(character).values()) - _covered(x, g, result, k, colliders, character, motion)
+    limbs = set().union(*limb_joint_sets(character).values()) - _covered(track, colliders, character, motion)
     named = ", ".join(character.joint_names[j] for j in list(shares)[:4])
     hint = f"{int(torn.sum())} torn edge(s) on the colliders of {named}"
     moving = [character.joint_names[j] for j in shares if j in limbs][:2]
@@ -114,12 +113,20 @@ COVER_REACH = 0.02    # m: a particle this near a limb's collider at frame 0 is 
 COVER_SHARE = 0.05   # a garment with this share of its particles round a limb covers it (a sleeve)
 
 
-def _covered(x, g, result, k, colliders, character, motion) -> set:
-    """The joints whose colliders a share COVER_SHARE of garment k's particles are within COVER_REACH of
-    at frame 0: limbs it is worn round (a sleeve's arm), which ignore_colliders must not name."""
+def _at_frame(track, f: int, colliders, character, motion) -> tuple:
+    """(x (N, 3) float64, poses): a garment track's positions at frame f in the colliders' frame (the
+    relative frame) and the colliders' poses there (ColliderSet.frame_poses; None without colliders)."""
+    x = np.asarray(track.positions[f], np.float64) - motion.root_translation[f]
+    poses = colliders.frame_poses(character.inverse_bind, motion.joint_world[f]) if colliders is not None else None
+    return x, poses
+
+
+def _covered(track, colliders, character, motion) -> set:
+    """The joints whose colliders a share COVER_SHARE of the track's particles are within COVER_REACH of
+    at frame 0: limbs the garment is worn round (a sleeve's arm), which ignore_colliders must not name."""
     from stages.sim.strain_sources import collider_distances
-    x0 = np.asarray(result.garments[k].positions[0], np.float64) - motion.root_translation[0]
-    d, owner = collider_distances(colliders, colliders.frame_poses(character.inverse_bind, motion.joint_world[0]), x0)
+    x0, poses0 = _at_frame(track, 0, colliders, character, motion)
+    d, owner = collider_distances(colliders, poses0, x0)
     return {int(j) for j in np.unique(owner) if (d[owner == j].min(axis=0) < COVER_REACH).mean() >= COVER_SHARE}
 
 
@@ -146,9 +153,8 @@ def strain_source_notes(audit, garments, result, colliders, character, motion) -
             continue
         f = int(np.argmax(ga.strain_p99))
         sel = g.kinds == STRETCH
-        x = track.positions[f].astype(np.float64) - motion.root_translation[f]     # the colliders' frame
+        x, poses = _at_frame(track, f, colliders, character, motion)
         strain = edge_strains(x[None], g.springs[sel], g.rest_lengths[sel])[0]
-        poses = colliders.frame_poses(character.inverse_bind, motion.joint_world[f]) if colliders is not None else None
         shares = strain_sources(x, g.springs[sel], strain, colliders, poses)
         if shares:
             named = ", ".join(f"{character.joint_names[j]} {100 * s:.0f} %" for j, s in list(shares.items())[:4])

@@ -14,7 +14,7 @@ sewn to (a hood beside the head, sleeves off their armholes) are moved onto them
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace as dc_replace
 from pathlib import Path
 
 import numpy as np
@@ -90,7 +90,6 @@ def grade(gc: GCPattern, k: float, sy: float) -> GCPattern:
     (x, z) and sy up (y), each panel's outline by R^T diag(k, sy, k) R in its own plane (exact for
     upright panels; tilted ones keep their in-plane part), its translation by diag(k, sy, k). Circle
     arcs become the circles through their graded ends and midpoint."""
-    from dataclasses import replace as dc_replace
 
     from stages.garments.garmentcode import arc_center
     S = np.diag([k, sy, k])
@@ -127,7 +126,6 @@ def _circumradius(a, b, c) -> float:
 
 
 def graded_body(body: GCBody, k: float, sy: float) -> GCBody:
-    from dataclasses import replace as dc_replace
     return dc_replace(body, height=body.height * sy, waist_y=body.waist_y * sy, hips_y=body.hips_y * sy,
                       bust_y=body.bust_y * sy, shoulder_y=body.shoulder_y * sy, waist=body.waist * k,
                       hips=body.hips * k, bust=body.bust * k, shoulder_half=body.shoulder_half * k)
@@ -504,7 +502,6 @@ def place_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, 
     return graded, pattern, flat, placed, mismatch_warning(body, meas, name or gc.name, k, sy)
 
 
-
 def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, maps, *, edge_length: float = 0.025,
                     name: str | None = None, density: float = 0.2, sew_params=None, ignore_joints=(), progress=None):
     """GarmentCode pattern -> sewn Garment on the character in the bind pose (frame 0 of `motion`).
@@ -558,7 +555,6 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
     flat3 = np.concatenate([np.c_[p.uv[:, 0] - p.uv[:, 0].min() + s, p.uv[:, 1], np.zeros(len(p.uv))]
                             for p, s in zip(flat.panels, shift)])
     sp = sew_params if sew_params is not None else SewParams()
-    from dataclasses import replace as dc_replace
     sp = dc_replace(sp, min_iterations=max(sp.min_iterations, min(RELAX_ITERATIONS, sp.max_iterations)))
     sewn, log = sew(name, placed, tri, tri_rest, flat.seam_pairs, character, motion, colliders, maps, sp,
                     density=density, flat_positions=flat3, pair_stage=None, pins=pins, bind=pose if pins else None,
