@@ -182,12 +182,18 @@ def test_grading_scales_across_and_up():
 
 
 @needs_assets
-def test_wrap_closes_a_circle_skirt_round_the_body():
-    """The flare skirt's sectors hang as one cone: the side seams' two sides meet (GarmentCode's
-    flat placement leaves them 30 cm apart) and the wrap keeps the flat panels' edge lengths."""
-    gc = read_pattern(ASSETS / "examples" / "flare_skirt_specification.json")
+@pytest.mark.parametrize("spec", ["examples/flare_skirt_specification.json",
+                                  "sampled/dress_s1001/dress_s1001_specification.json"])
+def test_wrap_closes_a_circle_skirt_round_the_body(spec):
+    """A circle skirt's sectors hang as one cone: the side seams' two sides meet (GarmentCode's
+    flat placement leaves them 30 cm apart) and the wrap keeps the flat panels' edge lengths. The
+    dress's half-circle sectors have straight sides as high as their waist arcs, and their waists
+    stand 5 cm apart in height: found by their arcs and joined by their side seams, they close one
+    circle (each closed a whole one by itself, through the other: 260 crossing edges placed)."""
+    gc = read_pattern(ASSETS / spec)
     body = read_body(ASSETS_BODY)
-    assert cone_apex(gc.panel("skirt_front")) is not None and cone_apex(gc.panel("wb_front")) is None
+    assert cone_apex(gc.panel("skirt_front")) is not None and cone_apex(gc.panel("skirt_back")) is not None
+    assert cone_apex(gc.panel("wb_front")) is None
     pattern, signs = to_pattern(gc, 0.02, "x")
     flat = triangulate_pattern(pattern)
     uvs = [fp.uv * [signs[p.name], 1.0] for p, fp in zip(gc.panels, flat.panels)]

@@ -22,28 +22,58 @@ FACING_COS = 0.7   # panels whose horizontal normals are within ~45 degrees face
 MAX_APEX = 1.0   # m: a top arc of a larger radius (a waistband's slight curve) is wrapped as a cylinder
 MIN_SPAN = math.radians(45)   # a sector narrower than this (a curved waistband piece) too
 RING_DY = 0.03   # m: cone panels whose top edges are this close in height hang as one cone
+WAIST_DY = 0.005   # m: a cone panel's waist arc has its ends this near the panel's top
 
 
 def cone_apex(p) -> tuple | None:
-    """(apex (2,) panel uv, angle the panel spans about it (rad), the top edge's height in the body
-    frame (m)) when the panel's top edge (the one
-    whose ends are highest in the body frame) is a circle arc whose centre lies above it (a circle or flare skirt's waist:
-    the panel is a sector of an annulus, made to hang as a cone), else None."""
+    """(apex (2,) panel uv, angle the panel spans about it (rad), the waist edge's height in the body
+    frame (m), the waist edge's index) when the panel is a sector of an annulus hung from its inner
+    arc (a circle or flare skirt's waist, made to hang as a cone): a circle-arc edge whose ends are
+    the panel's highest points (within WAIST_DY), whose centre lies above it, and no vertex of the
+    panel nearer that centre than the arc; else None. (A half-circle sector's straight sides are as
+    high as the waist arc's ends: the highest edge alone does not tell the waist.)"""
     from stages.garments.garmentcode import arc_center
-    top = max(range(len(p.edges)),   # the edge whose ends are highest
-              key=lambda k: float(p.to_3d(p.vertices[[p.edges[k].start, p.edges[k].end]])[:, 1].mean()))
-    e = p.edges[top]
-    if e.kind != "circle":
-        return None
-    c, r, _ = arc_center(p.vertices[e.start], p.vertices[e.end], e.radius, e.large_arc, e.right)
-    mid = edge_points(p, e, [0.5])[0]
-    if p.to_3d(c[None])[0, 1] <= p.to_3d(mid[None])[0, 1] + 1e-3:
-        return None
-    q = p.vertices - c
-    span = float(np.ptp(np.unwrap(np.arctan2(q[:, 1], q[:, 0]))))
-    if r > MAX_APEX or span < MIN_SPAN:
-        return None
-    return c, span, float(p.to_3d(p.vertices[[e.start, e.end]])[:, 1].mean())
+    ys = p.to_3d(p.vertices)[:, 1]
+    for k, e in enumerate(p.edges):
+        if e.kind != "circle" or min(ys[e.start], ys[e.end]) < ys.max() - WAIST_DY:
+            continue
+        c, r, _ = arc_center(p.vertices[e.start], p.vertices[e.end], e.radius, e.large_arc, e.right)
+        mid = edge_points(p, e, [0.5])[0]
+        if p.to_3d(c[None])[0, 1] <= p.to_3d(mid[None])[0, 1] + 1e-3:
+            continue
+        q = p.vertices - c
+        if np.linalg.norm(q, axis=1).min() < r * (1.0 - 1e-3):
+            continue
+        span = float(np.ptp(np.unwrap(np.arctan2(q[:, 1], q[:, 0]))))
+        if r > MAX_APEX or span < MIN_SPAN:
+            return None
+        return c, span, float(ys[[e.start, e.end]].mean()), k
+    return None
+
+
+def cone_rings(gc: GCPattern, cones: dict) -> dict:
+    """{panel index: the cone panels (a set, itself included) that close one circle with it}: cone
+    panels (cones: cone_apex by panel index) stitched to each other by edges other than their waist
+    arcs (a skirt's side seams, not the waist nor a tier's seam to the one above), or whose top
+    edges are within RING_DY in height. A dress's skirt front and back meet at side seams with their
+    waists 5 cm apart in height; each closed a whole circle by itself, through the other."""
+    index = {p.name: i for i, p in enumerate(gc.panels)}
+    ring = {i: {i} for i in cones}
+
+    def join(i, j):
+        merged = ring[i] | ring[j]
+        for k in merged:
+            ring[k] = merged
+
+    for i in cones:
+        for j in cones:
+            if i < j and abs(cones[i][2] - cones[j][2]) <= RING_DY:
+                join(i, j)
+    for st in gc.stitches:
+        i, j = index[st.a[0]], index[st.b[0]]
+        if i != j and i in cones and j in cones and st.a[1] != cones[i][3] and st.b[1] != cones[j][3]:
+            join(i, j)
+    return ring
 
 
 def _cone(p, uv: np.ndarray, apex: np.ndarray, full: float, top: float) -> np.ndarray:
@@ -131,8 +161,9 @@ def wrap_ring(gc: GCPattern, points: list, body, uvs: list) -> list:
     cones = {i: c for i, c in ((i, cone_apex(p)) for i, p in enumerate(gc.panels) if up[i]) if c is not None}
     points = list(points)
     if cones:
-        for i, (apex, _, top) in cones.items():
-            full = sum(c[1] for c in cones.values() if abs(c[2] - top) <= RING_DY)
+        rings = cone_rings(gc, cones)
+        for i, (apex, _, top, _) in cones.items():
+            full = sum(cones[j][1] for j in rings[i])
             points[i] = _cone(gc.panels[i], uvs[i], apex, full, top)
             up[i] = False
     if not any(up):
