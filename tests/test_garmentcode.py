@@ -405,7 +405,7 @@ def test_limited_heights_keep_the_anchor_and_bound_every_slope():
     from stages.garments.garmentcode_place import SLOPE_BOUNDS, limited_heights
     rng = np.random.default_rng(7)
     lo, hi = SLOPE_BOUNDS
-    for _ in range(50):
+    for _ in range(200):
         src = np.cumsum(rng.uniform(0.05, 0.4, 6)) - 0.05
         dst = np.cumsum(rng.uniform(0.01, 0.6, 6))
         anchor = float(rng.uniform(src[0], src[-1]))
@@ -414,18 +414,24 @@ def test_limited_heights_keep_the_anchor_and_bound_every_slope():
         assert np.all(slope >= lo - 1e-9) and np.all(slope <= hi + 1e-9)
         # at the anchor: the landmarks' own height
         assert np.interp(anchor, s, d) == pytest.approx(np.interp(anchor, src, dst))
-        # a reference: the clamped slope integrated on a fine grid out from the anchor
-        grid = np.linspace(src[0], src[-1], 4001)
-        g = np.unique(np.r_[grid, src, anchor])
-        k = int(np.searchsorted(g, anchor))
+        # above it, a reference: the clamped slope integrated on a fine grid out from the anchor
+        grid = np.linspace(anchor, src[-1], 4001)
+        g = np.unique(np.r_[grid, src[src > anchor]])
         mid = 0.5 * (g[1:] + g[:-1])
         seg = np.clip(np.searchsorted(src, mid) - 1, 0, src.size - 2)
         m = np.clip((dst[seg + 1] - dst[seg]) / (src[seg + 1] - src[seg]), lo, hi) * np.diff(g)
-        ref = np.empty_like(g)
-        ref[k] = np.interp(anchor, src, dst)
-        ref[k + 1:] = ref[k] + np.cumsum(m[k:])
-        ref[:k] = ref[k] - np.cumsum(m[:k][::-1])[::-1]
+        ref = np.interp(anchor, src, dst) + np.r_[0.0, np.cumsum(m)]
         assert np.allclose(np.interp(g, s, d), ref, atol=1e-9)
+        # below it: the floor on its landmark when the bounds allow it, else as near as they do
+        span, rise = anchor - src[0], np.interp(anchor, src, dst) - dst[0]
+        assert d[0] == pytest.approx(np.interp(anchor, src, dst) - np.clip(rise, lo * span, hi * span), abs=1e-9)
+        # the spans nearest the floor give first: a span off its clamped landmark slope has every
+        # span below it at a bound
+        k = int(np.searchsorted(s, anchor))
+        own = np.clip(np.diff(np.interp(s, src, dst)) / np.diff(s), lo, hi)
+        for i in range(k):
+            if abs(slope[i] - own[i]) > 1e-9:
+                assert all(abs(slope[j] - lo) < 1e-9 or abs(slope[j] - hi) < 1e-9 for j in range(i))
     # landmarks within the bounds are kept as they are
     src, dst = np.array([0.0, 0.8, 1.0, 1.2, 1.4]), np.array([0.0, 0.85, 1.05, 1.22, 1.45])
     s, d = limited_heights(src, dst, 1.4)
