@@ -220,8 +220,24 @@ def _related(parents, a: int, b: int) -> bool:
     return a in chain(b) or b in chain(a)
 
 
+def _short_limb(bind, joint: int) -> bool:
+    """Whether a limb joint belongs to a limb of one or two joints (a chibi's block arm or leg), not to a
+    chain with an elbow or knee (its top's subtree of limb joints: fewer than three)."""
+    parents, limbs = bind.parents, bind.limb_joints
+    top = joint
+    while parents[top] >= 0 and int(parents[top]) in limbs:
+        top = int(parents[top])
+    sub, stack = 0, [top]
+    while stack:
+        j = stack.pop()
+        sub += 1
+        stack += [int(k) for k in np.flatnonzero(parents == j) if int(k) in limbs]
+    return sub < 3
+
+
 def pinching_limbs(bind, points: np.ndarray, gap: float = PINCH_GAP) -> list[tuple[int, int, int]]:
-    """[(limb, wrapped limb, frame)] (sorted by limb): the limbs (bind.limb_joints) the garment
+    """[(limb, wrapped limb, frame)] (sorted by limb): the limbs of one or two joints (bind.limb_joints,
+    `_short_limb`: a chain's slim colliders, bending at the elbow, leave the cloth room) the garment
     (points (N, 3), frame 0) does not wrap (`wraps`, with its points within HOLD_REACH of the limb's
     colliders) but lies within `gap` of at frame 0, whose colliders come
     within `gap` of the collider of a limb it wraps (not on the same chain) at some frame of
@@ -234,7 +250,7 @@ def pinching_limbs(bind, points: np.ndarray, gap: float = PINCH_GAP) -> list[tup
     points = np.asarray(points, np.float64)
     parents = bind.parents
     posed, wrapped, near = {}, [], []
-    for bone in sorted(bind.limb_joints):
+    for bone in sorted(j for j in bind.limb_joints if _short_limb(bind, j)):
         cols = _posed_vertices(bind, bone)
         if not cols:
             continue
@@ -259,10 +275,17 @@ def pinching_limbs(bind, points: np.ndarray, gap: float = PINCH_GAP) -> list[tup
     return out
 
 
-def pinching_note(garment: str, joint_names, pinching: list) -> str:
-    """The warning for the limbs `pinching_limbs` found (pinching: its answer, non-empty)."""
-    limbs = ", ".join(f"{joint_names[j]} (at frame {f})" for j, _, f in pinching)
-    worn = ", ".join(dict.fromkeys(joint_names[w] for _, w, _ in pinching))
-    return (f"garment {garment!r}: the colliders of {limbs} come within {PINCH_GAP * 100:.0f} cm of those of {worn}, "
-            f"which it is worn round, and pass through the garment (no room for cloth between two limbs; the body "
-            f"audit counts the cloth inside them as inside the body)")
+def with_pinching_limbs(garment: str, bind, points: np.ndarray, passing: list, ignore=()) -> list:
+    """`passing` (sorted joints) and the limbs `pinching_limbs` finds for the garment (points: frame 0)
+    beyond it and `ignore`, with a warning naming them."""
+    import warnings
+    found = [(j, w, f) for j, w, f in pinching_limbs(bind, points) if j not in passing and j not in ignore]
+    if not found:
+        return passing
+    names = bind.joint_names
+    limbs = ", ".join(f"{names[j]} (at frame {f})" for j, _, f in found)
+    worn = ", ".join(dict.fromkeys(names[w] for _, w, _ in found))
+    warnings.warn(f"garment {garment!r}: the colliders of {limbs} come within {PINCH_GAP * 100:.0f} cm of those of "
+                  f"{worn}, which it is worn round, and pass through the garment (no room for cloth between two "
+                  f"limbs; the body audit counts the cloth inside them as inside the body)", stacklevel=3)
+    return sorted(set(passing) | {j for j, _, _ in found})

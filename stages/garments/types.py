@@ -24,7 +24,7 @@ import numpy as np
 from stages.checks import ContractError, check_array, check_index
 from stages.errors import InputError
 from stages.garments.band import collider_list as _colliders
-from stages.garments.band import band_contacts, held_by, pinching_limbs, pinching_note, resting_limbs
+from stages.garments.band import band_contacts, held_by, resting_limbs, with_pinching_limbs
 from stages.garments.band import signed_distance as _signed_distance
 
 STRETCH = 0  # spring kind: mesh edge (stretch / shear)
@@ -532,10 +532,7 @@ def build_garment(name: str, positions, triangles, *, rest_positions=None, densi
                               f"rest on its attached band in most frames and pass through the garment (a limb it "
                               f"does not wrap lying where the band must be; the body audit counts the cloth under "
                               f"it as inside the body)", stacklevel=2)
-            pinching = [(j, w, f) for j, w, f in pinching_limbs(bind, x) if j not in passing and j not in ignore]
-            if pinching:
-                warnings.warn(pinching_note(name, bind.joint_names, pinching), stacklevel=2)
-                passing = sorted(set(passing) | {j for j, _, _ in pinching})
+            passing = with_pinching_limbs(name, bind, x, passing, ignore)
             swept, names = held_by(contacts, att.size, skip=passing)
             if swept.any():
                 warnings.warn(f"garment {name!r}: {int(swept.sum())} of {att.size} attached particles yield to "
