@@ -33,7 +33,7 @@ def test_rounded_box_lengths_match_a_dense_outline():
 def test_the_open_top_cut_on_one_joint_arms(chibi):
     # the regular cut's armpit fell 5 cm below the hem on a Kenney mini ("the outline intersects
     # itself"); the open-top cut: the neckline under the head, each armhole as long as the part of
-    # the sleeve's end sewn to it, the rest of that end free over the arm's top
+    # the sleeve's end sewn to it, the sleeve open over the arm's top
     from stages.garments.anchors import require_anchors
     require_anchors("tshirt", chibi, "garment 'tshirt'")      # was refused: "a sleeve needs shoulder, ..."
     m = garment_measurements(chibi)
@@ -43,7 +43,9 @@ def test_the_open_top_cut_on_one_joint_arms(chibi):
         s = f"sleeve_{side}"
         assert _edge(p, s, "cap_front") == pytest.approx(_edge(p, "front", f"armhole_{side}"), rel=0.01)
         assert _edge(p, s, "cap_back") == pytest.approx(_edge(p, "back", f"armhole_{other}"), rel=0.01)
-        assert _edge(p, s, "cap_top") > 0.05
+        # open over the arm's top: no edge there; the sleeve as wide as the two parts sewn to the armholes
+        assert "cap_top" not in {e.name for x in p.panels if x.name == s for e in x.edges}
+        assert _edge(p, s, "cuff") == pytest.approx(_edge(p, s, "cap_front") + _edge(p, s, "cap_back"), rel=1e-6)
     front = next(x for x in p.panels if x.name == "front")
     top = max(max(pt[1] for pt in e.points) for e in front.edges) + front.placement.shift
     assert top <= m["neck_low"] + 1e-9
@@ -76,10 +78,16 @@ def test_a_tshirt_is_sewn_round_one_joint_arms(chibi, tmp_path):
     for side, sign in (("l", 1.0), ("r", -1.0)):
         arm = limb(c, "arm", side)
         u, mid, _ = arm.points(c, m.joint_world[0])
-        # round the arm just beyond the torso's side: cloth all round its axis
+        # round the arm just beyond the torso's side: cloth in front of, under and behind its axis,
+        # none over its top, under the head (a closed sleeve's top there was pressed into the head's
+        # collider when the arm rose: edges torn past 500 % on the melee and shoot clips)
         x = sign * (g.positions[:, 0] - m.joint_world[0][c.root_joint, 0, 3])
         ring = g.positions[(x > meas["torso_side"]) & (x < meas["torso_side"] + 0.04)]
-        assert len(ring) >= 8 and _largest_angle_gap(ring, u, mid - u) < 90.0
+        assert len(ring) >= 8 and _largest_angle_gap(ring, u, mid - u) < 200.0
+        assert not (ring[:, 1] > meas["arm_root_hi"]).any()
+        rel = ring - u
+        assert (rel[:, 2] > 0.5 * (meas["arm_root_front"] - meas["arm_root_back"]) - 0.02).any()    # in front
+        assert (rel[:, 2] < -0.5 * (meas["arm_root_front"] - meas["arm_root_back"]) + 0.02).any()   # behind
     from stages.garments.placement import bind_geometry, inside_body
     skinned, _, _ = bind_geometry(c, m)
     assert inside_body(c, skinned, g.positions).mean() <= 0.005

@@ -24,7 +24,7 @@ import numpy as np
 from stages.checks import ContractError, check_array, check_index
 from stages.errors import InputError
 from stages.garments.band import collider_list as _colliders
-from stages.garments.band import band_contacts, held_by, resting_limbs
+from stages.garments.band import band_contacts, held_by, resting_limbs, with_pinching_limbs
 from stages.garments.band import signed_distance as _signed_distance
 
 STRETCH = 0  # spring kind: mesh edge (stretch / shear)
@@ -56,8 +56,9 @@ class Garment:
     density: area density used for the masses, kg/m^2. stretch_stiffness, bend_stiffness: share of a
         correction per round at 300/s (SimParams, the garment's fabric), None: the simulation's.
     passing_joints: joints whose colliders never push this garment: limbs it does not wrap that rest
-        on its attached band in most frames (stages.garments.band.resting_limbs); the simulation adds
-        them to its ignore_colliders.
+        on its attached band in most frames (stages.garments.band.resting_limbs) or that come against a
+        limb it is worn round (stages.garments.band.pinching_limbs); the simulation adds them to its
+        ignore_colliders.
     """
 
     name: str
@@ -531,6 +532,7 @@ def build_garment(name: str, positions, triangles, *, rest_positions=None, densi
                               f"rest on its attached band in most frames and pass through the garment (a limb it "
                               f"does not wrap lying where the band must be; the body audit counts the cloth under "
                               f"it as inside the body)", stacklevel=2)
+            passing = with_pinching_limbs(name, bind, x, passing, ignore)
             swept, names = held_by(contacts, att.size, skip=passing)
             if swept.any():
                 warnings.warn(f"garment {name!r}: {int(swept.sum())} of {att.size} attached particles yield to "
