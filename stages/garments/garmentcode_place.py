@@ -23,6 +23,7 @@ import yaml
 from stages.errors import InputError
 from stages.garments.garmentcode import GCPattern, edge_points, panel_part
 from stages.garments.garmentcode_band import band_floor, band_vertices, lift_band, worn_from_waistband
+from stages.garments.garmentcode_sleeves import fit_sleeves
 from stages.garments.garmentcode_wrap import wrap_legs, wrap_ring, wrap_sleeves
 from stages.garments.patterns import Edge, Panel, Pattern, PatternAttachment, Placement, Seam, SeamSide
 from stages.garments.types import TRUNK_BONE
@@ -87,42 +88,12 @@ def read_body(path) -> GCBody:
 
 def grade(gc: GCPattern, k: float, sy: float) -> GCPattern:
     """The pattern graded to another body: the garment as placed on its body scaled by k across
-    (x, z) and sy up (y), each panel's outline by R^T diag(k, sy, k) R in its own plane (exact for
-    upright panels; tilted ones keep their in-plane part), its translation by diag(k, sy, k). Circle
-    arcs become the circles through their graded ends and midpoint."""
-
-    from stages.garments.garmentcode import arc_center
+    (x, z) and sy up (y) (garmentcode_sleeves.map_panel: each panel's outline by R^T diag(k, sy, k) R
+    in its own plane, exact for upright panels; tilted ones keep their in-plane part; circle arcs
+    through their graded ends and midpoint)."""
+    from stages.garments.garmentcode_sleeves import map_panel
     S = np.diag([k, sy, k])
-    panels = []
-    for p in gc.panels:
-        R = p.rotation
-        M = (R.T @ S @ R)[:2, :2]
-        f = lambda q: np.asarray(q, np.float64) @ M.T
-        verts = f(p.vertices)
-        edges = []
-        for e in p.edges:
-            if e.kind == "circle":
-                mid = f(edge_points(p, e, [0.5])[0])
-                a, b = verts[e.start], verts[e.end]
-                r = _circumradius(a, mid, b)
-                best = None
-                for large in (False, True):
-                    c, rr, sweep = arc_center(a, b, r, large, e.right)
-                    th = math.atan2(a[1] - c[1], a[0] - c[0]) + 0.5 * sweep
-                    d = np.linalg.norm(c + rr * np.array([math.cos(th), math.sin(th)]) - mid)
-                    if best is None or d < best[0]:
-                        best = (d, large)
-                edges.append(dc_replace(e, radius=r, large_arc=best[1]))
-            else:
-                edges.append(dc_replace(e, control=tuple(tuple(f(c)) for c in e.control)))
-        panels.append(dc_replace(p, vertices=verts, edges=tuple(edges), translation=S @ p.translation))
-    return dc_replace(gc, panels=tuple(panels))
-
-
-def _circumradius(a, b, c) -> float:
-    la, lb, lc = np.linalg.norm(b - c), np.linalg.norm(a - c), np.linalg.norm(a - b)
-    area2 = abs((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]))
-    return float(la * lb * lc / max(2 * area2, 1e-15)) if area2 > 1e-12 else 1e6
+    return dc_replace(gc, panels=tuple(map_panel(p, S) for p in gc.panels))
 
 
 def graded_body(body: GCBody, k: float, sy: float) -> GCBody:
@@ -476,6 +447,8 @@ def place_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, 
     worn = worn_from_waistband(meas) if garment_anchor(gc, body) < 0.5 * (body.waist_y + body.bust_y) else meas
     k, sy = grading(gc, body, worn)
     graded, gbody = grade(gc, k, sy), graded_body(body, k, sy)
+    if "arm_radius" in meas:   # sleeves round the character's arms (and their colliders)
+        graded, _ = fit_sleeves(graded, gbody, 2 * math.pi * meas["arm_radius"])
     pattern, signs = to_pattern(graded, edge_length, name or gc.name, density)
     flat = triangulate_pattern(pattern)
     check_stitch_chains(graded, pattern, flat)
