@@ -419,6 +419,25 @@ def align_to_stitches(placed: np.ndarray, flat, arm_side: list) -> np.ndarray:
     return out
 
 
+def junction_pairs(pairs: np.ndarray) -> np.ndarray:
+    """The seam pairs (K, 2) plus a pair between every two vertices that sewing merges into one
+    (a group of three or more: where seams meet) not already paired. A hood's neck edges and the
+    torso's two front halves meet at a V: the hoods' corners were each pulled only towards their own
+    torso half's corner, the torso halves towards each other, and on the CMU walk the chain settled
+    with a hood corner 13 mm off (hoody_mean; standing_lapel_fix's collars 6.6 mm): paired with every
+    corner of the junction, 0.6 and 1.9 mm."""
+    from stages.garments.sewing import merge_pairs
+    if pairs.size == 0:
+        return pairs
+    group = merge_pairs(int(pairs.max()) + 1, pairs)
+    have = {(int(a), int(b)) for a, b in np.sort(pairs, axis=1)}
+    extra = []
+    for g in np.unique(group[pairs[:, 0]]):
+        mem = np.flatnonzero(group == g)
+        extra += [(int(a), int(b)) for i, a in enumerate(mem) for b in mem[i + 1:] if (a, b) not in have]
+    return np.concatenate([pairs, np.array(extra, pairs.dtype).reshape(-1, 2)]) if extra else pairs
+
+
 # GarmentCode's simulator holds the waist seam at the waist level and the collars at the neck's width;
 # here the waist seam is brought onto the body (hug to the axis) and held while sewing; the collars
 # are left free (None): hugged to the neck joint they pulled the neckline narrower than the neck (the
@@ -529,7 +548,7 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
                             for p, s in zip(flat.panels, shift)])
     sp = sew_params if sew_params is not None else SewParams()
     sp = dc_replace(sp, min_iterations=max(sp.min_iterations, min(RELAX_ITERATIONS, sp.max_iterations)))
-    sewn, log = sew(name, placed, tri, tri_rest, flat.seam_pairs, character, motion, colliders, maps, sp,
+    sewn, log = sew(name, placed, tri, tri_rest, junction_pairs(flat.seam_pairs), character, motion, colliders, maps, sp,
                     density=density, flat_positions=flat3, pair_stage=None, pins=pins, bind=pose if pins else None,
                     progress=progress)
     pos, mtri, remap = merged_mesh(sewn, tri, flat.seam_pairs)
