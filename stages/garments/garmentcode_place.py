@@ -549,9 +549,16 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
                             for p, s in zip(flat.panels, shift)])
     sp = sew_params if sew_params is not None else SewParams()
     sp = dc_replace(sp, min_iterations=max(sp.min_iterations, min(RELAX_ITERATIONS, sp.max_iterations)))
-    sewn, log = sew(name, placed, tri, tri_rest, junction_pairs(flat.seam_pairs), character, motion, colliders, maps, sp,
-                    density=density, flat_positions=flat3, pair_stage=None, pins=pins, bind=pose if pins else None,
-                    progress=progress)
+    def sew_with(pairs):
+        return sew(name, placed, tri, tri_rest, pairs, character, motion, colliders, maps, sp, density=density,
+                   flat_positions=flat3, pair_stage=None, pins=pins, bind=pose if pins else None, progress=progress)
+    sewn, log = sew_with(flat.seam_pairs)
+    corners = junction_pairs(flat.seam_pairs)
+    if not log.converged and len(corners) > len(flat.seam_pairs):
+        # sewn again with a junction's corners drawn together (only then: garments that close without
+        # them are sewn as before; with them from the start, hoody_mean on CesiumMan sewed closed too
+        # but its run stopped at frame 41, an edge torn where the forearm presses the cloth to the trunk)
+        sewn, log = sew_with(corners)
     pos, mtri, remap = merged_mesh(sewn, tri, flat.seam_pairs)
     pos, log = untangle_sewn(pos, mtri, log)
     # pinned through the motion where the garment hangs from it or a skirt or trousers hang from it (a
