@@ -452,7 +452,6 @@ BAND_TOLERANCE = 0.003   # m: a waist seam placed this far below garmentcode_ban
 # read as a blow-up (hoody_mean, shirt_mean on CesiumMan: stopped at frame 1). Rounds after the seams
 # closed let the panels relax with the seams held: 20 rounds, the shortest edge 29 %, the longest x1.9
 RELAX_ITERATIONS = 20
-HEM_BAND = 0.15   # m: a held edge at most this far above the garment's lowest point is its hem
 
 
 def place_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, *, edge_length: float = 0.025,
@@ -561,13 +560,7 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
         sewn, log = sew_with(corners)
     pos, mtri, remap = merged_mesh(sewn, tri, flat.seam_pairs)
     pos, log = untangle_sewn(pos, mtri, log)
-    # pinned through the motion where the garment hangs from it or a skirt or trousers hang from it (a
-    # skirt's, a dress's waist), not a top's hem (at most a waistband below it): pinned to the trunk it
-    # could not ride up with the arms (GarmentCode releases its attachments once the garment settled)
-    body_v = np.isin(flat.panel_of_vertex, [k for k, p in enumerate(gc.panels) if panel_part(p) != "arm"])
-    ys = placed[body_v, 1] if body_v.any() else placed[:, 1]       # a hanging cuff is not the hem
-    atts = [attach_indices(np.unique(remap[i]), TRUNK_BONE) for i in waist
-            if placed[i, 1].min() - ys.min() > HEM_BAND or ys.max() - placed[i, 1].max() < 0.03]
+    atts = [attach_indices(np.unique(remap[i]), TRUNK_BONE) for i in waist]
     g = build_garment(name, pos, mtri, density=density, triangle_rest=tri_rest, attachments=atts,
                       bind=pose if atts else None, ignore_joints=ignore_joints)
     gaps = seam_gaps(sewn, flat.seam_pairs)
