@@ -23,6 +23,7 @@ import yaml
 from stages.errors import InputError
 from stages.garments.garmentcode import GCPattern, edge_points, panel_part
 from stages.garments.garmentcode_band import band_floor, band_vertices, lift_band, worn_from_waistband
+from stages.garments.garmentcode_sleeves import fit_sleeves
 from stages.garments.garmentcode_wrap import wrap_legs, wrap_ring, wrap_sleeves
 from stages.garments.patterns import Edge, Panel, Pattern, PatternAttachment, Placement, Seam, SeamSide
 from stages.garments.types import TRUNK_BONE
@@ -87,42 +88,12 @@ def read_body(path) -> GCBody:
 
 def grade(gc: GCPattern, k: float, sy: float) -> GCPattern:
     """The pattern graded to another body: the garment as placed on its body scaled by k across
-    (x, z) and sy up (y), each panel's outline by R^T diag(k, sy, k) R in its own plane (exact for
-    upright panels; tilted ones keep their in-plane part), its translation by diag(k, sy, k). Circle
-    arcs become the circles through their graded ends and midpoint."""
-
-    from stages.garments.garmentcode import arc_center
+    (x, z) and sy up (y) (garmentcode_sleeves.map_panel: each panel's outline by R^T diag(k, sy, k) R
+    in its own plane, exact for upright panels; tilted ones keep their in-plane part; circle arcs
+    through their graded ends and midpoint)."""
+    from stages.garments.garmentcode_sleeves import map_panel
     S = np.diag([k, sy, k])
-    panels = []
-    for p in gc.panels:
-        R = p.rotation
-        M = (R.T @ S @ R)[:2, :2]
-        f = lambda q: np.asarray(q, np.float64) @ M.T
-        verts = f(p.vertices)
-        edges = []
-        for e in p.edges:
-            if e.kind == "circle":
-                mid = f(edge_points(p, e, [0.5])[0])
-                a, b = verts[e.start], verts[e.end]
-                r = _circumradius(a, mid, b)
-                best = None
-                for large in (False, True):
-                    c, rr, sweep = arc_center(a, b, r, large, e.right)
-                    th = math.atan2(a[1] - c[1], a[0] - c[0]) + 0.5 * sweep
-                    d = np.linalg.norm(c + rr * np.array([math.cos(th), math.sin(th)]) - mid)
-                    if best is None or d < best[0]:
-                        best = (d, large)
-                edges.append(dc_replace(e, radius=r, large_arc=best[1]))
-            else:
-                edges.append(dc_replace(e, control=tuple(tuple(f(c)) for c in e.control)))
-        panels.append(dc_replace(p, vertices=verts, edges=tuple(edges), translation=S @ p.translation))
-    return dc_replace(gc, panels=tuple(panels))
-
-
-def _circumradius(a, b, c) -> float:
-    la, lb, lc = np.linalg.norm(b - c), np.linalg.norm(a - c), np.linalg.norm(a - b)
-    area2 = abs((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]))
-    return float(la * lb * lc / max(2 * area2, 1e-15)) if area2 > 1e-12 else 1e6
+    return dc_replace(gc, panels=tuple(map_panel(p, S) for p in gc.panels))
 
 
 def graded_body(body: GCBody, k: float, sy: float) -> GCBody:
@@ -460,6 +431,25 @@ def align_to_stitches(placed: np.ndarray, flat, arm_side: list) -> np.ndarray:
     return out
 
 
+def junction_pairs(pairs: np.ndarray) -> np.ndarray:
+    """The seam pairs (K, 2) plus a pair between every two vertices that sewing merges into one
+    (a group of three or more: where seams meet) not already paired. A hood's neck edges and the
+    torso's two front halves meet at a V: the hoods' corners were each pulled only towards their own
+    torso half's corner, the torso halves towards each other, and on the CMU walk the chain settled
+    with a hood corner 13 mm off (hoody_mean; standing_lapel_fix's collars 6.6 mm): paired with every
+    corner of the junction, 0.6 and 1.9 mm."""
+    from stages.garments.sewing import merge_pairs
+    if pairs.size == 0:
+        return pairs
+    group = merge_pairs(int(pairs.max()) + 1, pairs)
+    have = {(int(a), int(b)) for a, b in np.sort(pairs, axis=1)}
+    extra = []
+    for g in np.unique(group[pairs[:, 0]]):
+        mem = np.flatnonzero(group == g)
+        extra += [(int(a), int(b)) for i, a in enumerate(mem) for b in mem[i + 1:] if (a, b) not in have]
+    return np.concatenate([pairs, np.array(extra, pairs.dtype).reshape(-1, 2)]) if extra else pairs
+
+
 # GarmentCode's simulator holds the waist seam at the waist level and the collars at the neck's width;
 # here the waist seam is brought onto the body (hug to the axis) and held while sewing; the collars
 # are left free (None): hugged to the neck joint they pulled the neckline narrower than the neck (the
@@ -488,6 +478,8 @@ def place_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, 
     worn = worn_from_waistband(meas) if garment_anchor(gc, body) < 0.5 * (body.waist_y + body.bust_y) else meas
     k, sy = grading(gc, body, worn)
     graded, gbody = grade(gc, k, sy), graded_body(body, k, sy)
+    if "arm_radius" in meas:   # sleeves round the character's arms (and their colliders)
+        graded, _ = fit_sleeves(graded, gbody, 2 * math.pi * meas["arm_radius"])
     pattern, signs = to_pattern(graded, edge_length, name or gc.name, density)
     flat = triangulate_pattern(pattern)
     check_stitch_chains(graded, pattern, flat)
@@ -568,9 +560,16 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
                             for p, s in zip(flat.panels, shift)])
     sp = sew_params if sew_params is not None else SewParams()
     sp = dc_replace(sp, min_iterations=max(sp.min_iterations, min(RELAX_ITERATIONS, sp.max_iterations)))
-    sewn, log = sew(name, placed, tri, tri_rest, flat.seam_pairs, character, motion, colliders, maps, sp,
-                    density=density, flat_positions=flat3, pair_stage=None, pins=pins, bind=pose if pins else None,
-                    progress=progress)
+    def sew_with(pairs):
+        return sew(name, placed, tri, tri_rest, pairs, character, motion, colliders, maps, sp, density=density,
+                   flat_positions=flat3, pair_stage=None, pins=pins, bind=pose if pins else None, progress=progress)
+    sewn, log = sew_with(flat.seam_pairs)
+    corners = junction_pairs(flat.seam_pairs)
+    if not log.converged and len(corners) > len(flat.seam_pairs):
+        # sewn again with a junction's corners drawn together (only then: garments that close without
+        # them are sewn as before; with them from the start, hoody_mean on CesiumMan sewed closed too
+        # but its run stopped at frame 41, an edge torn where the forearm presses the cloth to the trunk)
+        sewn, log = sew_with(corners)
     pos, mtri, remap = merged_mesh(sewn, tri, flat.seam_pairs)
     pos, log = untangle_sewn(pos, mtri, log)
     atts = [attach_indices(np.unique(remap[i]), TRUNK_BONE) for i in waist]

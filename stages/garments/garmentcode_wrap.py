@@ -174,13 +174,16 @@ def wrap_ring(gc: GCPattern, points: list, body, uvs: list) -> list:
 
 
 def _ring(points: list, normals: list, up: list, girth, anchor: float | None, joined=None,
-          outlines=None) -> list:
+          outlines=None, straight: bool = False) -> list:
     """The panels `up` of `points` wrapped round the y axis of their frame (normals: each panel's
     outward normal in it): circumference at each level = the sum of the panels' widths there, at
     least girth(level); with `anchor`, levels re-spaced from it along the ring's slant. joined:
     joined_panels of the points' frame: panels stitched to each other side by side.
     outlines: each panel's closed outline (M, 3) in the same frame (panel_outlines), for exact
-    spans across at each level."""
+    spans across at each level. straight: each group centred on one straight line across the levels
+    (its levels' centres fitted, weighted by its width there) instead of at every level, and the widths
+    taken from the outlines: a sleeve's halves whose cap or slanted cuff cuts levels short of its
+    overarm seam were sheared there by their levels' centres (edges at 0.4-2.2x their length)"""
     joined = joined or {}
     ys = np.concatenate([x[:, 1] for x, u in zip(points, up) if u])
     edges = np.arange(ys.min() - WRAP_BIN, ys.max() + 2 * WRAP_BIN, WRAP_BIN)
@@ -201,6 +204,8 @@ def _ring(points: list, normals: list, up: list, girth, anchor: float | None, jo
         lo, hi = np.full(mid.size, np.inf), np.full(mid.size, -np.inf)
         np.minimum.at(lo, b, s)
         np.maximum.at(hi, b, s)
+        if straight and outlines is not None:   # the outline's exact width: the mesh's rows miss up to an edge
+            lo, hi = _spans(outlines[len(lateral) - 1] @ t, outlines[len(lateral) - 1][:, 1], mid)
         have = np.isfinite(lo)
         w[have] = hi[have] - lo[have]
         if have.sum() >= 2:                          # fill bins between the panel's rows
@@ -252,10 +257,16 @@ def _ring(points: list, normals: list, up: list, girth, anchor: float | None, jo
         centre = np.zeros(mid.size)   # centred at every level: a sleeve cap's halves differ in shape
         some = np.isfinite(new_lo)
         centre[some] = 0.5 * (new_lo[some] + new_hi[some])
+        if straight and some.sum() >= 2:
+            centre = np.interp(mid, mid[some], _line(mid[some], centre[some], new_hi[some] - new_lo[some]))
         for i in members:
             n, t, s_i = lateral[i]
             have, shift = shifts[i]
             lateral[i] = (n, t, s_i + np.interp(points[i][:, 1], mid[have], (shift - centre)[have]))
+    if straight:
+        held = width > 0     # levels beyond the panels' ends (the ring's first and last bins) as their neighbours
+        if held.any():
+            width = np.interp(mid, mid[held], width[held])
     rho = np.maximum(width, girth(mid)) / (2 * np.pi)
     # heights: the flat distance between bins kept along the ring's slant, from the anchor out
     Y = mid.copy()
@@ -275,6 +286,11 @@ def _ring(points: list, normals: list, up: list, girth, anchor: float | None, jo
         out.append(np.c_[r * np.sin(phi), np.interp(x[:, 1], mid, Y), r * np.cos(phi)])
     return out
 
+
+def _line(y: np.ndarray, c: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """c (a group's centre at levels y) as the straight line fitted to it, weighted by the group's
+    width w there, evaluated at y."""
+    return np.polyval(np.polyfit(y, c, 1, w=np.sqrt(np.maximum(w, 1e-6))), y)
 
 SLEEVE_GIRTH = 0.36   # m: a sleeve's ring is at least this round (an upper arm of 0.3 m + 6 cm)
 
@@ -299,7 +315,8 @@ def wrap_sleeves(gc: GCPattern, points: list, body) -> list:
         normals = [F @ p.normal for p in gc.panels]
         up_sel = [s and abs(n[1]) < 0.5 for s, n in zip(sel, normals)]
         wrapped = _ring(local, normals, up_sel, lambda y: np.full(np.shape(y), SLEEVE_GIRTH), None,
-                        joined_panels(gc, lambda q: (q - c) @ F.T), panel_outlines(gc, lambda q: (q - c) @ F.T))
+                        joined_panels(gc, lambda q: (q - c) @ F.T), panel_outlines(gc, lambda q: (q - c) @ F.T),
+                        straight=True)
         points = [w @ F + c if s else x for w, x, s in zip(wrapped, points, up_sel)]
     return points
 
