@@ -96,17 +96,7 @@ def swept_attachments(bind, local: np.ndarray, joints: np.ndarray, depth: float,
 
 def collider_points(bind, bone: int) -> np.ndarray:
     """(P, 3) points of bone's colliders (hull vertices, sphere poles) at frame 0, relative frame."""
-    frames = bind.frames_of_colliders()
-    pts = []
-    for b, _, c, frame in collider_list(bind.colliders):
-        if b != bone:
-            continue
-        if hasattr(c, "simplified"):
-            v = np.asarray(c.simplified.vertices, np.float64)
-        else:
-            v = np.asarray(c.center, np.float64) + float(c.radius) * np.vstack([np.eye(3), -np.eye(3)])
-        m = frames[0, frame]
-        pts.append(v @ m[:3, :3].T + m[:3, 3])
+    pts = [p[0] for _, _, p in _posed_vertices(bind, bone)]
     return np.concatenate(pts) if pts else np.zeros((0, 3))
 
 
