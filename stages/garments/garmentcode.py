@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace as dc_replace
 from pathlib import Path
 
 import numpy as np
@@ -343,3 +343,38 @@ def loop_points(panel: GCPanel, per_curve: int = 32) -> np.ndarray:
 def _signed_area(p: np.ndarray) -> float:
     x, y = p[:, 0], p[:, 1]
     return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def map_panel(p: GCPanel, A: np.ndarray, pivot=None) -> GCPanel:
+    """The panel under the map x -> pivot + A (x - pivot) of the body frame (A: (3, 3)): its outline
+    by R^T A R in its own plane (exact when A keeps the plane; a tilted panel keeps its in-plane
+    part), its translation mapped. Circle arcs become the circles through their mapped ends and
+    midpoint."""
+    pivot = np.zeros(3) if pivot is None else np.asarray(pivot, np.float64)
+    R = p.rotation
+    M = (R.T @ A @ R)[:2, :2]
+    f = lambda q: np.asarray(q, np.float64) @ M.T
+    verts = f(p.vertices)
+    edges = []
+    for e in p.edges:
+        if e.kind == "circle":
+            mid = f(edge_points(p, e, [0.5])[0])
+            a, b = verts[e.start], verts[e.end]
+            r = _circumradius(a, mid, b)
+            best = None
+            for large in (False, True):
+                c, rr, sweep = arc_center(a, b, r, large, e.right)
+                th = math.atan2(a[1] - c[1], a[0] - c[0]) + 0.5 * sweep
+                d = np.linalg.norm(c + rr * np.array([math.cos(th), math.sin(th)]) - mid)
+                if best is None or d < best[0]:
+                    best = (d, large)
+            edges.append(dc_replace(e, radius=r, large_arc=best[1]))
+        else:
+            edges.append(dc_replace(e, control=tuple(tuple(f(c)) for c in e.control)))
+    return dc_replace(p, vertices=verts, edges=tuple(edges), translation=pivot + A @ (p.translation - pivot))
+
+
+def _circumradius(a, b, c) -> float:
+    la, lb, lc = np.linalg.norm(b - c), np.linalg.norm(a - c), np.linalg.norm(a - b)
+    area2 = abs((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]))
+    return float(la * lb * lc / max(2 * area2, 1e-15)) if area2 > 1e-12 else 1e6

@@ -21,7 +21,7 @@ import numpy as np
 import yaml
 
 from stages.errors import InputError
-from stages.garments.garmentcode import GCPattern, edge_points, panel_part
+from stages.garments.garmentcode import GCPattern, edge_points, map_panel, panel_part
 from stages.garments.garmentcode_band import band_floor, band_vertices, lift_band, worn_from_waistband
 from stages.garments.garmentcode_sleeves import fit_sleeves
 from stages.garments.garmentcode_wrap import wrap_legs, wrap_ring, wrap_sleeves
@@ -88,10 +88,9 @@ def read_body(path) -> GCBody:
 
 def grade(gc: GCPattern, k: float, sy: float) -> GCPattern:
     """The pattern graded to another body: the garment as placed on its body scaled by k across
-    (x, z) and sy up (y) (garmentcode_sleeves.map_panel: each panel's outline by R^T diag(k, sy, k) R
+    (x, z) and sy up (y) (garmentcode.map_panel: each panel's outline by R^T diag(k, sy, k) R
     in its own plane, exact for upright panels; tilted ones keep their in-plane part; circle arcs
     through their graded ends and midpoint)."""
-    from stages.garments.garmentcode_sleeves import map_panel
     S = np.diag([k, sy, k])
     return dc_replace(gc, panels=tuple(map_panel(p, S) for p in gc.panels))
 

@@ -190,7 +190,7 @@ def _ring(points: list, normals: list, up: list, girth, anchor: float | None, jo
     mid = 0.5 * (edges[:-1] + edges[1:])
     width = np.zeros(mid.size)
     lateral = []
-    for nrm, x, u in zip(normals, points, up):
+    for i, (nrm, x, u) in enumerate(zip(normals, points, up)):
         if not u:
             lateral.append(None)
             continue
@@ -199,13 +199,14 @@ def _ring(points: list, normals: list, up: list, girth, anchor: float | None, jo
         t = np.array([n[2], 0.0, -n[0]])          # the direction of growing angle round the axis
         s = x @ t
         lateral.append((n, t, s))
-        b = np.clip(np.digitize(x[:, 1], edges) - 1, 0, mid.size - 1)
         w = np.zeros(mid.size)
-        lo, hi = np.full(mid.size, np.inf), np.full(mid.size, -np.inf)
-        np.minimum.at(lo, b, s)
-        np.maximum.at(hi, b, s)
         if straight and outlines is not None:   # the outline's exact width: the mesh's rows miss up to an edge
-            lo, hi = _spans(outlines[len(lateral) - 1] @ t, outlines[len(lateral) - 1][:, 1], mid)
+            lo, hi = _spans(outlines[i] @ t, outlines[i][:, 1], mid)
+        else:
+            b = np.clip(np.digitize(x[:, 1], edges) - 1, 0, mid.size - 1)
+            lo, hi = np.full(mid.size, np.inf), np.full(mid.size, -np.inf)
+            np.minimum.at(lo, b, s)
+            np.maximum.at(hi, b, s)
         have = np.isfinite(lo)
         w[have] = hi[have] - lo[have]
         if have.sum() >= 2:                          # fill bins between the panel's rows
@@ -291,6 +292,7 @@ def _line(y: np.ndarray, c: np.ndarray, w: np.ndarray) -> np.ndarray:
     """c (a group's centre at levels y) as the straight line fitted to it, weighted by the group's
     width w there, evaluated at y."""
     return np.polyval(np.polyfit(y, c, 1, w=np.sqrt(np.maximum(w, 1e-6))), y)
+
 
 SLEEVE_GIRTH = 0.36   # m: a sleeve's ring is at least this round (an upper arm of 0.3 m + 6 cm)
 
