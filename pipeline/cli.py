@@ -156,7 +156,8 @@ def cmd_corpus(args) -> int:
     kinds = [] if args.only_patterns else (args.garment or None)
     rows = run_corpus(Path(args.output) if args.output else default_folder(), frames=args.frames,
                       characters=args.character or None, kinds=kinds, full=args.full, jobs=args.jobs,
-                      patterns=args.pattern or None, with_patterns=not args.no_patterns, echo=echo)
+                      patterns=args.pattern or None, with_patterns=not args.no_patterns,
+                      pattern_dir=Path(args.patterns) if args.patterns else None, echo=echo)
     print(table(rows))
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1, default=str))
@@ -295,6 +296,9 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--pattern", action="append", help="--corpus: only this GarmentCode pattern of the assets' "
                                                       "garmentcode/ folder (file name without _specification.json; "
                                                       "repeatable; default: every one)")
+    m.add_argument("--patterns", metavar="DIR", help="--corpus: the GarmentCode patterns of this folder "
+                                                     "(*_specification.json, in subfolders or not) instead of the "
+                                                     "assets' garmentcode/ folder")
     m.add_argument("--only-patterns", action="store_true", help="--corpus: the GarmentCode patterns, not the "
                                                                 "built-in kinds")
     m.add_argument("--no-patterns", action="store_true", help="--corpus: the built-in kinds, not the GarmentCode "

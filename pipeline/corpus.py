@@ -19,7 +19,8 @@ these names; `kinds=[]`: the patterns alone).
 A pair passes when the run exits 0 and, after frame 0: at most IN_BODY_MAX of the particles inside
 the body at every frame, no cloth edge through cloth, no body-mesh edge through the cloth at any
 frame after the blend-in (pipeline.body_report; the dressing matrix reports that figure without
-failing on it), and strain p99 at the last frame at most STRAIN_P99_MAX.
+failing on it), strain p99 at the last frame at most STRAIN_P99_MAX, and every sewn garment's seams
+closed to SEAM_GAP_MAX before they were joined.
 """
 from __future__ import annotations
 
@@ -32,6 +33,7 @@ import yaml
 START_SHARE = 0.4        # scenes start 40 % into their clip: neither its first frame nor the rest pose
 IN_BODY_MAX = 0.005      # share of a garment's particles inside the body, worst frame after frame 0
 STRAIN_P99_MAX = 10.0    # %, last frame, worst garment
+SEAM_GAP_MAX = 2.0       # mm, the largest seam gap the sewing left before joining the seams (issue 39)
 CHARACTER_FILES = (".glb", ".gltf", ".bvh")
 OUTFIT = ("tshirt", "shorts")   # worn together: the T-shirt over the shorts
 
@@ -90,10 +92,9 @@ def _slug(text: str) -> str:
     return sweep_slug(text, 40).rstrip("-.") or "x"
 
 
-def pattern_files(assets: Path, names=None) -> list[Path]:
-    """The GarmentCode patterns of the assets folder (garmentcode/**/*_specification.json), sorted;
-    names: only these (the file name without _specification.json)."""
-    root = assets / "garmentcode"
+def pattern_files(root: Path, names=None) -> list[Path]:
+    """The GarmentCode patterns under `root` (**/*_specification.json), sorted; names: only these
+    (the file name without _specification.json)."""
     found = sorted(root.rglob("*_specification.json")) if root.is_dir() else []
     if names:
         unknown = [n for n in names if n not in {pattern_name(p) for p in found}]
@@ -171,16 +172,19 @@ def verdict(row: dict) -> list[str]:
         out.append(f"{row['body_edges_max']} body edges through the cloth in a frame after the blend-in")
     if row.get("strain_p99_pct") is not None and row["strain_p99_pct"] > STRAIN_P99_MAX:
         out.append(f"strain p99 {row['strain_p99_pct']:.1f} % at the last frame")
+    if row.get("seam_gap_mm") is not None and row["seam_gap_mm"] > SEAM_GAP_MAX:
+        out.append(f"seams {row['seam_gap_mm']:.1f} mm open when joined")
     return out
 
 
 def run_corpus(folder: Path, *, frames: int = 30, characters: list[str] | None = None,
                kinds: list[str] | None = None, full: bool = False, jobs: int | None = None,
                timeout: float = 900.0, patterns: list[str] | None = None, with_patterns: bool = True,
-               echo=print) -> list[dict]:
+               pattern_dir: Path | None = None, echo=print) -> list[dict]:
     """Survey the characters, run their pairs as a sweep in `folder`; rows (the sweep's, plus
     `character`, `pair`, `verdict`), the refused pairs included. kinds: the built-in kinds (None:
-    all, []: none); patterns: only these GarmentCode patterns; with_patterns False: none of them."""
+    all, []: none); patterns: only these GarmentCode patterns; with_patterns False: none of them;
+    pattern_dir: the patterns of this folder instead of the assets folder's garmentcode/ (a user's own)."""
     from pipeline.matrix import KINDS
     from pipeline.sweep import run_sweep
     unknown = [k for k in kinds or () if k not in KINDS and k != "outfit"]
@@ -192,7 +196,15 @@ def run_corpus(folder: Path, *, frames: int = 30, characters: list[str] | None =
     kinds = [k for k in (KINDS if kinds is None else kinds) if k != "outfit"]
     asked = list(kinds)
     kinds += [k for k in OUTFIT if outfit and k not in kinds]
-    gc_files = pattern_files(assets_dir(), patterns) if with_patterns else []
+    if pattern_dir is not None and not Path(pattern_dir).is_dir():
+        from pipeline.schema import SceneError
+        raise SceneError(f"matrix --corpus --patterns: {pattern_dir}: no such folder; expected a folder holding "
+                         f"GarmentCode *_specification.json files (in subfolders or not)")
+    root = Path(pattern_dir) if pattern_dir is not None else assets_dir() / "garmentcode"
+    gc_files = pattern_files(root, patterns) if with_patterns else []
+    if pattern_dir is not None and with_patterns and not gc_files:
+        from pipeline.schema import SceneError
+        raise SceneError(f"matrix --corpus --patterns: {pattern_dir}: no *_specification.json file in it or below it")
     specs = character_specs(assets_dir())
     if characters:
         unknown = [n for n in characters if n not in {label for label, _ in specs}]

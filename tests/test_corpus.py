@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import yaml
 
-from pipeline.corpus import (IN_BODY_MAX, START_SHARE, CorpusCharacter, cases_of, character_specs, run_corpus, table,
+from pipeline.corpus import (IN_BODY_MAX, SEAM_GAP_MAX, START_SHARE, CorpusCharacter, cases_of, character_specs, run_corpus, table,
                              verdict, write_sweep)
 
 
@@ -52,6 +52,8 @@ def test_verdict_names_each_target_missed():
     assert "particles in the body" in verdict({**ok, "in_body_max": 6})[0]
     assert "3 cloth edges" in verdict({**ok, "crossings_self_max": 1, "crossings_between_max": 2})[0]
     assert "strain p99 10.5 %" in verdict({**ok, "strain_p99_pct": 10.5})[0]
+    assert verdict({**ok, "seam_gap_mm": SEAM_GAP_MAX}) == []
+    assert verdict({**ok, "seam_gap_mm": 2.7}) == ["seams 2.7 mm open when joined"]
     failed = verdict({"status": "failed", "failure": "sewing", "message": "sewing did not close seam a / b"})
     assert failed == ["sewing: sewing did not close seam a / b"]
 
@@ -84,11 +86,11 @@ def test_every_garmentcode_pattern_is_a_scene_on_every_character(tmp_path):
     for sub in ("examples/a_specification.json", "sampled/b_s1/b_s1_specification.json", "sampled/b_s1/other.json"):
         (tmp_path / "garmentcode" / sub).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / "garmentcode" / sub).write_text("{}")
-    files = pattern_files(tmp_path)
+    files = pattern_files(tmp_path / "garmentcode")
     assert [f.name for f in files] == ["a_specification.json", "b_s1_specification.json"]
-    assert [f.name for f in pattern_files(tmp_path, ["b_s1"])] == ["b_s1_specification.json"]
+    assert [f.name for f in pattern_files(tmp_path / "garmentcode", ["b_s1"])] == ["b_s1_specification.json"]
     with pytest.raises(SceneError, match="'nope' not found"):
-        pattern_files(tmp_path, ["nope"])
+        pattern_files(tmp_path / "garmentcode", ["nope"])
     for n_clips in (1, 3):
         c = _character(n_clips, [])
         cases = pattern_cases(c, files)
@@ -117,3 +119,36 @@ def test_the_outfit_is_asked_for_by_name_and_an_unknown_kind_is_one_error(tmp_pa
     with pytest.raises(SceneError, match="'robe' is not a built-in kind"):
         run_corpus(tmp_path, frames=2, characters=["builtin"], kinds=["robe"], jobs=1, with_patterns=False,
                    echo=lambda *a: None)
+
+
+def test_a_folder_of_the_users_own_patterns_replaces_the_assets_and_a_bad_one_is_one_error(tmp_path):
+    """matrix --corpus --patterns DIR: the corpus of a user's own patterns (a folder that is not there, or
+    holds none, is one error naming it, before anything runs)."""
+    import pytest
+
+    from pipeline.schema import SceneError
+    with pytest.raises(SceneError, match=r"--patterns: .*nowhere: no such folder"):
+        run_corpus(tmp_path / "out", frames=2, characters=["builtin"], kinds=[], jobs=1,
+                   pattern_dir=tmp_path / "nowhere", echo=lambda *a: None)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(SceneError, match=r"--patterns: .*empty: no \*_specification.json"):
+        run_corpus(tmp_path / "out", frames=2, characters=["builtin"], kinds=[], jobs=1,
+                   pattern_dir=tmp_path / "empty", echo=lambda *a: None)
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_users_patterns_are_the_scenes_written(tmp_path, monkeypatch):
+    import pipeline.sweep
+    own = tmp_path / "mine" / "tee_x"
+    own.mkdir(parents=True)
+    (own / "tee_x_specification.json").write_text("{}")
+    seen = {}
+
+    def fake_sweep(path, **kw):
+        seen["doc"] = yaml.safe_load(path.read_text())
+        return None, []
+    monkeypatch.setattr(pipeline.sweep, "run_sweep", fake_sweep)
+    run_corpus(tmp_path / "out", frames=2, characters=["builtin"], kinds=[], jobs=1, pattern_dir=tmp_path / "mine",
+               echo=lambda *a: None)
+    assert [[g["path"] for g in k["garments"]] for k in seen["doc"]["cases"]] == \
+        [[str((own / "tee_x_specification.json").resolve())]]
