@@ -77,11 +77,14 @@ def check_blown_up(result, body_world: np.ndarray, height: float, garments=None)
     return None if worst is None else ClothBlewUp(*worst, partial=result)
 
 
-def torn_by(blown: ClothBlewUp, garments, result, colliders, character, motion) -> str | None:
+def torn_by(blown: ClothBlewUp, garments, result, colliders, character, motion, ignored=None) -> str | None:
     """What tore the cloth, for the message of a run stopped by the strain bound: the joints whose
     colliders the torn edges (over MAX_STRAIN at the frame, against their rest length) touch
     (stages.sim.strain_sources), and, where one of them is a limb, what lets it pass. None when no
-    edge is over the bound against its rest length or none touches a collider."""
+    edge is over the bound against its rest length or none touches a collider. ignored: per garment,
+    the joints its ignore_colliders already names (simulate's ignore_colliders): never suggested again
+    (a limb already passing through the cloth did not tear it; CesiumMan with a GarmentCode shirt sampled
+    for another body was told to ignore the forearm it already ignored)."""
     from stages.rig.humanoid import limb_joint_sets
     from stages.sim.strain_sources import strain_sources
     names = [g.name for g in garments]
@@ -100,6 +103,7 @@ def torn_by(blown: ClothBlewUp, garments, result, colliders, character, motion) 
     if not shares:
         return None
     limbs = set().union(*limb_joint_sets(character).values()) - _covered(track, colliders, character, motion)
+    limbs -= set(ignored[k] if ignored else ()) | set(getattr(g, "passing_joints", ()))
     named = ", ".join(character.joint_names[j] for j in list(shares)[:4])
     hint = f"{int(torn.sum())} torn edge(s) on the colliders of {named}"
     moving = [character.joint_names[j] for j in shares if j in limbs][:2]

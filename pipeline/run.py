@@ -373,7 +373,8 @@ def _run_stages(scene, out, times, meshes, formats, export_dir, summary, announc
             # strain and distance: a fast particle is caught in the step
             blown = check_blown_up(result, skinned + motion.root_translation[:, None, :], height, garments)
             if blown is not None:   # logged to the end (what tore it is in the recording), then raised
-                cause = torn_by(blown, garments, result, colliders, character, motion)
+                cause = torn_by(blown, garments, result, colliders, character, motion,
+                                ignored=ignored_colliders(scene, character))
                 if cause:
                     blown.args = (f"{blown.args[0]}; {cause}",)
                 logs.log_text(rec, "meta/diverged", str(blown))

@@ -126,6 +126,11 @@ def test_a_tear_names_the_limb_and_what_lets_it_pass_unless_the_garment_is_worn_
     assert hint is not None and "ignore_colliders: [" in hint, hint
     named = hint.split("ignore_colliders: [")[1].split("]")[0].split(", ")
     assert named and set(named) <= {c.joint_names[j] for j in arm}
+    ignoring = [tuple(c.joint_names.index(n) for n in named)]   # already in the garment's ignore_colliders
+    again = torn_by(blown, [garment], _result([far, torn]), cols, c, m, ignored=ignoring)
+    assert again is not None      # still names what touched the torn edge
+    suggested = again.split("ignore_colliders: [")[1].split("]")[0].split(", ") if "ignore_colliders: [" in again else []
+    assert not set(suggested) & set(named), again
     worn = SHEET - SHEET.mean(axis=0) + at(0, hand)          # at frame 0 on the hand: worn round it
     hint = torn_by(blown, [garment], _result([worn, torn]), cols, c, m)
     assert hint is not None and c.joint_names[hand] in hint.split(":")[0]       # still named as what tore it
