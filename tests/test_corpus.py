@@ -54,6 +54,8 @@ def test_verdict_names_each_target_missed():
     assert "strain p99 10.5 %" in verdict({**ok, "strain_p99_pct": 10.5})[0]
     assert verdict({**ok, "seam_gap_mm": SEAM_GAP_MAX}) == []
     assert verdict({**ok, "seam_gap_mm": 2.7}) == ["seams 2.7 mm open when joined"]
+    assert verdict({**ok, "floor_cm": 0.0}) == []     # a hem on the floor
+    assert verdict({**ok, "floor_cm": -255.7}) == ["cloth 255.7 cm under the floor (slid off the body)"]
     failed = verdict({"status": "failed", "failure": "sewing", "message": "sewing did not close seam a / b"})
     assert failed == ["sewing: sewing did not close seam a / b"]
 
