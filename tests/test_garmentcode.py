@@ -14,7 +14,7 @@ from pipeline.assets import assets_dir
 from stages.errors import InputError
 from stages.garments.garmentcode import (arc_center, edge_length, edge_points, euler_xyz_to_R,
                                          parse_pattern, read_pattern)
-from stages.garments.garmentcode_place import (DEFAULT_BODY, GATHER_NOTED, gathered_note, grade, mismatch_warning, read_body, stitch_lengths,
+from stages.garments.garmentcode_place import (DEFAULT_BODY, GATHER_NOTED, Grade, gathered_note, grade, mismatch_warning, read_body, stitch_lengths,
                                                to_pattern)
 from stages.garments.garmentcode_wrap import cone_apex, wrap_ring
 from stages.garments.triangulate import triangulate_pattern
@@ -170,13 +170,13 @@ def test_clockwise_panels_are_mirrored_for_meshing_and_keep_their_outside():
 @needs_assets
 def test_grading_scales_across_and_up():
     gc = read_pattern(ASSETS / "examples" / "flare_skirt_specification.json")
-    g = grade(gc, 1.2, 0.9)
+    g = grade(gc, Grade.uniform(1.2, 0.9))
     for a, b in zip(gc.panels, g.panels):        # rotation [0, 0, 0]: u across, v up
         assert np.allclose(b.vertices, a.vertices * [1.2, 0.9])
         assert np.allclose(b.translation, a.translation * [1.2, 0.9, 1.2])
     body = read_body(ASSETS_BODY)
     meas = {"height": body.height * 0.88, "chest": body.bust * 0.8, "waist": body.waist, "hips": body.hips}
-    w = mismatch_warning(body, meas, "skirt", 1.1, 0.88)
+    w = mismatch_warning(body, meas, "skirt", Grade.uniform(1.1, 0.88))
     assert "height 151 cm vs 172 cm (-12 %)" in w and "bust" in w and "waist" not in w and "x1.100" in w
     assert mismatch_warning(body, {**meas, "height": body.height, "chest": body.bust}, "skirt") is None
 
