@@ -538,7 +538,8 @@ def place_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, 
                 break
     # a top's shoulder seams closed over the shoulders, not through them (garmentcode_shoulders)
     arm_panel = np.array([panel_part(p) == "arm" for p in graded.panels])
-    over = shoulder_pairs(placed, flat, arm_panel, origins[character.root_joint], meas["chest_y"])
+    over = shoulder_pairs(placed, flat, arm_panel, origins[character.root_joint], meas["chest_y"],
+                          meas.get("shoulder_top", meas["shoulder_y"]))
     if len(over):
         placed[:, 1] += shoulder_lift(placed, over, shoulder_surface(character, colliders, motion), CLEARANCE)
     bad = inside_body(character, skinned0, placed)

@@ -17,20 +17,24 @@ SEAM_DEPTH = 0.05   # m: a stitch whose pairs start this far apart front to back
 SURFACE_RADIUS = 0.03   # m: the shoulders' height under a seam point: the highest point this near it, from above
 
 
-def shoulder_pairs(placed: np.ndarray, flat, arm_panel: np.ndarray, axis: np.ndarray, above: float) -> np.ndarray:
+def shoulder_pairs(placed: np.ndarray, flat, arm_panel: np.ndarray, axis: np.ndarray, above: float,
+                   below: float) -> np.ndarray:
     """(K, 2) the seam pairs of `flat` (FlatPattern) of the stitches that join a panel in front of the
     character's vertical axis (axis: (3,), x and z used) to one behind it over the top of the body:
     both sides not arm panels (arm_panel: (P,) bool by panel), each pair with one vertex in front
     and one behind, SEAM_DEPTH or more apart front to back (median over the stitch) and above the
-    height `above` (m, median)."""
+    height `above` (m, median), both panels mostly (median) below the height `below` (the top of the
+    shoulders: a hood's seams to the neckline, over the head, are not shoulder seams; counted, they
+    lifted the sampled hoodie 25 cm, off the shoulders onto the head)."""
     pairs, pv = flat.seam_pairs, flat.panel_of_vertex
     if pairs.size == 0:
         return pairs.reshape(0, 2)
     keep = np.zeros(len(pairs), bool)
+    level = np.array([np.median(placed[pv == k, 1]) if (pv == k).any() else np.inf for k in range(len(arm_panel))])
     for j in np.unique(flat.seam_index):
         sel = np.flatnonzero(flat.seam_index == j)
         a, b = pairs[sel, 0], pairs[sel, 1]
-        if arm_panel[pv[a]].any() or arm_panel[pv[b]].any():
+        if arm_panel[pv[a]].any() or arm_panel[pv[b]].any() or (level[pv[a]] >= below).any() or (level[pv[b]] >= below).any():
             continue
         za, zb = placed[a, 2] - axis[2], placed[b, 2] - axis[2]
         across = (za * zb < 0) & (np.abs(za - zb) >= SEAM_DEPTH)
