@@ -14,7 +14,8 @@ from pipeline.assets import assets_dir
 from stages.errors import InputError
 from stages.garments.garmentcode import (arc_center, edge_length, edge_points, euler_xyz_to_R,
                                          parse_pattern, read_pattern)
-from stages.garments.garmentcode_place import (DEFAULT_BODY, GATHER_NOTED, Grade, gathered_note, grade, mismatch_warning, read_body, stitch_lengths,
+from stages.garments.garmentcode_grade import Grade, grade
+from stages.garments.garmentcode_place import (DEFAULT_BODY, GATHER_NOTED, gathered_note, mismatch_warning, read_body, stitch_lengths,
                                                to_pattern)
 from stages.garments.garmentcode_wrap import cone_apex, wrap_ring
 from stages.garments.triangulate import triangulate_pattern

@@ -9,7 +9,8 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from stages.garments.garmentcode import read_pattern
-from stages.garments.garmentcode_place import Grade, grade, graded_body, grading, read_body
+from stages.garments.garmentcode_grade import Grade, grade, graded_body, grading
+from stages.garments.garmentcode_place import read_body
 from stages.garments.garmentcode_shoulders import SURFACE_RADIUS, shoulder_lift, shoulder_pairs
 from tests.test_garmentcode import ASSETS, ASSETS_BODY, needs_assets
 
