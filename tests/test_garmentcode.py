@@ -14,7 +14,8 @@ from pipeline.assets import assets_dir
 from stages.errors import InputError
 from stages.garments.garmentcode import (arc_center, edge_length, edge_points, euler_xyz_to_R,
                                          parse_pattern, read_pattern)
-from stages.garments.garmentcode_place import (DEFAULT_BODY, GATHER_NOTED, gathered_note, grade, mismatch_warning, read_body, stitch_lengths,
+from stages.garments.garmentcode_grade import Grade, grade
+from stages.garments.garmentcode_place import (DEFAULT_BODY, GATHER_NOTED, gathered_note, mismatch_warning, read_body, stitch_lengths,
                                                to_pattern)
 from stages.garments.garmentcode_wrap import cone_apex, wrap_ring
 from stages.garments.triangulate import triangulate_pattern
@@ -170,13 +171,13 @@ def test_clockwise_panels_are_mirrored_for_meshing_and_keep_their_outside():
 @needs_assets
 def test_grading_scales_across_and_up():
     gc = read_pattern(ASSETS / "examples" / "flare_skirt_specification.json")
-    g = grade(gc, 1.2, 0.9)
+    g = grade(gc, Grade.uniform(1.2, 0.9))
     for a, b in zip(gc.panels, g.panels):        # rotation [0, 0, 0]: u across, v up
         assert np.allclose(b.vertices, a.vertices * [1.2, 0.9])
         assert np.allclose(b.translation, a.translation * [1.2, 0.9, 1.2])
     body = read_body(ASSETS_BODY)
     meas = {"height": body.height * 0.88, "chest": body.bust * 0.8, "waist": body.waist, "hips": body.hips}
-    w = mismatch_warning(body, meas, "skirt", 1.1, 0.88)
+    w = mismatch_warning(body, meas, "skirt", Grade.uniform(1.1, 0.88))
     assert "height 151 cm vs 172 cm (-12 %)" in w and "bust" in w and "waist" not in w and "x1.100" in w
     assert mismatch_warning(body, {**meas, "height": body.height, "chest": body.bust}, "skirt") is None
 
@@ -490,7 +491,9 @@ def test_a_hooded_top_is_placed_on_cesium_man_unsquashed_with_its_hood_at_the_ne
     gaps = np.linalg.norm(placed[flat.seam_pairs[:, 0]] - placed[flat.seam_pairs[:, 1]], axis=1)
     for j, s in enumerate(pattern.seams):
         if "hood" in seam_label(s) and "torso" in seam_label(s):   # the hood's neck seams
-            assert np.median(gaps[flat.seam_index == j]) < 0.15, seam_label(s)
+            # 0.16: cut above the waist to the bust's ratio (7 % narrower on CesiumMan) the hood's back
+            # seams start 13.7 and 15.2 cm open (10.1 and 12.7 cut to the waist's)
+            assert np.median(gaps[flat.seam_index == j]) < 0.16, seam_label(s)
 
 
 def test_lift_band_raises_the_waist_seam_and_squashes_only_the_span_up_to_the_top():
@@ -552,5 +555,7 @@ def test_a_low_waist_seam_is_lifted_above_the_legs_of_the_cmu_walk(tmp_path):
         graded, pattern, flat, placed, _ = place_gc_garment(read_pattern(path), body_of(path, ASSETS_BODY), c, m, cols)
         band = band_vertices(graded, pattern, flat)
         assert placed[band, 1].min() > floor - 0.01, path.name
-        # the garment's top still below the shoulders' top (its span to the band squashed, not shifted)
-        assert placed[:, 1].max() < meas["shoulder_top"], (path.name, placed[:, 1].max(), meas["shoulder_top"])
+        # the garment's top at the shoulders' top (its span to the band squashed, not shifted): its
+        # shoulder seams close 1 cm over the shoulders (garmentcode_shoulders), the neck ends of its
+        # panels a little higher (1.1 cm above the shoulders' top)
+        assert placed[:, 1].max() < meas["shoulder_top"] + 0.03, (path.name, placed[:, 1].max(), meas["shoulder_top"])

@@ -351,14 +351,26 @@ def map_panel(p: GCPanel, A: np.ndarray, pivot=None) -> GCPanel:
     part), its translation mapped. Circle arcs become the circles through their mapped ends and
     midpoint."""
     pivot = np.zeros(3) if pivot is None else np.asarray(pivot, np.float64)
+    A = np.asarray(A, np.float64)
+    return map_panel_points(p, lambda x: pivot + (x - pivot) @ A.T)
+
+
+def map_panel_points(p: GCPanel, f) -> GCPanel:
+    """The panel under a map f ((N, 3) -> (N, 3) body-frame points): its translation t to f(t), each
+    outline point and curve control point x to the in-plane part of f(x) - f(t) (the part along the
+    panel's normal dropped: exact when f keeps the plane). Circle arcs become the circles through
+    their mapped ends and midpoint."""
     R = p.rotation
-    M = (R.T @ A @ R)[:2, :2]
-    f = lambda q: np.asarray(q, np.float64) @ M.T
-    verts = f(p.vertices)
+    t1 = f(np.asarray(p.translation, np.float64)[None])[0]
+
+    def g(q):   # panel-local points (N, 2) -> mapped panel-local points
+        q = np.asarray(q, np.float64).reshape(-1, 2)
+        return ((f(p.to_3d(q)) - t1) @ R)[:, :2]
+    verts = g(p.vertices)
     edges = []
     for e in p.edges:
         if e.kind == "circle":
-            mid = f(edge_points(p, e, [0.5])[0])
+            mid = g(edge_points(p, e, [0.5]))[0]
             a, b = verts[e.start], verts[e.end]
             r = _circumradius(a, mid, b)
             best = None
@@ -370,8 +382,8 @@ def map_panel(p: GCPanel, A: np.ndarray, pivot=None) -> GCPanel:
                     best = (d, large)
             edges.append(dc_replace(e, radius=r, large_arc=best[1]))
         else:
-            edges.append(dc_replace(e, control=tuple(tuple(f(c)) for c in e.control)))
-    return dc_replace(p, vertices=verts, edges=tuple(edges), translation=pivot + A @ (p.translation - pivot))
+            edges.append(dc_replace(e, control=tuple(tuple(c) for c in g(e.control)) if e.control else ()))
+    return dc_replace(p, vertices=verts, edges=tuple(edges), translation=t1)
 
 
 def _circumradius(a, b, c) -> float:

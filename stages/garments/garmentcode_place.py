@@ -21,8 +21,10 @@ import numpy as np
 import yaml
 
 from stages.errors import InputError
-from stages.garments.garmentcode import GCPattern, edge_points, map_panel, panel_part
+from stages.garments.garmentcode import GCPattern, edge_points, panel_part
 from stages.garments.garmentcode_band import band_floor, band_vertices, lift_band, worn_from_waistband
+from stages.garments.garmentcode_grade import Grade, grade, graded_body, grading
+from stages.garments.garmentcode_shoulders import shoulder_lift, shoulder_pairs, shoulder_surface
 from stages.garments.garmentcode_sleeves import fit_sleeves
 from stages.garments.garmentcode_wrap import wrap_legs, wrap_ring, wrap_sleeves
 from stages.garments.patterns import Edge, Panel, Pattern, PatternAttachment, Placement, Seam, SeamSide
@@ -84,36 +86,6 @@ def read_body(path) -> GCBody:
     return GCBody(b["height"] / 100, waist / 100, (waist - b["hips_line"]) / 100, (top - b["bust_line"]) / 100,
                   top / 100, b["waist"] / 100, b["hips"] / 100, b["bust"] / 100, b["shoulder_w"] / 200,
                   math.radians(b["arm_pose_angle"]), b, src)
-
-
-def grade(gc: GCPattern, k: float, sy: float) -> GCPattern:
-    """The pattern graded to another body: the garment as placed on its body scaled by k across
-    (x, z) and sy up (y) (garmentcode.map_panel: each panel's outline by R^T diag(k, sy, k) R
-    in its own plane, exact for upright panels; tilted ones keep their in-plane part; circle arcs
-    through their graded ends and midpoint)."""
-    S = np.diag([k, sy, k])
-    return dc_replace(gc, panels=tuple(map_panel(p, S) for p in gc.panels))
-
-
-def graded_body(body: GCBody, k: float, sy: float) -> GCBody:
-    return dc_replace(body, height=body.height * sy, waist_y=body.waist_y * sy, hips_y=body.hips_y * sy,
-                      bust_y=body.bust_y * sy, shoulder_y=body.shoulder_y * sy, waist=body.waist * k,
-                      hips=body.hips * k, bust=body.bust * k, shoulder_half=body.shoulder_half * k)
-
-
-def grading(gc: GCPattern, body: GCBody, meas: dict) -> tuple[float, float]:
-    """(k, sy): across, the largest ratio of the character's clearance girth (body and colliders,
-    measurements.clearance_measurements) to the pattern body's girth at the levels (hips, waist,
-    bust) its upright panels cover, so that a garment snug on its body closes over the character's
-    colliders; up, the ratio of the heights."""
-    ys = np.concatenate([p.to_3d(p.vertices)[:, 1] for p in gc.panels if panel_part(p) != "arm"] or [np.zeros(0)])
-    ratios = []
-    for y, key, girth in ((body.hips_y, "clear_hips", body.hips), (body.waist_y, "clear_waist", body.waist),
-                          (body.bust_y, "clear_chest", body.bust)):
-        if ys.size and ys.min() - 0.05 <= y <= ys.max() + 0.05 and key in meas:
-            ratios.append(meas[key] / girth)
-    k = max(ratios) if ratios else meas.get("clear_waist", body.waist) / body.waist
-    return float(k), float(meas["height"] / body.height)
 
 
 def body_of(spec_path, default_body: Path) -> GCBody:
@@ -348,15 +320,17 @@ def mismatch(body: GCBody, meas: dict) -> dict:
             "waist": (meas["waist"], body.waist), "hips": (meas["hips"], body.hips)}
 
 
-def mismatch_warning(body: GCBody, meas: dict, name: str, k: float = 1.0, sy: float = 1.0,
+def mismatch_warning(body: GCBody, meas: dict, name: str, g: Grade | None = None,
                      tolerance: float = 0.05) -> str | None:
     """One line when a measure differs by more than `tolerance` (share), else None."""
     far = {m: (c, b) for m, (c, b) in mismatch(body, meas).items() if abs(c / b - 1.0) > tolerance}
     if not far:
         return None
+    g = g or Grade.uniform(1.0, 1.0)
     parts = ", ".join(f"{m} {c * 100:.0f} cm vs {b * 100:.0f} cm ({(c / b - 1) * 100:+.0f} %)" for m, (c, b) in far.items())
+    across = f"x{g.across[0]:.3f} across" + (f" (x{g.across[-1]:.3f} above the bust)" if abs(g.across[-1] - g.across[0]) > 5e-4 else "")
     return (f"garment {name!r}: the pattern was made for the body in {body.source}; this character differs: {parts} "
-            f"(character vs pattern body); dressed graded x{k:.3f} across and x{sy:.3f} up")
+            f"(character vs pattern body); dressed graded {across} and x{g.up:.3f} up")
 
 
 def garment_anchor(gc: GCPattern, body: GCBody) -> float:
@@ -475,8 +449,8 @@ def place_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, 
     from stages.garments.triangulate import triangulate_pattern
     meas = garment_measurements(character, colliders, motion)
     worn = worn_from_waistband(meas) if garment_anchor(gc, body) < 0.5 * (body.waist_y + body.bust_y) else meas
-    k, sy = grading(gc, body, worn)
-    graded, gbody = grade(gc, k, sy), graded_body(body, k, sy)
+    g = grading(gc, body, worn)
+    graded, gbody = grade(gc, g), graded_body(body, g)
     if "arm_radius" in meas:   # sleeves round the character's arms (and their colliders)
         graded, _ = fit_sleeves(graded, gbody, 2 * math.pi * meas["arm_radius"])
     pattern, signs = to_pattern(graded, edge_length, name or gc.name, density)
@@ -499,10 +473,16 @@ def place_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, 
             placed = place_gc(graded, flat, signs, bmap, gbody)
             if placed[band, 1].min() >= floor - BAND_TOLERANCE:
                 break
+    # a top's shoulder seams closed over the shoulders, not through them (garmentcode_shoulders)
+    arm_panel = np.array([panel_part(p) == "arm" for p in graded.panels])
+    over = shoulder_pairs(placed, flat, arm_panel, origins[character.root_joint], meas["chest_y"],
+                          meas.get("shoulder_top", meas["shoulder_y"]))
+    if len(over):
+        placed[:, 1] += shoulder_lift(placed, over, shoulder_surface(character, colliders, motion), CLEARANCE)
     bad = inside_body(character, skinned0, placed)
     if bad.any():
         placed[bad] = push_out(placed[bad], character, skinned0, CLEARANCE)
-    return graded, pattern, flat, placed, mismatch_warning(body, meas, name or gc.name, k, sy)
+    return graded, pattern, flat, placed, mismatch_warning(body, meas, name or gc.name, g)
 
 
 def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, maps, *, edge_length: float = 0.025,
