@@ -179,17 +179,19 @@ def _orient_sure(a, b, c, d) -> np.ndarray:
     return np.where(np.abs(det) > ORIENT_ERR * perm, np.sign(det), 0.0)
 
 
-def _decide_exact(x, edges, tris, e, want_same, edge_group, tri_group, tri_lo, tri_hi) -> bool:
+def _decide_exact(x, edges, tris, e, want_same, edge_group, tri_group, nearby) -> bool:
     """Whether edge e crosses a triangle of its own group (want_same) or another, exactly (the
     triangles that sure float orientations rule out are not tested in exact arithmetic).
-    tri_lo, tri_hi: (T, 3) the triangles' bounding boxes."""
+    nearby: indices of the triangles it may cross (a superset: every one whose box meets its box)."""
     p, q = edges[e]
     lo = np.minimum(x[p], x[q])
     hi = np.maximum(x[p], x[q])
-    near = np.all(tri_lo <= hi, axis=1) & np.all(tri_hi >= lo, axis=1)
-    near &= (tri_group == edge_group[e]) == want_same
-    near &= ~np.any((tris == p) | (tris == q), axis=1)
-    cand = np.flatnonzero(near)
+    nearby = np.sort(np.asarray(nearby, np.int64))
+    tb = x[tris[nearby]]
+    near = np.all(tb.min(axis=1) <= hi, axis=1) & np.all(tb.max(axis=1) >= lo, axis=1)
+    near &= (tri_group[nearby] == edge_group[e]) == want_same
+    near &= ~np.any((tris[nearby] == p) | (tris[nearby] == q), axis=1)
+    cand = nearby[near]
     if cand.size:
         a, b, c = (x[tris[cand, k]] for k in range(3))
         xp, xq = np.broadcast_to(x[p], a.shape), np.broadcast_to(x[q], a.shape)
@@ -225,11 +227,16 @@ def crossing_flags(x: np.ndarray, edges: np.ndarray, edge_group: np.ndarray, tri
     n_exact = 0
     unknown = np.nonzero(out == AK.CROSS_UNKNOWN)
     if unknown[0].size:
+        from scipy.spatial import cKDTree
         tb = x[tris]
-        tri_lo, tri_hi = tb.min(axis=1), tb.max(axis=1)
-    for e, k in zip(*unknown):
-        n_exact += 1
-        flags[e, k] = _decide_exact(x, edges, tris, e, k == 0, edge_group, tri_group, tri_lo, tri_hi)
+        cen = tb.mean(axis=1)
+        reach = float(np.linalg.norm(tb - cen[:, None], axis=2).max())    # every triangle within it of its centre
+        ends = x[edges[unknown[0]]]
+        nearby = cKDTree(cen).query_ball_point(ends.mean(axis=1),
+                                               0.5 * np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1) + reach)
+        for e, k, near in zip(*unknown, nearby):
+            n_exact += 1
+            flags[e, k] = _decide_exact(x, edges, tris, e, k == 0, edge_group, tri_group, near)
     return flags[:, 0], flags[:, 1], n_exact
 
 
