@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from pipeline.assets import assets_dir
-from stages.garments.sewing import TANGLE_BIT, seam_zones
+from stages.garments.sewing import SEAM_BIT, TANGLE_BIT, seam_zones
 from stages.sim.audit import _orient_exact
 from stages.sim.cloth_contact.setup import build_cloth_contact
 from tests.test_sim_cloth_contact import H, brute_force_reference
@@ -57,9 +57,9 @@ def test_pairs_sharing_an_exclusion_zone_are_not_tested(seed):
         np.testing.assert_array_equal(feat, ref_feat[~drop])
 
 
-def test_seam_zones_mark_the_cloth_near_each_seam_with_its_bit():
+def test_seam_zones_mark_the_cloth_at_the_seams():
     # two flat strips side by side (rest shape), a seam along their facing edges and one along their
-    # far edges: each seam's vertices get its bit, the cloth between the seams none
+    # far edges: the seams' vertices are in the seam zone, the cloth between the seams in none
     n, edge = 6, 0.02
     ys = np.arange(n) * edge
     cols = [np.c_[np.full(n, cx), ys, np.zeros(n)] for cx in (0.0, edge, 2 * edge, 0.2, 0.2 + edge, 0.2 + 2 * edge)]
@@ -73,13 +73,13 @@ def test_seam_zones_mark_the_cloth_near_each_seam_with_its_bit():
     facing = np.c_[2 * n + np.arange(n), 3 * n + np.arange(n)]
     far = np.c_[np.arange(n), 5 * n + np.arange(n)]
     pairs = np.concatenate([facing, far])
-    zones = seam_zones(rest, tris, pairs, np.r_[np.zeros(n, int), np.ones(n, int)])
-    assert np.all(zones[facing.ravel()] == 1) and np.all(zones[far.ravel()] == 2)
+    zones = seam_zones(rest, tris, pairs)
+    sb, tb = np.uint64(1) << np.uint64(SEAM_BIT), np.uint64(1) << np.uint64(TANGLE_BIT)
+    assert np.all(zones[pairs.ravel()] == sb)
     middle = np.r_[n + np.arange(n), 4 * n + np.arange(n)]
     assert np.all(zones[middle] == 0)
-    # the cloth left through cloth after untangling: its own bit, reaching two edges along the cloth
-    z = seam_zones(rest, tris, pairs, np.r_[np.zeros(n, int), np.ones(n, int)], tangled=[n])
-    tb = np.uint64(1) << np.uint64(TANGLE_BIT)
+    # the cloth left through cloth after untangling: its own zone, reaching two edges along the cloth
+    z = seam_zones(rest, tris, pairs, tangled=[n])
     assert (z[n] & tb) and (z[0] & tb) and (z[2 * n] & tb) and (z[3 * n] & tb) == 0
 
 

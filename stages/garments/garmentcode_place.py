@@ -563,10 +563,8 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
     sp = dc_replace(sp, min_iterations=max(sp.min_iterations, min(RELAX_ITERATIONS, sp.max_iterations)),
                     self_collision=True)
     def sew_with(pairs, start=placed):
-        # a junction's extra pairs (junction_pairs) each a seam of its own: the corners they draw together
-        seam = np.concatenate([flat.seam_index, len(pattern.seams) + np.arange(len(pairs) - len(flat.seam_pairs))])
         return sew(name, start, tri, tri_rest, pairs, character, motion, colliders, maps, sp, density=density,
-                   flat_positions=flat3, pair_stage=None, pair_seam=seam, pins=pins, bind=pose if pins else None,
+                   flat_positions=flat3, pair_stage=None, pins=pins, bind=pose if pins else None,
                    progress=progress)
     sewn, log = sew_with(flat.seam_pairs)
     corners = junction_pairs(flat.seam_pairs)

@@ -513,8 +513,8 @@ def make_garment(pattern: Pattern, character, motion, colliders, maps, *, sew_pa
 
     def sew_held(pins):
         return sew(pattern.name, placed, tri, tri_rest, flat.seam_pairs, character, motion, colliders, maps, sp,
-                   density=pattern.density, flat_positions=flat3, pair_stage=stage, pair_seam=flat.seam_index,
-                   pins=pins, bind=bind, progress=progress)
+                   density=pattern.density, flat_positions=flat3, pair_stage=stage, pins=pins, bind=bind,
+                   progress=progress)
     sewn, log = sew_held(pins)
     runs = [run_vertices(pattern, flat, side) for side in pattern.fit_edges]
     pinned = np.concatenate([np.asarray(a.indices) for a in pins]) if pins else np.zeros(0, np.int64)

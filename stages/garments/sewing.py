@@ -24,11 +24,14 @@ from stages.garments.types import build_garment
 STALL_WINDOW = 4
 STALL_GAIN = 0.1
 MIN_SEW_BEND = 0.25
-# the cloth within this many (median) edge lengths of a seam's vertices, on either side, is not collided
-# with the cloth near the same seam while sewing: the seam springs pull the two sides together, and the
-# contacts would hold them a thickness apart (seam_zones). Half an edge: the seam's own vertices (and
-# the triangles and edges touching them); at 1.5 the strips either side passed through each other
-# (dress_pencil on the CMU walk: 61 edges through the sewn garment, 3 at 0.5)
+# the cloth within this many (median) edge lengths of a seam's vertices is not collided with the cloth
+# near any seam while sewing: the seam springs pull the two sides together, and the contacts would hold
+# them a thickness apart (seam_zones). Half an edge: the seams' own vertices (and the triangles and
+# edges touching them); at 1.5 the strips either side passed through each other (dress_pencil on the
+# CMU walk: 61 edges through the sewn garment, 3 at 0.5). One zone for every seam: with a zone per seam,
+# the cloth where seams meet (an armhole's corner at the side seam) held the seams open (5 of 8
+# GarmentCode garments on CesiumMan and the CMU walk stalled 5.6-30 mm open; with one, the CMU walk's
+# pants, tee and jumpsuit closed)
 SEAM_ZONE_EDGES = 0.5
 # the cloth within this many edge lengths of cloth left through cloth after untangling the placement is not
 # collided with itself while sewing (a jumpsuit's legs placed through each other at CesiumMan's crotch:
@@ -47,8 +50,8 @@ class SewParams:
     log_every: keep the positions of every k-th iteration in the log (plus the first and last).
     min_iterations: simulate calls at least (panels placed with their seams already closed still
     settle under micro-gravity and get pushed out of the colliders).
-    self_collision: the cloth collided with itself while sewing (but near a seam against the cloth
-    near the same seam, seam_zones), the placed panels untangled first (the contacts would hold
+    self_collision: the cloth collided with itself while sewing (but the cloth at the seams against
+    the cloth at the seams, seam_zones), the placed panels untangled first (the contacts would hold
     cloth placed through cloth where it is); off: the seams pull the panels through each other
     where their way crosses (stages.garments.untangle then repairs what it can). The built-in
     patterns are sewn without: with it a T-shirt's loose collar (fit_band 1.1 on the built-in
@@ -115,16 +118,16 @@ def seam_gaps(x: np.ndarray, pairs: np.ndarray) -> np.ndarray:
     return np.linalg.norm(x[pairs[:, 0]] - x[pairs[:, 1]], axis=1)
 
 
-TANGLE_BIT = 63   # the zone of the cloth left through cloth after untangling the placement (seams: bits 0-62)
+SEAM_BIT, TANGLE_BIT = 0, 1   # the zones of the seams and of the cloth left through cloth after untangling
 
 
-def seam_zones(rest: np.ndarray, triangles: np.ndarray, pairs: np.ndarray, pair_seam=None,
-               reach_edges: float = SEAM_ZONE_EDGES, tangled=None) -> np.ndarray:
-    """(N,) uint64 exclusion zones (Garment.contact_zones) of an unsewn mesh: bit s % 63 on every
-    particle within `reach_edges` median edge lengths of a vertex of seam s, measured in the rest
-    shape `rest` (N, 3) (the flat panels: the distance along the cloth). pair_seam: (K,) seam of
-    each pair of `pairs` (K, 2) (default: one seam). tangled: optional vertex indices of the cloth
-    placed through cloth (tangled_vertices): TANGLE_BIT on them and within TANGLE_ZONE_EDGES of them."""
+def seam_zones(rest: np.ndarray, triangles: np.ndarray, pairs: np.ndarray, reach_edges: float = SEAM_ZONE_EDGES,
+               tangled=None) -> np.ndarray:
+    """(N,) uint64 exclusion zones (Garment.contact_zones) of an unsewn mesh: SEAM_BIT on every
+    particle within `reach_edges` median edge lengths of a vertex of a seam pair (K, 2), measured in
+    the rest shape `rest` (N, 3) (the flat panels: the distance along the cloth). tangled: optional
+    vertex indices of the cloth placed through cloth (tangled_vertices): TANGLE_BIT on them and
+    within TANGLE_ZONE_EDGES of them."""
     from scipy.spatial import cKDTree
     n = rest.shape[0]
     zones = np.zeros(n, np.uint64)
@@ -136,9 +139,8 @@ def seam_zones(rest: np.ndarray, triangles: np.ndarray, pairs: np.ndarray, pair_
         near = tree.query_ball_point(rest[np.unique(verts)], reach)
         zones[np.unique(np.concatenate([np.asarray(v, np.int64) for v in near]))] |= np.uint64(1) << np.uint64(bit)
 
-    seam = np.zeros(len(pairs), np.int64) if pair_seam is None else np.asarray(pair_seam, np.int64)
-    for s in np.unique(seam) if pairs.size else ():
-        mark(pairs[seam == s], reach_edges * edge, s % TANGLE_BIT)
+    if pairs.size:
+        mark(pairs, reach_edges * edge, SEAM_BIT)
     if tangled is not None and len(tangled):
         mark(np.asarray(tangled), TANGLE_ZONE_EDGES * edge, TANGLE_BIT)
     return zones
@@ -161,7 +163,7 @@ def tangled_vertices(x: np.ndarray, triangles: np.ndarray) -> np.ndarray:
 
 def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: np.ndarray, pairs: np.ndarray,
         character, motion, colliders, maps, params: SewParams = SewParams(), *, density: float = 0.2,
-        flat_positions=None, pair_stage=None, pair_seam=None, pins=(), bind=None, progress=None):
+        flat_positions=None, pair_stage=None, pins=(), bind=None, progress=None):
     """Sew the placed panels. Returns (sewn positions of the UNSEWN mesh (N, 3), SewingLog).
 
     positions: (N, 3) placed panels; triangles (T, 3); triangle_rest (T, 3) flat edge lengths;
@@ -169,8 +171,6 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
     coincident seam vertices from being welded before sewing). pair_stage: optional (K,) sewing
     stage of each pair: the pairs of stage k join the seam springs once every earlier pair is within
     2 x tolerance, or after max_iterations / (2 x stages) iterations of the stage.
-    pair_seam: optional (K,) seam of each pair: the cloth is collided with itself except near a seam
-    against the cloth near the same seam (seam_zones; default: all pairs one seam).
     pins: Attachment selectors (stages.garments.types) of vertices held in place while sewing,
     with `bind` (bind_pose of the character); the hold motion is still, so they stay where placed.
     progress: optional callback(iteration, max_iterations) after each sewing iteration.
@@ -195,7 +195,7 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
     stages = np.unique(stage_of) if stage_of.size else np.zeros(1, np.int64)
     si = 0
     zones = seam_zones(np.asarray(positions if flat_positions is None else flat_positions, np.float64),
-                       np.asarray(triangles), np.asarray(pairs), pair_seam, tangled=knot)
+                       np.asarray(triangles), np.asarray(pairs), tangled=knot)
 
     def garment_for(x, active):
         g = build_garment(name, x, triangles, rest_positions=flat_positions, density=density,
@@ -218,7 +218,7 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
     # Self collision: without it the seams pulled cloth through cloth (dress_pencil on the CMU walk:
     # 99 edges through the garment placed, 249 sewn), and a cape's top gathering at the neck folded
     # it through itself; the simulation keeps the crossings it starts with. The cloth near a seam is
-    # not collided with the cloth near the same seam (seam_zones): its two sides are meant to meet.
+    # not collided with the cloth near a seam (seam_zones): the two sides are meant to meet.
     # A garment without seams (a cape) is always sewn with it.
     sp = SimParams(dt=params.dt, substeps=params.substeps, iterations=params.iterations,
                    gravity=(0.0, -9.81 * params.gravity_scale, 0.0), damping=params.damping, drag=0.0, lift=0.0,
