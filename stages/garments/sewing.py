@@ -24,6 +24,19 @@ from stages.garments.types import build_garment
 STALL_WINDOW = 4
 STALL_GAIN = 0.1
 MIN_SEW_BEND = 0.25
+# the cloth within this many (median) edge lengths of a seam's vertices is not collided with the cloth
+# near any seam while sewing: the seam springs pull the two sides together, and the contacts would hold
+# them a thickness apart (seam_zones). Half an edge: the seams' own vertices (and the triangles and
+# edges touching them); at 1.5 the strips either side passed through each other (dress_pencil on the
+# CMU walk: 61 edges through the sewn garment, 3 at 0.5). One zone for every seam: with a zone per seam,
+# the cloth where seams meet (an armhole's corner at the side seam) held the seams open (5 of 8
+# GarmentCode garments on CesiumMan and the CMU walk stalled 5.6-30 mm open; with one, the CMU walk's
+# pants, tee and jumpsuit closed)
+SEAM_ZONE_EDGES = 0.5
+# the cloth within this many edge lengths of cloth left through cloth after untangling the placement is not
+# collided with itself while sewing (a jumpsuit's legs placed through each other at CesiumMan's crotch:
+# caught there, its seams stayed 21 mm open)
+TANGLE_ZONE_EDGES = 2.0
 
 
 @dataclass(frozen=True)
@@ -37,6 +50,12 @@ class SewParams:
     log_every: keep the positions of every k-th iteration in the log (plus the first and last).
     min_iterations: simulate calls at least (panels placed with their seams already closed still
     settle under micro-gravity and get pushed out of the colliders).
+    self_collision: the cloth collided with itself while sewing (but the cloth at the seams against
+    the cloth at the seams, seam_zones), the placed panels untangled first (the contacts would hold
+    cloth placed through cloth where it is); off: the seams pull the panels through each other
+    where their way crosses (stages.garments.untangle then repairs what it can). The built-in
+    patterns are sewn without: with it a T-shirt's loose collar (fit_band 1.1 on the built-in
+    character) stayed 5.9 mm open after 40 iterations.
     """
 
     tolerance: float = 0.004
@@ -51,6 +70,7 @@ class SewParams:
     seam_rest: float = 1e-4
     log_every: int = 2
     min_iterations: int = 2
+    self_collision: bool = False
 
     def __post_init__(self):
         if not (self.tolerance > 0 and self.seam_rest > 0 and self.max_iterations >= 1 and
@@ -98,6 +118,49 @@ def seam_gaps(x: np.ndarray, pairs: np.ndarray) -> np.ndarray:
     return np.linalg.norm(x[pairs[:, 0]] - x[pairs[:, 1]], axis=1)
 
 
+SEAM_BIT, TANGLE_BIT = 0, 1   # the zones of the seams and of the cloth left through cloth after untangling
+
+
+def seam_zones(rest: np.ndarray, triangles: np.ndarray, pairs: np.ndarray, reach_edges: float = SEAM_ZONE_EDGES,
+               tangled=None) -> np.ndarray:
+    """(N,) uint64 exclusion zones (Garment.contact_zones) of an unsewn mesh: SEAM_BIT on every
+    particle within `reach_edges` median edge lengths of a vertex of a seam pair (K, 2), measured in
+    the rest shape `rest` (N, 3) (the flat panels: the distance along the cloth). tangled: optional
+    vertex indices of the cloth placed through cloth (tangled_vertices): TANGLE_BIT on them and
+    within TANGLE_ZONE_EDGES of them."""
+    from scipy.spatial import cKDTree
+    n = rest.shape[0]
+    zones = np.zeros(n, np.uint64)
+    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    edge = float(np.median(np.linalg.norm(rest[e[:, 0]] - rest[e[:, 1]], axis=1)))
+    tree = cKDTree(rest)
+
+    def mark(verts, reach, bit):
+        near = tree.query_ball_point(rest[np.unique(verts)], reach)
+        zones[np.unique(np.concatenate([np.asarray(v, np.int64) for v in near]))] |= np.uint64(1) << np.uint64(bit)
+
+    if pairs.size:
+        mark(pairs, reach_edges * edge, SEAM_BIT)
+    if tangled is not None and len(tangled):
+        mark(np.asarray(tangled), TANGLE_ZONE_EDGES * edge, TANGLE_BIT)
+    return zones
+
+
+def tangled_vertices(x: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """The vertices of the edges through the mesh's own triangles and of the triangles they cross."""
+    from stages.garments.untangle import crossing_pairs
+    from stages.geometry.mesh import mesh_edges
+    from stages.sim.audit import crossing_flags
+    tris = np.ascontiguousarray(triangles, np.int32)
+    edges = mesh_edges(tris)
+    own, _, _ = crossing_flags(x, edges, np.zeros(len(edges), np.int32), tris, np.zeros(len(tris), np.int32))
+    hits = crossing_pairs(x, edges, tris, np.flatnonzero(own))
+    if not hits:
+        return np.zeros(0, np.int64)
+    e, t = np.array(hits).T
+    return np.unique(np.concatenate([edges[e].ravel(), tris[t].ravel()])).astype(np.int64)
+
+
 def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: np.ndarray, pairs: np.ndarray,
         character, motion, colliders, maps, params: SewParams = SewParams(), *, density: float = 0.2,
         flat_positions=None, pair_stage=None, pins=(), bind=None, progress=None):
@@ -117,11 +180,22 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
 
     t0 = time.perf_counter()
     x = np.ascontiguousarray(positions, dtype=np.float64)
+    notes = []
+    knot = None
+    if params.self_collision:
+        from stages.garments.untangle import untangle
+        x, left, tangled = untangle(x, triangles)
+        if tangled:
+            notes.append(f"placed panels untangled: {tangled - left} of {tangled} edges through the panels moved back out")
+        if left:
+            knot = tangled_vertices(x, triangles)
     stage_of = np.zeros(len(pairs), np.int64) if pair_stage is None else np.asarray(pair_stage, np.int64).ravel()
     if stage_of.shape != (len(pairs),):
         raise ContractError(f"sew {name!r}: pair_stage must give one stage per seam pair")
     stages = np.unique(stage_of) if stage_of.size else np.zeros(1, np.int64)
     si = 0
+    zones = seam_zones(np.asarray(positions if flat_positions is None else flat_positions, np.float64),
+                       np.asarray(triangles), np.asarray(pairs), tangled=knot)
 
     def garment_for(x, active):
         g = build_garment(name, x, triangles, rest_positions=flat_positions, density=density,
@@ -131,7 +205,7 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
                           yield_swept=False)   # the sewing holds the body still
         if g.n_particles != x.shape[0]:
             raise ContractError(f"sew {name!r}: the unsewn mesh must be clean (got {g.n_particles} of {x.shape[0]} vertices)")
-        return g
+        return replace(g, contact_zones=zones)
 
     active = stage_of <= stages[si]
     g = garment_for(x, active)
@@ -141,19 +215,20 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
     # distances, against the seam springs (a waistband placed a little stretched never closes).
     # Bend springs as stiff as the edges (not the simulation's 0.2): the panels wrap round the body
     # as stiff sheets; softer, CesiumMan's trousers were sewn with 5 edges through themselves.
-    # A garment without seams (a cape: its top pulled onto the neck) is sewn with self collision: its
-    # top gathering at the neck folded it through itself (CesiumMan 19, BVH 28 edges through the cape
-    # at frame 0, kept to the end, since the simulation keeps the crossings it starts with). With
-    # seams, the contacts would hold the two sides of every seam a thickness apart.
+    # Self collision: without it the seams pulled cloth through cloth (dress_pencil on the CMU walk:
+    # 99 edges through the garment placed, 249 sewn), and a cape's top gathering at the neck folded
+    # it through itself; the simulation keeps the crossings it starts with. The cloth near a seam is
+    # not collided with the cloth near a seam (seam_zones): the two sides are meant to meet.
+    # A garment without seams (a cape) is always sewn with it.
     sp = SimParams(dt=params.dt, substeps=params.substeps, iterations=params.iterations,
                    gravity=(0.0, -9.81 * params.gravity_scale, 0.0), damping=params.damping, drag=0.0, lift=0.0,
                    friction=params.friction, body_audit=False, tethers=False, bend_stiffness=1.0,
-                   cloth_collision=len(pairs) == 0)
+                   cloth_collision=params.self_collision or len(pairs) == 0)
     hold = hold_motion(motion, params.frames_per_iteration, params.dt)
     gaps = seam_gaps(x, pairs)
     gmax, gmean = [float(gaps.max(initial=0.0))], [float(gaps.mean()) if gaps.size else 0.0]
     logged, snaps = [0], [x.astype(np.float32)]
-    pen, notes = 0, []
+    pen = 0
     it = 0
     stalled_at = 0
     while (gmax[-1] > params.tolerance or si + 1 < len(stages) or it < params.min_iterations) \

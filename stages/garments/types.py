@@ -59,6 +59,9 @@ class Garment:
         on its attached band in most frames (stages.garments.band.resting_limbs) or that come against a
         limb it is worn round (stages.garments.band.pinching_limbs); the simulation adds them to its
         ignore_colliders.
+    contact_zones: (N,) uint64 or None: a bit per exclusion zone; the cloth x cloth phase does not
+        test a pair of features whose particles share a zone (the sewing's seams while they close,
+        stages.garments.sewing.seam_zones).
     """
 
     name: str
@@ -75,6 +78,7 @@ class Garment:
     stretch_stiffness: float | None = None
     bend_stiffness: float | None = None
     passing_joints: tuple = ()
+    contact_zones: np.ndarray | None = None
 
     def __post_init__(self):
         o = f"Garment[{self.name!r}]"
@@ -105,6 +109,8 @@ class Garment:
         if np.any(aj < -1):
             raise ContractError(f"{o}.attach_joint: expected -1 or a joint index")
         check_array(o, "attach_local", self.attach_local, (n, 3), np.float64)
+        if self.contact_zones is not None:
+            check_array(o, "contact_zones", self.contact_zones, (n,), np.uint64)
 
     @property
     def n_particles(self) -> int:

@@ -25,11 +25,23 @@ def crossing_pairs(x: np.ndarray, edges: np.ndarray, triangles: np.ndarray, flag
     """[(edge index, triangle index)] for the edges in `flagged`: the triangles each passes through
     (triangles sharing a vertex with it excluded), by a direct segment-triangle test against every
     triangle (the crossings are few; `stages.sim.audit.crossing_flags` finds which edges cross)."""
-    a, b, c = x[triangles[:, 0]], x[triangles[:, 1]], x[triangles[:, 2]]
-    e1, e2 = b - a, c - a
+    from scipy.spatial import cKDTree
+    flagged = np.asarray(flagged, np.int64)
+    if flagged.size == 0:
+        return []
+    tb = x[triangles]
+    cen = tb.mean(axis=1)
+    reach = float(np.linalg.norm(tb - cen[:, None], axis=2).max())     # every triangle within it of its centre
+    ends = x[edges[flagged]]
+    # the triangles whose centres are near enough the edge for it to pass through them
+    nearby = cKDTree(cen).query_ball_point(ends.mean(axis=1), 0.5 * np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1) + reach)
     out = []
-    for e in flagged:
+    for e, near in zip(flagged, nearby):
         i, j = edges[e]
+        near = np.sort(np.asarray(near, np.int64))
+        tri = triangles[near]
+        a, b, c = x[tri[:, 0]], x[tri[:, 1]], x[tri[:, 2]]
+        e1, e2 = b - a, c - a
         d = x[j] - x[i]
         h = np.cross(d, e2)
         det = np.einsum("ij,ij->i", e1, h)
@@ -41,8 +53,8 @@ def crossing_pairs(x: np.ndarray, edges: np.ndarray, triangles: np.ndarray, flag
         v = inv * (q @ d)
         t = inv * np.einsum("ij,ij->i", e2, q)
         hit = ok & (u > 0) & (v > 0) & (u + v < 1) & (t > 0) & (t < 1)
-        hit &= ~np.any(triangles == i, axis=1) & ~np.any(triangles == j, axis=1)
-        out.extend((int(e), int(k)) for k in np.flatnonzero(hit))
+        hit &= ~np.any(tri == i, axis=1) & ~np.any(tri == j, axis=1)
+        out.extend((int(e), int(k)) for k in near[hit])
     return out
 
 
@@ -60,12 +72,17 @@ def edge_faces(triangles: np.ndarray, edges: np.ndarray) -> np.ndarray:
     return out
 
 
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """u x v of two 3-vectors (np.cross's overhead is most of the cost at this size)."""
+    return np.array([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]])
+
+
 def contour_gradient(x: np.ndarray, triangles: np.ndarray, edge: np.ndarray, beside: np.ndarray,
                      t: int) -> np.ndarray:
     """(3,) G for edge (i, j) through triangle t (see the module): moving the edge by G and the
     triangle by -G shortens their intersection contour."""
     a, b, c = x[triangles[t]]
-    n = np.cross(b - a, c - a)
+    n = _cross(b - a, c - a)
     n /= max(np.linalg.norm(n), 1e-300)
     i, j = int(edge[0]), int(edge[1])
     e = x[j] - x[i]
@@ -78,9 +95,9 @@ def contour_gradient(x: np.ndarray, triangles: np.ndarray, edge: np.ndarray, bes
             continue
         tri = triangles[f]
         p, q, r = x[tri]
-        ni = np.cross(q - p, r - p)
+        ni = _cross(q - p, r - p)
         ni /= max(np.linalg.norm(ni), 1e-300)
-        rv = np.cross(n, ni)
+        rv = _cross(n, ni)
         norm = np.linalg.norm(rv)
         if norm < 1e-12:
             continue

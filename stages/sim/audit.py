@@ -16,6 +16,7 @@ it crosses).
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 from fractions import Fraction
 
 import numpy as np
@@ -123,6 +124,24 @@ def vertex_strains(strain: np.ndarray, edges: np.ndarray, n: int) -> np.ndarray:
 
 # -- crossings -----------------------------------------------------------------------------------
 def _orient_exact(a, b, c, d) -> int:
+    """Exact sign of det[a - d, b - d, c - d] (integer arithmetic on the float values, each a
+    multiple of 2^-1074: scaled by the smallest power of two among them)."""
+    vals = [float(v) for p in (a, b, c, d) for v in p]
+    if not all(math.isfinite(v) for v in vals):
+        return _orient_fraction(a, b, c, d)
+    ratios = [v.as_integer_ratio() for v in vals]
+    den = max(r[1] for r in ratios)             # powers of two: the largest is a multiple of the others
+    a, b, c, d = (ratios[k:k + 3] for k in range(0, 12, 3))
+    a, b, c, d = ([n * (den // m) for n, m in p] for p in (a, b, c, d))
+    ad = [a[k] - d[k] for k in range(3)]
+    bd = [b[k] - d[k] for k in range(3)]
+    cd = [c[k] - d[k] for k in range(3)]
+    det = (ad[2] * (bd[0] * cd[1] - cd[0] * bd[1]) + bd[2] * (cd[0] * ad[1] - ad[0] * cd[1])
+           + cd[2] * (ad[0] * bd[1] - bd[0] * ad[1]))
+    return (det > 0) - (det < 0)
+
+
+def _orient_fraction(a, b, c, d) -> int:
     """Exact sign of det[a - d, b - d, c - d] (rational arithmetic on the float values)."""
     a, b, c, d = ([Fraction(float(v)) for v in p] for p in (a, b, c, d))
     ad = [a[k] - d[k] for k in range(3)]
@@ -143,16 +162,45 @@ def crosses_exact(p, q, a, b, c) -> bool:
     return s1 != 0 and s1 == s2 == s3
 
 
-def _decide_exact(x, edges, tris, e, want_same, edge_group, tri_group) -> bool:
-    """Whether edge e crosses a triangle of its own group (want_same) or another, exactly."""
+ORIENT_ERR = 1e-14   # relative error bound of a float orientation (Shewchuk's orient3d: 7.8e-16, with room)
+
+
+def _orient_sure(a, b, c, d) -> np.ndarray:
+    """(M,) sign of det[a - d, b - d, c - d] for rows of (M, 3) points where the float value is sure
+    of it, 0 where it is not (then only exact arithmetic decides)."""
+    ad, bd, cd = a - d, b - d, c - d
+    t1 = bd[:, 0] * cd[:, 1] - cd[:, 0] * bd[:, 1]
+    t2 = cd[:, 0] * ad[:, 1] - ad[:, 0] * cd[:, 1]
+    t3 = ad[:, 0] * bd[:, 1] - bd[:, 0] * ad[:, 1]
+    det = ad[:, 2] * t1 + bd[:, 2] * t2 + cd[:, 2] * t3
+    a_, b_, c_ = np.abs(ad), np.abs(bd), np.abs(cd)
+    perm = (a_[:, 2] * (b_[:, 0] * c_[:, 1] + c_[:, 0] * b_[:, 1]) + b_[:, 2] * (c_[:, 0] * a_[:, 1] + a_[:, 0] * c_[:, 1])
+            + c_[:, 2] * (a_[:, 0] * b_[:, 1] + b_[:, 0] * a_[:, 1]))
+    return np.where(np.abs(det) > ORIENT_ERR * perm, np.sign(det), 0.0)
+
+
+def _decide_exact(x, edges, tris, e, want_same, edge_group, tri_group, nearby) -> bool:
+    """Whether edge e crosses a triangle of its own group (want_same) or another, exactly (the
+    triangles that sure float orientations rule out are not tested in exact arithmetic).
+    nearby: indices of the triangles it may cross (a superset: every one whose box meets its box)."""
     p, q = edges[e]
     lo = np.minimum(x[p], x[q])
     hi = np.maximum(x[p], x[q])
-    tb = x[tris]
+    nearby = np.sort(np.asarray(nearby, np.int64))
+    tb = x[tris[nearby]]
     near = np.all(tb.min(axis=1) <= hi, axis=1) & np.all(tb.max(axis=1) >= lo, axis=1)
-    near &= (tri_group == edge_group[e]) == want_same
-    near &= ~np.any((tris == p) | (tris == q), axis=1)
-    return any(crosses_exact(x[p], x[q], *x[tris[t]]) for t in np.flatnonzero(near))
+    near &= (tri_group[nearby] == edge_group[e]) == want_same
+    near &= ~np.any((tris[nearby] == p) | (tris[nearby] == q), axis=1)
+    cand = nearby[near]
+    if cand.size:
+        a, b, c = (x[tris[cand, k]] for k in range(3))
+        xp, xq = np.broadcast_to(x[p], a.shape), np.broadcast_to(x[q], a.shape)
+        sp, sq = _orient_sure(a, b, c, xp), _orient_sure(a, b, c, xq)
+        s1, s2, s3 = _orient_sure(xp, xq, a, b), _orient_sure(xp, xq, b, c), _orient_sure(xp, xq, c, a)
+        # ruled out: both ends surely on one side, or two sides of the triangle surely disagree
+        apart = (sp * sq > 0) | (s1 * s2 < 0) | (s2 * s3 < 0) | (s1 * s3 < 0)
+        cand = cand[~apart]
+    return any(crosses_exact(x[p], x[q], *x[tris[t]]) for t in cand)
 
 
 def crossing_flags(x: np.ndarray, edges: np.ndarray, edge_group: np.ndarray, tris: np.ndarray,
@@ -177,9 +225,18 @@ def crossing_flags(x: np.ndarray, edges: np.ndarray, edge_group: np.ndarray, tri
     threaded(AK.edge_crossings)(x, edges, edge_group, tris, tri_group, lo, dims, cell, start, items, out)
     flags = out == AK.CROSS_YES
     n_exact = 0
-    for e, k in zip(*np.nonzero(out == AK.CROSS_UNKNOWN)):
-        n_exact += 1
-        flags[e, k] = _decide_exact(x, edges, tris, e, k == 0, edge_group, tri_group)
+    unknown = np.nonzero(out == AK.CROSS_UNKNOWN)
+    if unknown[0].size:
+        from scipy.spatial import cKDTree
+        tb = x[tris]
+        cen = tb.mean(axis=1)
+        reach = float(np.linalg.norm(tb - cen[:, None], axis=2).max())    # every triangle within it of its centre
+        ends = x[edges[unknown[0]]]
+        nearby = cKDTree(cen).query_ball_point(ends.mean(axis=1),
+                                               0.5 * np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1) + reach)
+        for e, k, near in zip(*unknown, nearby):
+            n_exact += 1
+            flags[e, k] = _decide_exact(x, edges, tris, e, k == 0, edge_group, tri_group, near)
     return flags[:, 0], flags[:, 1], n_exact
 
 

@@ -119,6 +119,8 @@ class _System:
         self.inv_mass = np.ascontiguousarray(np.concatenate([g.inverse_mass for g in garments]))
         self.attach_joint = np.ascontiguousarray(np.concatenate([g.attach_joint for g in garments]))
         self.attach_local = np.ascontiguousarray(np.concatenate([g.attach_local for g in garments]))
+        self.contact_zones = np.concatenate([np.zeros(g.n_particles, np.uint64) if g.contact_zones is None
+                                             else g.contact_zones for g in garments])
         nj = joint_world0.shape[0]
         if np.any(self.attach_joint >= nj):
             raise ContractError(f"simulate: a garment is attached to joint {int(self.attach_joint.max())}, "

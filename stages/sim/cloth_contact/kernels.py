@@ -13,7 +13,8 @@ mass (PBD); pinned particles (inv_mass 0) never move.
 Which pairs are tested: the traversal pairs triangles whose swept, inflated k-DOPs overlap. Each
 vertex and each edge is owned by one incident triangle (`tri_owns`), and a triangle pair tests only
 the features it owns, so each feature pair is tested once: every vertex-face and edge-edge pair that
-shares no vertex (adjacent features are skipped) and whose own swept k-DOPs overlap (conservative).
+shares no vertex (adjacent features are skipped) nor an exclusion zone (ClothContact.exclude) and whose
+own swept k-DOPs overlap (conservative).
 With `cull`, a garment's subtree that is a connected, flat patch is not tested against itself.
 """
 from __future__ import annotations
@@ -278,7 +279,7 @@ def detect(xs, xe, topo, tree, work, h, layer_depth, only_cross, cull, counters,
 # at the build (box_lo[:, 3]: how far it may move from it), nrm_ref (T, 4) unit normals at the build
 # and the cosine of how far each may turn, node_slack (n,) f8 the culled nodes' turn margins);
 # tree[31:42]: the in-place updates' arrays (stages.sim.cloth_contact.local); tree[42]: pdiag
-# (stages.sim.cloth_contact.narrow)
+# (stages.sim.cloth_contact.narrow); tree[43]: the exclusion zones (ClothContact.exclude)
 
 @njit(cache=True, _nrt=False)
 def build_candidates(xs, xe, topo, tree, work, margin, motion, rotation, cull, counters):

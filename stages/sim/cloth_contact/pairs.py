@@ -153,6 +153,12 @@ def _in_triangle(triangles, p, t):
 
 
 @njit(cache=True)
+def _zoned_vf(zone, triangles, p, t):
+    """The particle shares an exclusion zone (a bit of `zone`, ClothContact.exclude) with a corner of t."""
+    return (zone[p] & (zone[triangles[t, 0]] | zone[triangles[t, 1]] | zone[triangles[t, 2]])) != 0
+
+
+@njit(cache=True)
 def point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t):
     """The particle's and the triangle's inflated swept k-DOPs are disjoint."""
     for i in range(pt_min.shape[1]):
@@ -224,7 +230,7 @@ def _ee(xs, xe, e, f, topo, tree, h, layer_depth, only_cross, work, n, counters,
 def test_triangle_pair(xs, xe, t1, t2, topo, tree, pt_min, pt_max, h, layer_depth, only_cross, work, n, counters,
                        collect, flagged_only):
     """Every pair of features owned by the two triangles that share no vertex themselves (see the
-    module doc), after a k-DOP check of the two features' own bounds (pt_min / pt_max per particle,
+    module doc) nor an exclusion zone (tree[43], ClothContact.exclude), after a k-DOP check of the two features' own bounds (pt_min / pt_max per particle,
     the triangles' in tree[8:10]): tested, or with `collect` appended to the candidate lists (the
     bounds then span the lists' lifetime). flagged_only: only the feature pairs with a particle
     flagged in tree[36] (the in-place list updates, stages.sim.cloth_contact.local: the others are
@@ -238,6 +244,7 @@ def test_triangle_pair(xs, xe, t1, t2, topo, tree, pt_min, pt_max, h, layer_dept
     o1 = tri_owns[t1]
     o2 = tri_owns[t2]
     flag = tree[36]
+    zone = tree[43]
     f1 = True
     f2 = True
     if flagged_only:
@@ -246,12 +253,12 @@ def test_triangle_pair(xs, xe, t1, t2, topo, tree, pt_min, pt_max, h, layer_dept
     for k in range(3):
         if o1 & (1 << k):
             p = triangles[t1, k]
-            if ((f2 or flag[p] != 0) and not _in_triangle(triangles, p, t2)
+            if ((f2 or flag[p] != 0) and not _in_triangle(triangles, p, t2) and not _zoned_vf(zone, triangles, p, t2)
                     and not point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t2)):
                 n = _vf(xs, xe, p, t2, topo, tree, h, layer_depth, only_cross, work, n, counters, collect)
         if o2 & (1 << k):
             p = triangles[t2, k]
-            if ((f1 or flag[p] != 0) and not _in_triangle(triangles, p, t1)
+            if ((f1 or flag[p] != 0) and not _in_triangle(triangles, p, t1) and not _zoned_vf(zone, triangles, p, t1)
                     and not point_off_triangle(pt_min, pt_max, p, tri_min, tri_max, t1)):
                 n = _vf(xs, xe, p, t1, topo, tree, h, layer_depth, only_cross, work, n, counters, collect)
     for i in range(3):
@@ -266,6 +273,8 @@ def test_triangle_pair(xs, xe, t1, t2, topo, tree, pt_min, pt_max, h, layer_dept
                 continue
             if (edges[e, 0] == edges[f, 0] or edges[e, 0] == edges[f, 1] or edges[e, 1] == edges[f, 0]
                     or edges[e, 1] == edges[f, 1]):
+                continue
+            if ((zone[edges[e, 0]] | zone[edges[e, 1]]) & (zone[edges[f, 0]] | zone[edges[f, 1]])) != 0:
                 continue
             if edges_apart_bounds(pt_min, pt_max, edges[e, 0], edges[e, 1], edges[f, 0], edges[f, 1]):
                 continue

@@ -26,13 +26,16 @@ class ClothPhase:
     the frame-0 pose with before frame 1 (garments that start interpenetrating, sorted by the
     layers' rule); `rest`: the tuple of every simulated frame, without the layers' rule (every
     pair keeps its side: the settled order is kept). method: 'offset' (`rest` is then the offset
-    phase's state, stages.sim.cloth_contact.offset) or 'swept'.
+    phase's state, stages.sim.cloth_contact.offset) or 'swept'. exclude: (N,) uint64 exclusion
+    zones or None (ClothContact.exclude; the swept phase only).
     """
 
     def __init__(self, x, triangles, offsets, cinv, layers, body_points, thickness: float, every: int,
-                 layer_depth0: float, motion_margin: float | None = None, method: str = "swept"):
+                 layer_depth0: float, motion_margin: float | None = None, method: str = "swept", exclude=None):
         if method not in METHODS:
             raise ContractError(f"ClothPhase: method: expected one of {', '.join(METHODS)}, got {method!r}")
+        if method != "swept" and exclude is not None and np.any(exclude):
+            raise ContractError("ClothPhase: exclusion zones (a garment's contact_zones) need the swept method")
         g = len(offsets) - 1
         tri_garment = (np.searchsorted(np.asarray(offsets), np.asarray(triangles)[:, 0], side="right") - 1)
         outward = (outward_signs(x, triangles, tri_garment, g, body_points) if body_points is not None
@@ -40,7 +43,7 @@ class ClothPhase:
         self.cc = build_cloth_contact(x, triangles, offsets, layers=layers, outward=outward, thickness=thickness,
                                       layer_depth=max(layer_depth0, thickness),
                                       motion_margin=DEFAULT_MOTION if motion_margin is None else motion_margin,
-                                      rotation=DEFAULT_ROTATION)
+                                      rotation=DEFAULT_ROTATION, exclude=exclude)
         topo, tree, work, prm = self.cc.kernel_args()
         self.counters = np.zeros(CK.N_COUNTERS, np.int64)
         self.settled = np.zeros(CK.N_COUNTERS, np.int64)   # the counters after the settling frames
@@ -105,7 +108,8 @@ class ClothPhase:
             body = skin(character, motion, frames=[0])[0]
         cinv = np.where(sysm.attach_joint >= 0, 0.0, sysm.inv_mass)
         return cls(sysm.x, sysm.tris, sysm.offsets, cinv, layers, body, params.cloth_thickness,
-                   params.contact_steps(), params.cloth_layer_depth0, method=params.cloth_contact)
+                   params.contact_steps(), params.cloth_layer_depth0, method=params.cloth_contact,
+                   exclude=sysm.contact_zones)
 
     def settle(self, cloth, cols, m, prm, gravity, wind, fwd0, inv0, substeps, max_speed2, goff, flags) -> None:
         """SETTLE_FRAMES frames of the step loop at the frame-0 pose (fwd0 / inv0 (J, 4, 4)) with the

@@ -119,6 +119,10 @@ class ClothContact:
       particles' bounds the lists were made with, parent (n,) int32 each node's parent (-1: a root),
       tri_leaf (T,) int32 each triangle's leaf, self_cull (n,) uint8 the nodes the last build culled
       as one flat patch.
+    exclude: (N,) uint64 exclusion zones, a bit per zone: a vertex-face or edge-edge pair whose two
+      features have particles sharing a bit is not tested (all zero: every pair is). The sewing's
+      zones are the cloth either side of a seam, which the seam springs pull together
+      (stages.garments.sewing.seam_zones). The swept phase only.
     """
 
     triangles: np.ndarray
@@ -176,6 +180,7 @@ class ClothContact:
     tri_leaf: np.ndarray
     self_cull: np.ndarray
     pdiag: np.ndarray
+    exclude: np.ndarray
     thickness: float = DEFAULT_THICKNESS
     layer_depth: float = DEFAULT_THICKNESS
     rounds: int = 4
@@ -277,6 +282,7 @@ class ClothContact:
         if h - 3 > CN.DIAG_LANES:
             raise ContractError(f"{o}: at most {CN.DIAG_LANES + 3} k-DOP directions (pdiag's lanes), got {h}")
         check_array(o, "pdiag", self.pdiag, (n, 2 * CN.DIAG_LANES), np.float32, finite=False)
+        check_array(o, "exclude", self.exclude, (n,), np.uint64)
         if not (float(self.motion_margin) >= 0.0 and 0.0 < float(self.rotation) < float(np.arccos(CK.FLAT_COS))):
             raise ContractError(f"{o}: motion_margin must be >= 0 and rotation in (0, {np.arccos(CK.FLAT_COS):.3f}) rad, "
                                 f"got {self.motion_margin}, {self.rotation}")
@@ -285,6 +291,21 @@ class ClothContact:
             raise ContractError(f"{o}.layer_depth: expected >= thickness ({self.thickness}), got {self.layer_depth}")
         if int(self.rounds) < 1 or int(self.failsafe_rounds) < 1:
             raise ContractError(f"{o}: rounds and failsafe_rounds must be >= 1")
+
+    def _unzoned(self, n: int) -> int:
+        """The first n contacts of the buffer less the pairs sharing an exclusion zone (kept in order,
+        compacted); their new count."""
+        if not self.exclude.any():
+            return n
+        idx = self.c_idx[:n]
+        vf = (self.c_kind[:n] == CK.VF_NEAR) | (self.c_kind[:n] == CK.VF_CROSS)   # c_idx: (p, a, b, c) or (a, b, c, d)
+        z = self.exclude
+        a = np.where(vf, z[idx[:, 0]], z[idx[:, 0]] | z[idx[:, 1]])
+        b = np.where(vf, z[idx[:, 1]] | z[idx[:, 2]] | z[idx[:, 3]], z[idx[:, 2]] | z[idx[:, 3]])
+        keep = np.flatnonzero((a & b) == 0)
+        for arr in (self.c_kind, self.c_feat, self.c_idx, self.c_w, self.c_dir):
+            arr[:keep.size] = arr[keep]
+        return int(keep.size)
 
     def _leaves(self, root: int) -> np.ndarray:
         lo = int(root)
@@ -307,7 +328,7 @@ class ClothContact:
                 self.cand_n, self.cand_f, self.box_lo, self.box_hi, self.nrm_ref, self.node_slack,
                 self.pbox, self.ebox, self.tbox, self.p_move, self.feat_moved, self.loc_list, self.loc_n,
                 self.vt_start, self.vt_tri, self.ring, self.flag, self.bld_min, self.bld_max, self.parent,
-                self.tri_leaf, self.self_cull, self.pdiag)
+                self.tri_leaf, self.self_cull, self.pdiag, self.exclude)
         work = (self.moved, self.corrected, self.c_kind, self.c_feat, self.c_idx, self.c_w, self.c_dir)
         prm = (float(self.thickness), float(self.layer_depth), int(self.rounds), int(self.failsafe_rounds),
                bool(self.cull), float(self.motion_margin), float(self.rotation))
@@ -334,6 +355,7 @@ class ClothContact:
         dropped = counters[CK.N_OVERFLOW]
         if brute_force:
             n = CK.brute_force_contacts(x_prev, x, topo, prm[0], prm[1], only_cross, work, counters)
+            n = self._unzoned(n)
         else:
             self.moved[:] = 1
             n = CK.find_contacts(x_prev, x, topo, tree, work, prm, only_cross, counters)
@@ -420,14 +442,16 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
                         thickness: float = DEFAULT_THICKNESS, layer_depth: float | None = None,
                         k: int = DEFAULT_K, rounds: int = 4, failsafe_rounds: int = 8, cull: bool = True,
                         contact_capacity: int | None = None, motion_margin: float = 0.0,
-                        rotation: float = DEFAULT_ROTATION, candidate_capacity: int | None = None) -> ClothContact:
+                        rotation: float = DEFAULT_ROTATION, candidate_capacity: int | None = None,
+                        exclude=None) -> ClothContact:
     """The cloth contact phase for garments concatenated as in the simulation.
 
     x: (N, 3) float64 positions (world, m) the tree topology is built from (the setup pose).
     triangles: (T, 3) int global particle ids. garment_offsets: (G + 1,) garment g owns particles
     [off[g], off[g+1]). layers: (G,) int, 0 innermost (default all 0: no layer order). outward: (G,)
     +-1 (default +1, see `outward_signs`). layer_depth: default = thickness (raise it
-    for the first frames of a scene whose garments start interpenetrating deeper).
+    for the first frames of a scene whose garments start interpenetrating deeper). exclude: (N,)
+    uint64 exclusion zones (ClothContact.exclude; default none).
     """
     x = np.ascontiguousarray(x, np.float64)
     tris = np.ascontiguousarray(triangles, np.int32)
@@ -496,4 +520,5 @@ def build_cloth_contact(x: np.ndarray, triangles: np.ndarray, garment_offsets, l
         flag=np.zeros(n + tris.shape[0], np.uint8), bld_min=np.zeros((n, h)), bld_max=np.zeros((n, h)),
         parent=_parents(tree.children), tri_leaf=_tri_leaves(tree.leaf_prim, tris.shape[0]),
         self_cull=np.zeros(tree.node_min.shape[0], np.uint8), pdiag=np.zeros((n, 2 * CN.DIAG_LANES), np.float32),
+        exclude=np.zeros(n, np.uint64) if exclude is None else np.ascontiguousarray(exclude, np.uint64),
         motion_margin=float(motion_margin), rotation=float(rotation))
