@@ -5,7 +5,7 @@ import pytest
 
 from stages.garments.library import library_pattern, make_garment
 from stages.garments.measurements import garment_measurements
-from stages.garments.types import boundary_loops
+from stages.geometry.mesh import boundary_loops
 
 
 def test_short_skirt_sews_on_cesium_man(assets_dir):

@@ -7,7 +7,7 @@ from stages.garments.library import KINDS, library_pattern
 from stages.garments.measurements import garment_measurements
 from stages.garments.sewing import merge_pairs
 from stages.garments.triangulate import triangulate_pattern
-from stages.garments.types import boundary_loops
+from stages.geometry.mesh import boundary_loops
 from tests.test_garments_sewing import _check_manifold, scene, sew_clear  # noqa: F401  (module fixture)
 
 

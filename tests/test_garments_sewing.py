@@ -5,7 +5,8 @@ import pytest
 from stages.garments.library import library_pattern, make_garment
 from stages.garments.measurements import garment_measurements
 from stages.garments.sewing import merge_pairs
-from stages.garments.types import STRETCH, boundary_loops
+from stages.garments.types import STRETCH
+from stages.geometry.mesh import boundary_loops
 from tests.scene_setup import scene_parts
 
 

@@ -7,7 +7,8 @@ import pytest
 from stages.errors import InputError
 from stages.garments.simple import rectangle_cloth, tube_skirt
 from stages.garments.types import (BEND, STRETCH, attach_indices, attach_near, attach_top_loop, bind_pose,
-                                   boundary_loops, build_garment)
+                                   build_garment)
+from stages.geometry.mesh import boundary_loops
 from stages.sim.scenes import toy_character, toy_motion
 
 

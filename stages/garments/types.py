@@ -26,6 +26,7 @@ from stages.errors import InputError
 from stages.garments.band import collider_list as _colliders
 from stages.garments.band import band_contacts, held_by, resting_limbs, with_pinching_limbs
 from stages.garments.band import signed_distance as _signed_distance
+from stages.geometry.mesh import boundary_loops
 
 STRETCH = 0  # spring kind: mesh edge (stretch / shear)
 COMMON_BONE = "common"   # Attachment.joint: the lowest common ancestor of the nearest bones
@@ -280,28 +281,6 @@ def _nearest_bone(bind: BindPose, points: np.ndarray, skip=frozenset()) -> np.nd
     if keep.any():
         d[~keep] = np.inf
     return np.argmin(d, axis=0).astype(np.int32)
-
-
-def boundary_loops(triangles: np.ndarray) -> list[np.ndarray]:
-    """Closed boundary loops (edges used by one triangle) as ordered vertex index arrays."""
-    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
-    key = np.sort(e, axis=1)
-    uniq, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    directed = e[cnt[inv.ravel()] == 1]
-    nxt = {}
-    for a, b in directed:
-        nxt.setdefault(int(a), []).append(int(b))
-    loops, seen = [], set()
-    for start in sorted(nxt):
-        if start in seen:
-            continue
-        loop, v = [], start
-        while v not in seen:
-            seen.add(v)
-            loop.append(v)
-            v = nxt[v][0] if v in nxt else start
-        loops.append(np.array(loop, np.int32))
-    return loops
 
 
 def _select(att: Attachment, x0: np.ndarray, triangles: np.ndarray, remap: np.ndarray, bind: BindPose):

@@ -9,3 +9,25 @@ def mesh_edges(triangles: np.ndarray) -> np.ndarray:
     """(E, 2) int32 unique undirected edges (i < j) of a triangle mesh, sorted."""
     e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
     return np.unique(np.sort(e, axis=1), axis=0).astype(np.int32)
+
+
+def boundary_loops(triangles: np.ndarray) -> list[np.ndarray]:
+    """Closed boundary loops (edges used by one triangle) as ordered vertex index arrays."""
+    e = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    key = np.sort(e, axis=1)
+    uniq, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    directed = e[cnt[inv.ravel()] == 1]
+    nxt = {}
+    for a, b in directed:
+        nxt.setdefault(int(a), []).append(int(b))
+    loops, seen = [], set()
+    for start in sorted(nxt):
+        if start in seen:
+            continue
+        loop, v = [], start
+        while v not in seen:
+            seen.add(v)
+            loop.append(v)
+            v = nxt[v][0] if v in nxt else start
+        loops.append(np.array(loop, np.int32))
+    return loops
