@@ -142,9 +142,36 @@ def cases_of(c: CorpusCharacter, *, full: bool = False, kinds=None, outfit: bool
     return out
 
 
+LABEL_MAX = 40   # characters of a case label the sweep keeps (pipeline.sweep_file)
+
+
+def case_label(character: str, clip: str, what: str) -> str:
+    """CHARACTER-CLIP-WHAT within LABEL_MAX, WHAT (the kind or gc-PATTERN) kept whole: the clip is left
+    out where it repeats the character's name (a BVH file's one clip) and the front is shortened first.
+    Cut at the end, the CMU walk's two dresses and two skirts were each one label in the table."""
+    what = _slug(what)
+    front = character if clip == character else f"{character}-{clip}"
+    room = LABEL_MAX - len(what) - 1
+    return _slug(f"{front[:max(room, 1)].rstrip('-.')}-{what}") if room > 0 else what[:LABEL_MAX]
+
+
+def unique_labels(cases: list[dict]) -> list[dict]:
+    """The cases with a label repeated (two names alike for their first LABEL_MAX characters) told
+    apart by -2, -3, ... at its end."""
+    seen, out = {}, []
+    for k in cases:
+        label = k["label"]
+        seen[label] = seen.get(label, 0) + 1
+        if seen[label] > 1:
+            tail = f"-{seen[label]}"
+            label = k["label"][:LABEL_MAX - len(tail)].rstrip("-.") + tail
+        out.append(dict(k, label=label))
+    return out
+
+
 def _case(c: CorpusCharacter, clip: str, duration: float, garments: list, what: str) -> dict:
     start = round(START_SHARE * duration, 3)
-    return {"label": _slug(f"{c.label}-{clip}-{what}"), "character": {**c.spec, "clip": clip},
+    return {"label": case_label(c.label, clip, what), "character": {**c.spec, "clip": clip},
             "frames.start": start, "garments": garments}
 
 
@@ -231,6 +258,7 @@ def run_corpus(folder: Path, *, frames: int = 30, characters: list[str] | None =
                   + pattern_cases(c, gc_files)]
         refused += [{"character": label, "pair": kind, "status": "refused", "verdict": [why]}
                     for kind, why in c.refused.items() if kind in asked]
+    cases = unique_labels(cases)
     by_label = {k["label"]: k.pop("_character") for k in cases}
     rows = []
     if cases:

@@ -154,3 +154,16 @@ def test_the_users_patterns_are_the_scenes_written(tmp_path, monkeypatch):
                echo=lambda *a: None)
     assert [[g["path"] for g in k["garments"]] for k in seen["doc"]["cases"]] == \
         [[str((own / "tee_x_specification.json").resolve())]]
+
+
+def test_case_labels_keep_the_garment_whole_and_tell_every_pair_apart():
+    """The CMU walk's clip is named as its file: its two dresses were both 'cmu_131_01_walk-cmu_131_01_walk-gc-dress'."""
+    from pipeline.corpus import LABEL_MAX, case_label, unique_labels
+    a = case_label("cmu_131_01_walk", "cmu_131_01_walk", "gc-dress_pencil")
+    b = case_label("cmu_131_01_walk", "cmu_131_01_walk", "gc-dress_s1001")
+    assert (a, b) == ("cmu_131_01_walk-gc-dress_pencil", "cmu_131_01_walk-gc-dress_s1001")
+    assert case_label("kenney_mini_female_b", "attack-kick-right", "short_skirt").endswith("-short_skirt")
+    assert case_label("builtin", "walk", "tshirt") == "builtin-walk-tshirt"
+    long = "gc-" + "x" * 50
+    labels = [k["label"] for k in unique_labels([{"label": case_label("c", "walk", long + s)} for s in "ab"])]
+    assert len(set(labels)) == 2 and all(len(x) <= LABEL_MAX for x in labels)
