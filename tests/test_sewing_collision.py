@@ -100,7 +100,7 @@ def test_points_inside_the_body_pushed_out_stay_apart():
     side /= np.linalg.norm(side)
     pts = np.array([v[1] * 0.97 + s * 0.004 * side for s in (-1, 0, 1)])
     assert inside_body(body, v, pts).all()
-    out = push_out(pts, body, v, 0.01)
+    out = push_out(pts, body, v, 0.01, along_normal=True)
     assert not inside_body(body, v, out).any()
     gaps = np.linalg.norm(np.diff(out, axis=0), axis=1)
     np.testing.assert_allclose(gaps, 0.004, rtol=1e-6)

@@ -481,7 +481,7 @@ def place_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, 
         placed[:, 1] += shoulder_lift(placed, over, shoulder_surface(character, colliders, motion), CLEARANCE)
     bad = inside_body(character, skinned0, placed)
     if bad.any():
-        placed[bad] = push_out(placed[bad], character, skinned0, CLEARANCE)
+        placed[bad] = push_out(placed[bad], character, skinned0, CLEARANCE, along_normal=True)
     return graded, pattern, flat, placed, mismatch_warning(body, meas, name or gc.name, g)
 
 
