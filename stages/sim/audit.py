@@ -132,18 +132,16 @@ def _orient_exact(a, b, c, d) -> int:
     ratios = [v.as_integer_ratio() for v in vals]
     den = max(r[1] for r in ratios)             # powers of two: the largest is a multiple of the others
     a, b, c, d = (ratios[k:k + 3] for k in range(0, 12, 3))
-    a, b, c, d = ([n * (den // m) for n, m in p] for p in (a, b, c, d))
-    ad = [a[k] - d[k] for k in range(3)]
-    bd = [b[k] - d[k] for k in range(3)]
-    cd = [c[k] - d[k] for k in range(3)]
-    det = (ad[2] * (bd[0] * cd[1] - cd[0] * bd[1]) + bd[2] * (cd[0] * ad[1] - ad[0] * cd[1])
-           + cd[2] * (ad[0] * bd[1] - bd[0] * ad[1]))
-    return (det > 0) - (det < 0)
+    return _det_sign(*([n * (den // m) for n, m in p] for p in (a, b, c, d)))
 
 
 def _orient_fraction(a, b, c, d) -> int:
     """Exact sign of det[a - d, b - d, c - d] (rational arithmetic on the float values)."""
-    a, b, c, d = ([Fraction(float(v)) for v in p] for p in (a, b, c, d))
+    return _det_sign(*([Fraction(float(v)) for v in p] for p in (a, b, c, d)))
+
+
+def _det_sign(a, b, c, d) -> int:
+    """Sign of det[a - d, b - d, c - d] for points of exact numbers (int or Fraction: no rounding)."""
     ad = [a[k] - d[k] for k in range(3)]
     bd = [b[k] - d[k] for k in range(3)]
     cd = [c[k] - d[k] for k in range(3)]
