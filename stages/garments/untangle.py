@@ -25,16 +25,11 @@ def crossing_pairs(x: np.ndarray, edges: np.ndarray, triangles: np.ndarray, flag
     """[(edge index, triangle index)] for the edges in `flagged`: the triangles each passes through
     (triangles sharing a vertex with it excluded), by a direct segment-triangle test against every
     triangle (the crossings are few; `stages.sim.audit.crossing_flags` finds which edges cross)."""
-    from scipy.spatial import cKDTree
+    from stages.geometry.mesh import triangles_near_edges
     flagged = np.asarray(flagged, np.int64)
     if flagged.size == 0:
         return []
-    tb = x[triangles]
-    cen = tb.mean(axis=1)
-    reach = float(np.linalg.norm(tb - cen[:, None], axis=2).max())     # every triangle within it of its centre
-    ends = x[edges[flagged]]
-    # the triangles whose centres are near enough the edge for it to pass through them
-    nearby = cKDTree(cen).query_ball_point(ends.mean(axis=1), 0.5 * np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1) + reach)
+    nearby = triangles_near_edges(x, edges[flagged], triangles)
     out = []
     for e, near in zip(flagged, nearby):
         i, j = edges[e]

@@ -31,3 +31,15 @@ def boundary_loops(triangles: np.ndarray) -> list[np.ndarray]:
             v = nxt[v][0] if v in nxt else start
         loops.append(np.array(loop, np.int32))
     return loops
+
+
+def triangles_near_edges(x: np.ndarray, edges: np.ndarray, triangles: np.ndarray) -> list:
+    """For each edge (E, 2) of points x, the indices of the triangles (T, 3) it may meet: every one
+    whose centre is within half the edge's length plus the largest centre-to-corner distance of the
+    edge's midpoint (a superset, from a k-d tree of the centres)."""
+    from scipy.spatial import cKDTree
+    tb = x[triangles]
+    cen = tb.mean(axis=1)
+    reach = float(np.linalg.norm(tb - cen[:, None], axis=2).max())     # every triangle within it of its centre
+    ends = x[edges]
+    return cKDTree(cen).query_ball_point(ends.mean(axis=1), 0.5 * np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1) + reach)

@@ -225,13 +225,8 @@ def crossing_flags(x: np.ndarray, edges: np.ndarray, edge_group: np.ndarray, tri
     n_exact = 0
     unknown = np.nonzero(out == AK.CROSS_UNKNOWN)
     if unknown[0].size:
-        from scipy.spatial import cKDTree
-        tb = x[tris]
-        cen = tb.mean(axis=1)
-        reach = float(np.linalg.norm(tb - cen[:, None], axis=2).max())    # every triangle within it of its centre
-        ends = x[edges[unknown[0]]]
-        nearby = cKDTree(cen).query_ball_point(ends.mean(axis=1),
-                                               0.5 * np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1) + reach)
+        from stages.geometry.mesh import triangles_near_edges
+        nearby = triangles_near_edges(x, edges[unknown[0]], tris)
         for e, k, near in zip(*unknown, nearby):
             n_exact += 1
             flags[e, k] = _decide_exact(x, edges, tris, e, k == 0, edge_group, tri_group, near)
