@@ -149,12 +149,12 @@ GATHER_NOTED = 1.25   # sides' length ratio from which a seam left open is expla
 def gathered_note(gc: GCPattern, seam: str) -> str:
     """Why the seam labelled 'panel.eA / panel.eB' may stay open: '' or a sentence giving its sides'
     lengths when they differ by GATHER_NOTED or more (GarmentCode gathers the longer side into the
-    shorter; this sewing eases the longer side's rest shape onto the shorter (sewing.gathered_rest),
+    shorter; this sewing gathers the longer side onto the shorter by its rest lengths (gather.gathered_rest),
     and on the body such seams can still stall: the sampled tee's armholes, 37.6 vs 22.2 cm)."""
     for st, (la, lb) in zip(gc.stitches, stitch_lengths(gc)):
         if f"{st.a[0]}.e{st.a[1]} / {st.b[0]}.e{st.b[1]}" == seam and max(la, lb) >= GATHER_NOTED * min(la, lb):
             return (f"its sides are {la * 100:.1f} cm and {lb * 100:.1f} cm long: GarmentCode gathers the longer "
-                    f"side; this sewing eases it onto the shorter (sewing.gathered_rest), which sides "
+                    f"side; this sewing gathers it onto the shorter (gather.gathered_rest), which sides "
                     f"{GATHER_NOTED:.2f}x apart or more do not always close over the body")
     return ""
 
@@ -498,7 +498,8 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
     from stages.garments.library import GarmentBuild, hug_targets, seam_label
     from stages.garments.hug import hug, respace
     from stages.garments.placement import bind_geometry
-    from stages.garments.sewing import SewParams, gathered_rest, merged_mesh, seam_gaps, sew
+    from stages.garments.gather import gathered_rest
+    from stages.garments.sewing import SewParams, merged_mesh, seam_gaps, sew
     from stages.garments.untangle import untangle_sewn
     from stages.garments.triangulate import run_vertices
     from stages.garments.types import attach_indices, bind_pose, build_garment
@@ -563,7 +564,11 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
         # sewn again with a junction's corners drawn together (only then: garments that close without
         # them are sewn as before; with them from the start, hoody_mean on CesiumMan sewed closed too
         # but its run stopped at frame 41, an edge torn where the forearm presses the cloth to the trunk)
+        earlier = log
         sewn, log = sew_with(corners)
+        log = dc_replace(log, seconds=earlier.seconds + log.seconds,
+                         notes=earlier.notes + (f"seams {earlier.gap_max[-1] * 1000:.1f} mm open: sewn again with the "
+                                                f"corners where seams meet drawn together",) + log.notes)
     pos, mtri, remap = merged_mesh(sewn, tri, flat.seam_pairs)
     pos, log = untangle_sewn(pos, mtri, log)
     atts = [attach_indices(np.unique(remap[i]), TRUNK_BONE) for i in waist]

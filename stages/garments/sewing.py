@@ -277,67 +277,6 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
     return x, log
 
 
-GATHER_BAND = 0.08   # m: the width of cloth behind a gathered edge that takes up its extra length
-
-
-def gathered_rest(triangles: np.ndarray, uv: np.ndarray, pairs: np.ndarray, seam_index: np.ndarray,
-                  panel_of_vertex: np.ndarray, min_ratio: float = 1.01,
-                  band: float = GATHER_BAND) -> tuple[np.ndarray, dict]:
-    """Triangle rest lengths (T, 3) of the flat panels `uv` with the longer side of every unequal seam
-    eased onto the shorter, and {seam: long / short length ratio} of the eased seams.
-
-    A seam's two sides are sampled with the same number of vertices (triangulate.edge_counts), so a
-    longer side has longer boundary segments, and seam springs that pull pairs together stall against
-    the panel's own springs (the sampled tee's armholes, 37.6 vs 22.2 cm, stayed 16-26 mm open).
-    GarmentCode gathers the longer side. Here the longer side's panel is given a rest shape in which
-    that edge is as long as the other side: along the edge its points are drawn towards the edge's
-    middle by the ratio at the edge, easing back to their own places `band` metres into the panel
-    (smoothly), so the rest shape stays flat (the bend springs agree with it) and the seam closes
-    with the extra length taken up in that band. Sides within `min_ratio` of each other keep their
-    lengths (the merged edge's rest is their mean)."""
-    x = np.array(uv, dtype=np.float64, copy=True)
-    ratios = {}
-    for s in np.unique(seam_index) if pairs.size else ():
-        p = pairs[seam_index == s]
-        if len(p) < 2:
-            continue
-        seg = [np.linalg.norm(np.diff(uv[p[:, k]], axis=0), axis=1) for k in (0, 1)]
-        la, lb = float(seg[0].sum()), float(seg[1].sum())
-        if max(la, lb) < min_ratio * min(la, lb):
-            continue
-        side = 0 if la > lb else 1
-        ratios[int(s)] = max(la, lb) / min(la, lb)
-        ease(x, p[:, side], np.flatnonzero(panel_of_vertex == panel_of_vertex[p[0, side]]), 1.0 / ratios[int(s)], band)
-    rest = np.linalg.norm(x[triangles[:, [1, 2, 0]]] - x[triangles], axis=2)
-    return rest, ratios
-
-
-def ease(x: np.ndarray, edge: np.ndarray, verts: np.ndarray, scale: float, band: float) -> None:
-    """Draw the points `verts` of x (in place) along the polyline x[edge] towards its middle: by
-    `scale` on it, by 1 (not at all) `band` away from it, smoothly between."""
-    poly = x[edge].copy()
-    a, b = poly[:-1], poly[1:]
-    ab = b - a
-    L = np.linalg.norm(ab, axis=1)
-    s0 = np.concatenate([[0.0], np.cumsum(L)])
-    q = x[verts]
-    t = np.clip(np.einsum("nsk,sk->ns", q[:, None, :] - a[None], ab) / np.maximum(L * L, 1e-18), 0.0, 1.0)
-    foot = a[None] + t[..., None] * ab[None]
-    d = np.linalg.norm(q[:, None, :] - foot, axis=2)
-    j = np.argmin(d, axis=1)
-    k = np.arange(len(verts))
-    dist, arc = d[k, j], s0[j] + t[k, j] * L[j]
-    w = np.clip(dist / band, 0.0, 1.0)
-    f = scale + (1.0 - scale) * w * w * (3.0 - 2.0 * w)      # smoothstep from scale to 1
-    new_arc = s0[-1] / 2 + (arc - s0[-1] / 2) * f
-
-    def at(sv):
-        i = np.clip(np.searchsorted(s0, sv, side="right") - 1, 0, len(L) - 1)
-        return a[i] + ((sv - s0[i]) / np.maximum(L[i], 1e-18))[:, None] * ab[i]
-    near = dist < band
-    x[verts[near]] = q[near] + at(new_arc[near]) - at(arc[near])
-
-
 def merge_pairs(n: int, pairs: np.ndarray) -> np.ndarray:
     """(n,) new index of every vertex after merging the pairs' connected groups (union-find)."""
     from scipy.sparse import coo_matrix
