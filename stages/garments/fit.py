@@ -7,7 +7,7 @@ over characters x garment kinds.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -33,7 +33,7 @@ class GarmentFit:
     fit_gap: np.ndarray
     floor_clearance: np.ndarray
     body_share: np.ndarray
-    slide: np.ndarray = np.zeros(0)
+    slide: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def __post_init__(self):
         o = f"GarmentFit[{self.name!r}]"
