@@ -438,8 +438,8 @@ def _build_scene_obstacle(o: dict, file_mesh, duration: float):
 
 
 def garment_fits(character, motion, skinned, garments, builds, result, layers=None) -> list:
-    """stages.garments.fit.GarmentFit of every simulated garment; the floor is the lowest skin point
-    over the frames (world; where the simulation's automatic floor is, pipeline.scene_motion.motion_floor), the fit edges those of the pattern garments' builds. layers: each
+    """stages.garments.fit.GarmentFit of every simulated garment; the floor is the simulation's
+    (SimParams.floor), else the lowest skin point over the frames (world), the fit edges those of the pattern garments' builds. layers: each
     garment's cloth layer (dressing_layers) or None: a garment's fit edges are measured to the nearer
     of the skin and the garments of lower layers (a waistband worn over a tucked-in shirt sits on the
     shirt, not on the skin)."""
@@ -447,7 +447,7 @@ def garment_fits(character, motion, skinned, garments, builds, result, layers=No
     from stages.garments.fit import garment_fit
     from stages.garments.placement import triangle_grid_points
     from pipeline.scene_motion import lowest_skin_point
-    floor_y = lowest_skin_point(skinned, motion.root_translation)
+    floor_y = result.params.floor if result.params.floor is not None else lowest_skin_point(skinned, motion.root_translation)
     nf = len(result.times)
     world = skinned[:nf] + motion.root_translation[:nf, None, :]
     body = SkinDistance(character)

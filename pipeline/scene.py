@@ -364,8 +364,8 @@ SCENE_SPEC = {
                              "from the clip (3 times its fastest skin speed plus twice the speed of a fall "
                              "from the body's height; paper preset: none); 0: none", lo=0.0, hi=1e6),
         "floor": Field("any", "auto", "auto | none | a height in m: a floor the cloth rests on (world y = the "
-                       "height). auto: at the character's feet (y = 0, or the lowest point its skin reaches over the "
-                       "clip when that is lower), for scenes without obstacles (with them, their own `plane` is the "
+                       "height). auto: under the character's feet, at the soles of their colliders (colliders.delta under "
+                       "y = 0, or under the lowest point its skin reaches over the clip when that is lower), for scenes without obstacles (with them, their own `plane` is the "
                        "floor) and not in the paper preset (paper A had none); none: no floor",
                        check=lambda v: _check_floor(v)),
         "body_audit": Field("bool", True, "count particles inside the true skinned mesh per frame"),

@@ -45,7 +45,7 @@ def test_every_stage_is_logged(default_run):
             assert f"/colliders/hulls/{bone}/{part}" in paths
         assert f"/maps/{bone}/obb" in paths and f"/maps/{bone}/cells" in paths
     assert timelines(out) == {"frame", "sim_time", "sewing_iteration"}
-    # the floor (simulation.floor: auto) under the character, at its lowest skin point, under the cloth
+    # the floor (simulation.floor: auto) under the character, under its lowest skin point, under the cloth
     floor = rows(out, "floor/mesh", "Mesh3D:vertex_positions", static=True)[0][1]
     assert np.ptp(floor[:, 1]) == 0 and abs(float(floor[0, 1])) < 0.05
     cloth = np.stack([v for _, v in rows(out, "sim/skirt/mesh", "Mesh3D:vertex_positions")])

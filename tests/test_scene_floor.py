@@ -24,7 +24,9 @@ ROOT = np.array([[0.0, 0.0, 0.0], [0.0, 0.005, 0.0]])
 def test_auto_is_the_lowest_skin_point_over_the_clip():
     assert _scene()["simulation"]["floor"] == "auto"
     p = motion_floor(_scene(), SimParams(), SKIN, ROOT)
-    assert p.floor == pytest.approx(-0.005)
+    assert p.floor == pytest.approx(-0.005 - 0.01)          # under it by the colliders' inflation (delta)
+    p = motion_floor(_scene("colliders: {delta: 0.02}\n"), SimParams(), SKIN, ROOT)
+    assert p.floor == pytest.approx(-0.005 - 0.02)
 
 
 @pytest.mark.parametrize("extra, obstacles, want", [
