@@ -13,7 +13,8 @@ def hold_pose(cloth, cols, m, prm, frames, gravity, wind, fwd0, inv0, substeps, 
               floor0=None) -> bool:
     """`frames` frames of the step loop at the pose fwd0 / inv0 (J, 4, 4), not recorded; then xp = x
     (the cloth starts them at rest). cc: the cloth phase's state or None; floor0: the floor's height
-    in the relative frame at that pose (None: no floor); the other arguments are run_frames'. False when the cloth diverged (the state left as it diverged)."""
+    in the relative frame at that pose (None: no floor); the other arguments are run_frames'. False
+    when the cloth diverged (the state left as it diverged)."""
     k = frames * substeps
     fwd = np.ascontiguousarray(np.repeat(fwd0[None], k, axis=0))
     inv = np.ascontiguousarray(np.repeat(inv0[None], k, axis=0))
