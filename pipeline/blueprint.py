@@ -174,6 +174,7 @@ class Contents:
     sewn: list = field(default_factory=list)          # pattern garments with a sewing log
     sewing_box: np.ndarray | None = None              # flat + placed panels
     obstacles: list = field(default_factory=list)
+    floor: bool = False                               # the simulation's floor (floor/mesh)
     hulls: list = field(default_factory=list)         # collider hull names
     spheres: list = field(default_factory=list)       # joint sphere names
     coverage: bool = False
@@ -199,6 +200,8 @@ def scene_view(c: Contents, aspect: float) -> rrb.Spatial3DView:
         # body_cuts: where the body passes through the cloth (pipeline.body_report)
         contents += [f"+ /sim/{g}/mesh", f"+ /sim/{g}/attached", f"+ /sim/{g}/body_cuts"]
     contents += [f"+ /obstacles/{o}/mesh" for o in c.obstacles]
+    if c.floor:
+        contents.append("+ /floor/mesh")
     return rrb.Spatial3DView(name="scene", origin="/", contents=contents,
                              eye_controls=front_three_quarter(c.scene_box, c.forward, aspect=aspect).controls())
 

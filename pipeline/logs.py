@@ -396,6 +396,21 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=Non
     return out
 
 
+FLOOR_MARGIN = 0.5     # m the floor's square reaches past what stands and hangs over it
+
+
+def log_floor(rec: rr.RecordingStream, height: float, points: np.ndarray) -> None:
+    """floor/mesh: the simulation's floor (SimParams.floor, world height m) as a static square under
+    `points` (..., 3) world (the body over every frame and the cloth), FLOOR_MARGIN past them."""
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    lo, hi = p[:, [0, 2]].min(axis=0) - FLOOR_MARGIN, p[:, [0, 2]].max(axis=0) + FLOOR_MARGIN
+    v = np.array([[lo[0], height, lo[1]], [hi[0], height, lo[1]], [hi[0], height, hi[1]], [lo[0], height, hi[1]]],
+                 np.float32)
+    rec.log("floor/mesh", rr.Mesh3D(vertex_positions=v, vertex_normals=np.tile(np.float32([0, 1, 0]), (4, 1)),
+                                    triangle_indices=np.array([[0, 2, 1], [0, 3, 2]], np.uint32),
+                                    albedo_factor=(*style.OBSTACLE[:3], 255)), static=True)
+
+
 def log_obstacles(rec: rr.RecordingStream, obstacles, times: np.ndarray, *, kdop_depth: int = 3) -> None:
     """obstacles/<name>/mesh static in the body frame (under a per-frame transform when moving),
     and the k-DOP nodes at `kdop_depth` of each static obstacle's tree (boxes for k = 6, wireframes

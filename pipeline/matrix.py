@@ -77,7 +77,7 @@ class Prepared:
 def run_pair(prepared: Prepared, scene) -> dict:
     """Dress, sew and simulate the scene's one garment on a prepared character; the pair's figures."""
     from pipeline.run import ignored_colliders, sim_params
-    from pipeline.scene_motion import motion_speed_limit, motion_substeps
+    from pipeline.scene_motion import motion_floor, motion_speed_limit, motion_substeps
     from pipeline.dressing import build_scene_garments, garment_fits
     from stages.garments.fit import BODY_SHARE_MAX, FIT_GAP_MAX
     from stages.sim import simulate
@@ -94,6 +94,7 @@ def run_pair(prepared: Prepared, scene) -> dict:
             height = float(np.ptp(p.character.vertices[:, 1]))
             params, note = motion_substeps(scene, sim_params(scene), p.skinned, height)
             params = motion_speed_limit(scene, params, p.skinned, p.motion.root_translation, p.motion.times, height)
+            params = motion_floor(scene, params, p.skinned, p.motion.root_translation)
             if note:
                 warnings.warn(note, stacklevel=1)
             result = simulate(p.character, p.motion, p.colliders, p.maps, garments, params,

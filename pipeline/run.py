@@ -15,7 +15,7 @@ from pipeline.dressing import (build_scene_garments, build_scene_obstacles, dres
                                garment_fits, ignored_joints)
 from pipeline.preflight import check_memory, check_references, preflight
 from pipeline.scene import Scene, warn_notes
-from pipeline.scene_motion import (collider_poses, frame_times, motion_speed_limit, motion_substeps,
+from pipeline.scene_motion import (collider_poses, frame_times, motion_floor, motion_speed_limit, motion_substeps,
                                    sample_scene_motion)
 from pipeline.schema import SceneError
 from pipeline.summary import RunSummary, StageTimer
@@ -130,7 +130,8 @@ def blueprint_of(scene: Scene, character, motion, skinned, colliders, coverage_r
         body_box=body, bind_box=bp.hull_points(character.vertices),
         garments=[t.name for t in result.garments] if result is not None else [], sewn=list(builds),
         sewing_box=bp.hull_points(*sewing) if sewing else None, obstacles=names, hulls=[h.name for h in colliders.hulls],
-        spheres=[sp.name for sp in colliders.spheres], coverage=coverage_ran))
+        spheres=[sp.name for sp in colliders.spheres], coverage=coverage_ran,
+        floor=result is not None and result.params.floor is not None))
 
 
 def background_warmup(scene: Scene, enabled: bool):
@@ -354,6 +355,7 @@ def _run_stages(scene, out, times, meshes, formats, export_dir, summary, announc
             height = float(np.ptp(character.vertices[:, 1]))
             params, note = motion_substeps(scene, sim_params(scene), skinned, height)
             params = motion_speed_limit(scene, params, skinned, motion.root_translation, motion.times, height)
+            params = motion_floor(scene, params, skinned, motion.root_translation)
             if note:
                 import warnings
                 warnings.warn(note, stacklevel=1)
@@ -403,6 +405,9 @@ def _run_stages(scene, out, times, meshes, formats, export_dir, summary, announc
                 for w in audit.warnings + held:
                     warnings.warn(w, stacklevel=1)
             summary.penetrations = logs.log_sim(rec, motion, garments, result, audit, held)
+            if params.floor is not None:   # under the body over every frame and the cloth
+                under = [(skinned + motion.root_translation[:, None, :]).reshape(-1, 3)]
+                logs.log_floor(rec, params.floor, np.concatenate(under + [t.positions.reshape(-1, 3) for t in result.garments]))
             from pipeline.export import run_uvs
             logs.log_uvs(rec, run_uvs(scene, result, builds, meshes))
             summary.speeds = {k: summary.penetrations.pop(k) for k in list(summary.penetrations) if k.startswith("steps/s")}

@@ -232,6 +232,14 @@ def _check_character(c):
     return None
 
 
+def _check_floor(v):
+    if v in ("auto", "none"):
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) <= 1e3:
+        return f"expected auto, none or a height in m (a number in [-1000, 1000]), got {v!r}"
+    return None
+
+
 SCENE_SPEC = {
     "name": Field("str", None, "scene name; default: the file name without .yaml"),
     "seed": Field("int", 0, "seed for every random choice", lo=0, hi=2**32 - 1),
@@ -355,6 +363,11 @@ SCENE_SPEC = {
                              "at this at every sub-step, so that cloth a collider throws cannot fly off; null: "
                              "from the clip (3 times its fastest skin speed plus twice the speed of a fall "
                              "from the body's height; paper preset: none); 0: none", lo=0.0, hi=1e6),
+        "floor": Field("any", "auto", "auto | none | a height in m: a floor the cloth rests on (world y = the "
+                       "height). auto: under the character's feet, at the soles of their colliders (colliders.delta under "
+                       "y = 0, or under the lowest point its skin reaches over the clip when that is lower), for scenes without obstacles (with them, their own `plane` is the "
+                       "floor) and not in the paper preset (paper A had none); none: no floor",
+                       check=lambda v: _check_floor(v)),
         "body_audit": Field("bool", True, "count particles inside the true skinned mesh per frame"),
         "cloth_audit": Field("bool", True, "per frame edge strain and cloth edges crossing cloth triangles (sim/<garment>/strain, sim/intersections/...)"),
         "strain_colors": Field("bool", False, "colour the cloth meshes by per-vertex edge strain (blue 0 -> red 10 %)"),

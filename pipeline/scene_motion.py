@@ -103,3 +103,28 @@ def motion_speed_limit(scene: Scene, params, skinned: np.ndarray, root: np.ndarr
     skin_speed = float((np.linalg.norm(np.diff(rel, axis=0), axis=2) / dt).max())
     return replace(params, speed_limit=3.0 * skin_speed + 2.0 * float(np.sqrt(2.0 * 9.81 * height)))
 
+
+
+def motion_floor(scene: Scene, params, skinned: np.ndarray, root: np.ndarray):
+    """params with the scene's `simulation.floor` (SimParams.floor, world m): a number as it is; 'auto'
+    under the character's feet: the colliders' inflation (`colliders.delta`, where the soles of the
+    foot colliders are) under the lowest point its skin (skinned (F, V, 3) relative frame, root (F, 3))
+    reaches over the clip (lowest_skin_point: y = 0, where every character is put, stages.rig, or
+    where a foot dips under it), so that the floor does not press cloth up into a foot's collider
+    standing on it (at the skin's lowest point, cloth a foot stepped on was held between the two and
+    the sole's edges passed through it: CesiumMan's circle skirt, 19 -> 28 body edges through the cloth); none for 'none', with obstacles (the scene's environment:
+    a `plane` obstacle is its floor) or the paper preset (paper A's figures had none)."""
+    from dataclasses import replace
+    given = scene["simulation"]["floor"]
+    if given == "none" or given is None:
+        return params
+    if given != "auto":
+        return replace(params, floor=float(given))
+    if scene["simulation"]["preset"] == "paper" or scene["obstacles"] or len(skinned) == 0:
+        return params
+    return replace(params, floor=lowest_skin_point(skinned, root) - float(scene["colliders"]["delta"]))
+
+
+def lowest_skin_point(skinned: np.ndarray, root: np.ndarray) -> float:
+    """m: the lowest world height the skin (skinned (F, V, 3) relative frame, root (F, 3)) reaches."""
+    return float((skinned[..., 1] + root[:len(skinned), None, 1]).min())

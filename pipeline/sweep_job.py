@@ -19,14 +19,14 @@ FAILURES = ("sewing", "timeout", "diverged", "bad-input", "crash")
 COLUMNS = ("job", "status", "failure", "message", "frames", "frames_done", "particles",
            "in_body_max", "in_colliders_max", "strain_mean_pct", "strain_p99_pct", "strain_p99_worst_pct",
            "crossings_self_max", "crossings_between_max", "body_edges_max", "body_edges_overlap_max", "seam_gap_mm", "fit_gap_cm", "floor_cm",
-           "coverage_min_pct", "excess_p95_cm", "warnings",
+           "slide_cm", "coverage_min_pct", "excess_p95_cm", "warnings",
            "wall_s", "frames_per_s", "sim_frames_per_s", "warm_up_s", "worker", "recording", "exports")
 # columns that depend on the machine and its load, not on the job: left out when comparing tables
 TIMING_COLUMNS = ("wall_s", "frames_per_s", "sim_frames_per_s", "warm_up_s", "worker")
 INT_COLUMNS = ("frames", "frames_done", "particles", "in_body_max", "in_colliders_max", "crossings_self_max",
                "crossings_between_max", "body_edges_max", "body_edges_overlap_max", "warnings")
 FLOAT_COLUMNS = ("strain_mean_pct", "strain_p99_pct", "strain_p99_worst_pct", "seam_gap_mm", "fit_gap_cm",
-                 "floor_cm", "coverage_min_pct", "excess_p95_cm", "wall_s", "frames_per_s", "sim_frames_per_s",
+                 "floor_cm", "slide_cm", "coverage_min_pct", "excess_p95_cm", "wall_s", "frames_per_s", "sim_frames_per_s",
                  "warm_up_s")
 
 
@@ -113,6 +113,8 @@ def _metrics(state: dict, err: BaseException | None) -> dict:
         gaps = [f.fit_gap_median for f in fits if math.isfinite(f.fit_gap_median)]
         r["fit_gap_cm"] = max(gaps, key=abs) * 100 if gaps else None
         r["floor_cm"] = float(min(f.floor_clearance.min() for f in fits) * 100)
+        slides = [float(f.slide[1:].max(initial=0.0)) for f in fits if f.slide.size]
+        r["slide_cm"] = max(slides) * 100 if slides else None
     coverage = state.get("coverage")
     if coverage is not None:   # the collider-fit audit (the one figure the seed moves: its sample points)
         t = coverage.totals()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import yaml
 
-from pipeline.corpus import (IN_BODY_MAX, SEAM_GAP_MAX, START_SHARE, CorpusCharacter, cases_of, character_specs, run_corpus, table,
+from pipeline.corpus import (IN_BODY_MAX, SEAM_GAP_MAX, SLIDE_MAX, START_SHARE, CorpusCharacter, cases_of, character_specs, run_corpus, table,
                              verdict, write_sweep)
 
 
@@ -55,7 +55,11 @@ def test_verdict_names_each_target_missed():
     assert verdict({**ok, "seam_gap_mm": SEAM_GAP_MAX}) == []
     assert verdict({**ok, "seam_gap_mm": 2.7}) == ["seams 2.7 mm open when joined"]
     assert verdict({**ok, "floor_cm": 0.0}) == []     # a hem on the floor
-    assert verdict({**ok, "floor_cm": -255.7}) == ["cloth 255.7 cm under the floor (slid off the body)"]
+    assert verdict({**ok, "floor_cm": -255.7}) == []  # under it: the floor is no verdict (none in that scene)
+    assert verdict({**ok, "floor_cm": 0.2, "slide_cm": SLIDE_MAX}) == []
+    # a top that slid off the body onto the floor
+    assert verdict({**ok, "floor_cm": 0.2, "slide_cm": 87.4}) == [
+        "slid 87 cm off where it was dressed (waistband / collar from its skin)"]
     failed = verdict({"status": "failed", "failure": "sewing", "message": "sewing did not close seam a / b"})
     assert failed == ["sewing: sewing did not close seam a / b"]
 

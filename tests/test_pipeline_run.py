@@ -45,6 +45,11 @@ def test_every_stage_is_logged(default_run):
             assert f"/colliders/hulls/{bone}/{part}" in paths
         assert f"/maps/{bone}/obb" in paths and f"/maps/{bone}/cells" in paths
     assert timelines(out) == {"frame", "sim_time", "sewing_iteration"}
+    # the floor (simulation.floor: auto) under the character, under its lowest skin point, under the cloth
+    floor = rows(out, "floor/mesh", "Mesh3D:vertex_positions", static=True)[0][1]
+    assert np.ptp(floor[:, 1]) == 0 and abs(float(floor[0, 1])) < 0.05
+    cloth = np.stack([v for _, v in rows(out, "sim/skirt/mesh", "Mesh3D:vertex_positions")])
+    assert cloth[1:, :, 1].min() >= floor[0, 1]
     for part in ("flat", "placed", "sewing", "sewn", "sewing/gap_max", "report"):
         assert f"/garments/skirt/{part}" in paths
 
@@ -187,6 +192,7 @@ def test_obstacle_scene_logs_obstacles_contacts_and_keeps_cloth_on_the_table(tmp
     paths = entity_paths(out)
     assert {"/obstacles/table/mesh", "/obstacles/table/kdop", "/sim/contacts/obstacles",
             "/sim/contacts/obstacles/points", "/sim/cloth/mesh"} <= paths
+    assert "/floor/mesh" not in paths                         # floor: auto is off with obstacles
     contacts = [int(v[0]) for _, v in rows(out, "sim/contacts/obstacles", "Scalars:scalars")]
     assert contacts[0] == 0 and max(contacts) > 500          # it fell, then touched the table
     cloth = rows(out, "sim/cloth/mesh", "Mesh3D:vertex_positions")[-1][1]

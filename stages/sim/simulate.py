@@ -42,6 +42,7 @@ from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER
 from stages.maps.types import KIND_CYLINDER, MapArrays
 from stages.sim import body_collide, collider_grid, forces, integrate, simd, step
 from stages.sim.cloth_contact.phase import ClothPhase
+from stages.sim.floor import floor_heights
 from stages.sim.poses import chunk_poses
 from stages.sim.settle import settle
 from stages.sim.springs import pack_springs, partition_springs
@@ -428,6 +429,10 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     cphase = ClothPhase.for_simulation(sysm, layers, params, character, body_motion) if params.cloth_collision else None
 
     root = motion.root_translation
+    # the floor (world height SimParams.floor): the cloth's mid-surface rests half its thickness above it
+    level = None if params.floor is None else float(params.floor) + 0.5 * float(params.cloth_thickness)
+    floor0 = None if level is None else level - float(root[0, 1])    # relative frame, at frame 0
+    no_floor = np.zeros(0)
     ocol = None
     if obstacles is not None:
         from stages.obstacles.stage import ObstacleCollider
@@ -499,10 +504,10 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     # it, and sorted after frame 0
     worn = obstacles is None and all((g.attach_joint >= 0).any() or (g.inverse_mass == 0).any() for g in garments)
     if cphase is not None and worn:   # garments that start interpenetrating: sorted by their layers
-        cphase.settle(cloth, cols, col.m, prm, gravity, wind, fwd0, inv_0, ss, max2, sysm.goff, flags)
+        cphase.settle(cloth, cols, col.m, prm, gravity, wind, fwd0, inv_0, ss, max2, sysm.goff, flags, floor0)
     if params.settle_frames and worn:
         if not settle(cloth, cols, col.m, prm, params, gravity, wind, fwd0, inv_0, max2, sysm.goff, flags,
-                      cphase.rest if cphase is not None else None):
+                      cphase.rest if cphase is not None else None, floor0):
             raise diverged(0)
         if cphase is not None:
             cphase.mark_settled()
@@ -515,7 +520,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     step.record_frame(sysm.x, flags, np.inf, sysm.goff, rel[0], pen_col[0], counts[0])
     audit_frames(0, 1)
     if cphase is not None and not worn:
-        cphase.settle(cloth, cols, col.m, prm, gravity, wind, fwd0, inv_0, ss, max2, sysm.goff, flags)
+        cphase.settle(cloth, cols, col.m, prm, gravity, wind, fwd0, inv_0, ss, max2, sysm.goff, flags, floor0)
     if progress is not None:
         progress(1, nf)
 
@@ -529,9 +534,10 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
         cc = cphase.rest if cphase is not None else None
         t0 = time.perf_counter()
         fwd, inv, inv0, d_prev, d_next, tr, d_last = chunk_poses(motion, f0, f1, ss, s, d_last)
+        floor = no_floor if level is None else floor_heights(root[:, 1], f0, f1, ss, level)
         timings["poses"] += time.perf_counter() - t0
         if ocol is None:
-            done = run_frames(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, ss, max2,
+            done = run_frames(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, floor, ss, max2,
                                 sysm.goff, rel[f0:f1], pen_col[f0:f1], counts[f0:f1], step_cycles[f0:f1], flags,
                                 timers, cc)
             if done < f1 - f0:
@@ -543,7 +549,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
             for k in range(ss):
                 if cc is not None and len(cc) == 10 and k % cc[8] == 0:   # the swept phase's x_start: the start of the phase's sweep (as run_steps)
                     cc[0][:] = sysm.x
-                run_steps(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, k, k + 1,
+                run_steps(cloth, cols, col.m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, floor, k, k + 1,
                           flags, timers, None)
                 to = time.perf_counter()
                 ta = motion.times[f - 1] + k * h

@@ -9,7 +9,7 @@ Phases, one module each: stages.sim.forces (aerodynamic forces), stages.sim.inte
 gravity, attachments), stages.sim.springs (spring corrections and tethers), stages.sim.collider_grid
 (collider frames, broad phase), stages.sim.body_collide (colliders; then stages.sim.face_collide,
 the colliders against the cloth's triangles, SimParams.face_contact; then stages.sim.strain_limit,
-SimParams.strain_limit), stages.sim.cloth_contact.kernels
+SimParams.strain_limit; then stages.sim.floor, SimParams.floor), stages.sim.cloth_contact.kernels
 (cloth x cloth: garment-garment and self collision, last, so a recorded frame is what it checked).
 
 Speed (issue 6): a whole chunk of frames runs in one call (`run_frames`): nothing is allocated and
@@ -59,6 +59,7 @@ from stages.sim.cloth_contact.kernels import PUSH_OVER, SWEEPS, collide_cloth, c
 from stages.sim.cloth_contact.offset import offset_call
 from stages.maps.kernels import METHOD_NEAREST_PLANE
 from stages.sim.face_collide import collide_faces
+from stages.sim.floor import collide_floor
 from stages.sim.collider_grid import build_grid, collider_frames, swept_spheres
 from stages.sim.forces import aero_forces
 from stages.sim.integrate import LIMITED, gather_forces, integrate, limit_speed
@@ -67,7 +68,7 @@ from stages.sim.springs import correct_springs
 from stages.sim.strain_limit import PASSES as LIMIT_PASSES, limit_strain
 
 # the phases are compiled into the step loop: an edit of any of them must invalidate its cache
-NUMBA_CACHE_DEPENDS = ("stages.sim.body_collide", "stages.sim.face_collide", "stages.sim.body_escape", "stages.sim.collider_query",
+NUMBA_CACHE_DEPENDS = ("stages.sim.body_collide", "stages.sim.face_collide", "stages.sim.floor", "stages.sim.body_escape", "stages.sim.collider_query",
                        "stages.sim.collider_grid", "stages.sim.forces", "stages.sim.strain_limit",
                        "stages.sim.integrate", "stages.sim.simd", "stages.sim.springs", "stages.maps.kernels",
                        "stages.maps.types", "stages.affine", "stages.fastmath", "stages.sim.cloth_contact.kernels",
@@ -92,12 +93,13 @@ N_TIMERS = 4
 
 # -- steps and frames ------------------------------------------------------------------------------
 @njit(cache=True, _nrt=False)
-def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, k0, k1, flags, timers, cc):
+def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, floor, k0, k1, flags, timers, cc):
     """Steps k0..k1-1 in the paper's order: forces, Verlet (+ attachments), spring corrections,
-    collisions, then cloth x cloth (cc, or None: off). Per step k: fwd[k] / inv[k] (J, 4, 4) the pose
-    at its end, inv0[k] at its start; d_prev[k] / d_next[k] (3,) the root translation over the
-    previous / this step. timers (N_TIMERS,) int64 accumulate cycles of integrate / constraints /
-    collisions / cloth contact."""
+    collisions (the floor last), then cloth x cloth (cc, or None: off). Per step k: fwd[k] / inv[k]
+    (J, 4, 4) the pose at its end, inv0[k] at its start; d_prev[k] / d_next[k] (3,) the root
+    translation over the previous / this step; floor[k] / floor[k + 1] the floor's height at its start
+    / end (stages.sim.floor.floor_heights; empty: no floor). timers (N_TIMERS,) int64 accumulate
+    cycles of integrate / constraints / collisions / cloth contact."""
     (x, xp, inv_mass, attach_joint, attach_local, ij, sp, group_start, ti, ta, tl, tris, tri_mass,
      tri_force, vt_table, x4, vertex_force, vt_eye) = cloth
     (col_joint, col_kind, col_index, col_bcenter, col_bradius, sph_center, sph_radius,
@@ -142,6 +144,8 @@ def run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next
                           grid_start, grid_items, grid_box, grid_dims, contact, corrected)
         if limits[0].size:      # strain limiting after the collisions (SimParams.strain_limit)
             limit_strain(x, limits, LIMIT_PASSES)
+        if floor.size:
+            collide_floor(x, xp, inv_mass, attach_joint, floor, k, d_next[k], friction)
         t3 = cycles()
         if cc is not None:
             cloth_phase(x, xp, k, cc)
@@ -229,9 +233,10 @@ def record_frame(x, flags, max_speed2, goff, pos, pen, counts):
 
 
 @njit(cache=True, _nrt=False)
-def run_frames(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, substeps, max_speed2,
+def run_frames(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, floor, substeps, max_speed2,
                goff, pos, pen, counts, step_cycles, flags, timers, cc):
-    """Frames 0..F-1 of a chunk (F = pos.shape[0]), `substeps` steps each (pose arrays: F * substeps),
+    """Frames 0..F-1 of a chunk (F = pos.shape[0]), `substeps` steps each (pose arrays: F * substeps,
+    floor F * substeps + 1 or empty),
     each recorded with record_frame into pos[f], pen[f], counts[f]; step_cycles[f] the frame's
     stepping cycles (recording excluded). Returns the number of frames done: F, or the index of the
     first frame that diverged (not recorded; the state is left as it diverged)."""
@@ -239,7 +244,7 @@ def run_frames(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_nex
     for f in range(pos.shape[0]):
         corrected[:] = 0
         c0 = cycles()
-        run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next,
+        run_steps(cloth, cols, m, prm, gravity, wind, fwd, inv, inv0, d_prev, d_next, floor,
                   f * substeps, (f + 1) * substeps, flags, timers, cc)
         step_cycles[f] = cycles() - c0
         if not record_frame(cloth[0], flags, max_speed2, goff, pos[f], pen[f], counts[f]):

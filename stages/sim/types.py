@@ -106,6 +106,11 @@ class SimParams:
         blend-in (cesium_skirt 127 -> 46 %, bvh_walk T-shirt 129 -> 52 %) but leaves 1.4-2.4 % of the
         particles inside the true body at the worst frame (0.1-0.3 % without) and does not lower the
         body edges through the cloth.
+    floor: m, world height of a floor under the cloth, None = none (the dataclass and both presets;
+        the pipeline sets it for worn garments from the character, pipeline.scene_motion.motion_floor).
+        After the collisions of every step a free particle under it is put back on it, its mid-surface
+        half cloth_thickness above (stages.sim.floor), with `friction` against the ground (which
+        moves by the inertia scale's share of the root's travel in the relative frame).
     max_speed: m/s; a particle faster than this (or NaN / inf) stops the run as diverged.
     speed_limit: m/s (relative frame), 0 = none: at the end of every step a free particle's Verlet
         velocity is capped at this (stages.sim.integrate.limit_speed; counted per frame in
@@ -160,6 +165,7 @@ class SimParams:
     entry_side: bool = False
     face_contact: bool = False
     strain_limit: float = 0.0
+    floor: float | None = None
     max_speed: float = 100.0
     speed_limit: float = 0.0
     body_audit: bool = True
@@ -198,6 +204,8 @@ class SimParams:
         rng("stretch_stiffness", 0.0, 1.0, lo_open=True)
         rng("bend_stiffness", 0.0, 1.0)
         rng("thickness", 0.0, 1.0)
+        if self.floor is not None:
+            rng("floor", -1e6, 1e6)
         rng("max_speed", 0.0, 1e6, lo_open=True)
         rng("speed_limit", 0.0, 1e6)
         rng("strain_limit", 0.0, 10.0)

@@ -111,14 +111,15 @@ class ClothPhase:
                    params.contact_steps(), params.cloth_layer_depth0, method=params.cloth_contact,
                    exclude=sysm.contact_zones)
 
-    def settle(self, cloth, cols, m, prm, gravity, wind, fwd0, inv0, substeps, max_speed2, goff, flags) -> None:
+    def settle(self, cloth, cols, m, prm, gravity, wind, fwd0, inv0, substeps, max_speed2, goff, flags,
+               floor0=None) -> None:
         """SETTLE_FRAMES frames of the step loop at the frame-0 pose (fwd0 / inv0 (J, 4, 4)) with the
         sorting depth (`first`), not recorded; then xp = x (the sorting moves are not velocity); the
         offset phase's query reruns at the sorted positions. The other arguments are simulate()'s
-        run_frames arguments."""
+        run_frames arguments, floor0 the floor's height at that pose (stages.sim.settle.hold_pose)."""
         from stages.sim.settle import hold_pose
         hold_pose(cloth, cols, m, prm, self.settle_frames, gravity, wind, fwd0, inv0, substeps, max_speed2, goff,
-                  flags, self.first)
+                  flags, self.first, floor0)
         if self.offset is not None:
             OF.query(cloth[0], self.offset)
         self.mark_settled()
