@@ -559,3 +559,36 @@ def test_a_low_waist_seam_is_lifted_above_the_legs_of_the_cmu_walk(tmp_path):
         # shoulder seams close 1 cm over the shoulders (garmentcode_shoulders), the neck ends of its
         # panels a little higher (1.1 cm above the shoulders' top)
         assert placed[:, 1].max() < meas["shoulder_top"] + 0.03, (path.name, placed[:, 1].max(), meas["shoulder_top"])
+
+
+def test_above_the_waist_the_cut_keeps_its_heights_and_below_the_map_meets_it():
+    # the landmarks took the CMU walk's bust-to-shoulder span at 1.27x the cut: the shirt's upper torso
+    # placed 27 % longer than cut, and the sewing, letting it go, pulled it 8 cm down off the shoulders
+    from stages.garments.garmentcode_place import SLOPE_BOUNDS, cut_above, limited_heights
+    rng = np.random.default_rng(11)
+    cut = 0
+    for _ in range(300):
+        src = np.cumsum(rng.uniform(0.05, 0.4, 6)) - 0.05
+        dst = np.cumsum(rng.uniform(0.01, 0.6, 6))
+        waist = float(rng.uniform(src[1], src[-2]))
+        anchor = float(rng.uniform(waist + 0.01, src[-1]))
+        s0, d0 = limited_heights(src, dst, anchor)
+        s, d = cut_above(s0, d0, anchor, waist)
+        assert np.all(np.diff(s) > 0) and np.all(np.diff(d) > 0)
+        a = np.interp(anchor, s0, d0)
+        assert np.interp(anchor, s, d) == pytest.approx(a)                  # hung where the map hung it
+        assert d[0] == pytest.approx(d0[0])                                # the floor kept
+        up = np.linspace(anchor, src[-1], 20)
+        if s is not s0:
+            assert np.allclose(np.interp(up, s, d), a + (up - anchor))     # the cut's heights above the anchor
+            below = s <= waist
+            slope = np.diff(d[below]) / np.diff(s[below])
+            assert np.all(slope >= SLOPE_BOUNDS[0] - 1e-9) and np.all(slope <= SLOPE_BOUNDS[1] + 1e-9)
+            mid = np.linspace(waist, anchor, 20)
+            if np.allclose(np.interp(mid, s, d), a + (mid - anchor)):      # the cut's heights reachable: met at the waist
+                cut += 1
+    assert cut > 10                                                     # (random maps are far wilder than bodies)
+    # a map the bounds allow: slope 1 from the waist up, the floor where it was
+    src, dst = np.array([0.0, 0.8, 1.0, 1.2, 1.4, 1.7]), np.array([0.0, 0.7, 0.85, 1.1, 1.35, 1.6])
+    s, d = cut_above(src, dst, 1.4, 1.0)
+    assert np.allclose(np.interp([1.0, 1.2, 1.4, 1.7], s, d), [0.95, 1.15, 1.35, 1.65]) and d[0] == 0.0
