@@ -314,8 +314,12 @@ def body_map(body: GCBody, meas: dict, character, origins: np.ndarray, anchor: f
     src, dst = np.array(src)[keep], np.array(dst)[keep]
     if anchor is not None:
         src, dst = limited_heights(src, dst, anchor)
-        if anchor > body.waist_y > src[0]:
-            src, dst = cut_above(src, dst, anchor, body.waist_y)
+        w = body.waist_y
+        # only where the map stretches the cut above the waist (a squashed cut, CesiumMan's 3.8 cm
+        # bust-to-shoulder span held at 0.75, expands up against the shoulders it hangs from; as cut
+        # there, its tops tore on the forearms 9-10 frames earlier)
+        if anchor > w > src[0] and np.interp(anchor, src, dst) - np.interp(w, src, dst) > anchor - w:
+            src, dst = cut_above(src, dst, anchor, w)
     if band is not None:
         src, dst = lift_band(src, dst, src[-1] if anchor is None else anchor, *band)
     ratio = np.array([meas.get("clear_hips", meas["hips"]) / body.hips, meas.get("clear_waist", meas["waist"]) / body.waist,
