@@ -403,7 +403,7 @@ def test_panel_spans_across_each_level_match_a_brute_force_scan():
 
 
 def test_limited_heights_keep_the_anchor_and_bound_every_slope():
-    from stages.garments.garmentcode_place import SLOPE_BOUNDS, limited_heights
+    from stages.garments.garmentcode_heights import SLOPE_BOUNDS, limited_heights
     rng = np.random.default_rng(7)
     lo, hi = SLOPE_BOUNDS
     for _ in range(200):
@@ -564,7 +564,7 @@ def test_a_low_waist_seam_is_lifted_above_the_legs_of_the_cmu_walk(tmp_path):
 def test_above_the_waist_the_cut_keeps_its_heights_and_below_the_map_meets_it():
     # the landmarks took the CMU walk's bust-to-shoulder span at 1.27x the cut: the shirt's upper torso
     # placed 27 % longer than cut, and the sewing, letting it go, pulled it 8 cm down off the shoulders
-    from stages.garments.garmentcode_place import SLOPE_BOUNDS, cut_above, limited_heights
+    from stages.garments.garmentcode_heights import SLOPE_BOUNDS, cut_above, limited_heights
     rng = np.random.default_rng(11)
     cut = 0
     for _ in range(300):
