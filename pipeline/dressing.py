@@ -439,7 +439,8 @@ def _build_scene_obstacle(o: dict, file_mesh, duration: float):
 
 def garment_fits(character, motion, skinned, garments, builds, result, layers=None) -> list:
     """stages.garments.fit.GarmentFit of every simulated garment; the floor is the simulation's
-    (SimParams.floor), else the lowest skin point over the frames (world), the fit edges those of the pattern garments' builds. layers: each
+    (SimParams.floor), else the lowest skin point over the frames (world), the fit edges those of the
+    pattern garments' builds. layers: each
     garment's cloth layer (dressing_layers) or None: a garment's fit edges are measured to the nearer
     of the skin and the garments of lower layers (a waistband worn over a tucked-in shirt sits on the
     shirt, not on the skin)."""
@@ -449,7 +450,7 @@ def garment_fits(character, motion, skinned, garments, builds, result, layers=No
     from pipeline.scene_motion import lowest_skin_point
     floor_y = result.params.floor if result.params.floor is not None else lowest_skin_point(skinned, motion.root_translation)
     nf = len(result.times)
-    world = skinned[:nf] + motion.root_translation[:nf, None, :]
+    world = skinned[:nf] + motion.root_translation[:nf, None, :]   # the skin where the garments were, frame by frame
     body = SkinDistance(character)
     layers = [0] * len(garments) if layers is None else list(layers)
     surface = [triangle_grid_points(g.positions, g.triangles) if k < max(layers) else None
@@ -460,7 +461,7 @@ def garment_fits(character, motion, skinned, garments, builds, result, layers=No
         fit_vertices = build.fit_vertices if build is not None else np.zeros(0, np.int64)
         below = [p for p, k in zip(surface, layers) if k < layers[i]]
         out.append(garment_fit(character, skinned[0], g.positions, fit_vertices, track, floor_y, skin_distance=body,
-                               under=np.concatenate(below) if below else None, skin_frames=world[:nf]))
+                               under=np.concatenate(below) if below else None, skin_frames=world))
     return out
 
 

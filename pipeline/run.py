@@ -406,8 +406,8 @@ def _run_stages(scene, out, times, meshes, formats, export_dir, summary, announc
                     warnings.warn(w, stacklevel=1)
             summary.penetrations = logs.log_sim(rec, motion, garments, result, audit, held)
             if params.floor is not None:   # under the body over every frame and the cloth
-                under = [(skinned + motion.root_translation[:, None, :]).reshape(-1, 3)]
-                logs.log_floor(rec, params.floor, np.concatenate(under + [t.positions.reshape(-1, 3) for t in result.garments]))
+                body = (skinned + motion.root_translation[:, None, :]).reshape(-1, 3)
+                logs.log_floor(rec, params.floor, np.concatenate([body] + [t.positions.reshape(-1, 3) for t in result.garments]))
             from pipeline.export import run_uvs
             logs.log_uvs(rec, run_uvs(scene, result, builds, meshes))
             summary.speeds = {k: summary.penetrations.pop(k) for k in list(summary.penetrations) if k.startswith("steps/s")}

@@ -23,7 +23,7 @@ class GarmentFit:
     """name: garment name. fit_gap: (K,) float64, m, distance from each fit-edge particle (waistband,
     collar) to the skin (or to a garment worn under it, if nearer) at the bind pose after sewing,
     negative inside the body (empty when the garment has no fit edges). floor_clearance: (F,) float64, m, lowest particle minus the floor
-    (the lowest skin vertex over the frames) per frame. body_share: (F,) float64, share of the
+    (the simulation's floor, else the lowest skin vertex over the frames) per frame. body_share: (F,) float64, share of the
     garment's particles inside the true body per frame (nan when the audit was off). slide: (F,)
     float64, m, how far the garment moved off where it was dressed per frame (`garment_slide`; empty
     when the skin's frames were not given).
