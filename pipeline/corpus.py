@@ -23,7 +23,7 @@ failing on it), strain p99 at the last frame at most STRAIN_P99_MAX, every sewn 
 SEAM_GAP_MAX before they were joined, and no garment slid off the body (SLIDE_MAX: its waistband or
 collar, else its highest particles, at most that much farther from the skin they were dressed on at
 any frame; a top with nothing to hold it slid down the body, through the floor before there was one
-and onto it since). A hem that reaches the floor (a long skirt on a short character) rests on the
+and onto it since), and its process peaked at most MEMORY_MAX_MB of resident memory. A hem that reaches the floor (a long skirt on a short character) rests on the
 simulation's floor and is judged by the other figures.
 """
 from __future__ import annotations
@@ -39,6 +39,7 @@ IN_BODY_MAX = 0.005      # share of a garment's particles inside the body, worst
 STRAIN_P99_MAX = 10.0    # %, last frame, worst garment
 SEAM_GAP_MAX = 2.0       # mm, the largest seam gap the sewing left before joining the seams (issue 39)
 SLIDE_MAX = 10.0         # cm: a garment whose waistband / collar moved farther than this off its skin slid off
+MEMORY_MAX_MB = 2048.0   # a run's peak resident memory (its process: imports and kernels included; issue 37)
 CHARACTER_FILES = (".glb", ".gltf", ".bvh")
 OUTFIT = ("tshirt", "shorts")   # worn together: the T-shirt over the shorts
 
@@ -208,6 +209,8 @@ def verdict(row: dict) -> list[str]:
         out.append(f"seams {row['seam_gap_mm']:.1f} mm open when joined")
     if row.get("slide_cm") is not None and row["slide_cm"] > SLIDE_MAX:
         out.append(f"slid {row['slide_cm']:.0f} cm off where it was dressed (waistband / collar from its skin)")
+    if row.get("peak_memory_mb") is not None and row["peak_memory_mb"] > MEMORY_MAX_MB:
+        out.append(f"peak memory {row['peak_memory_mb']:.0f} MB (limit {MEMORY_MAX_MB:.0f} MB)")
     return out
 
 
@@ -280,7 +283,7 @@ def table(rows: list[dict]) -> str:
     """The corpus as a user reads it: one line per pair, pass or the reasons it fails."""
     head = ["character", "pair", "result", "in body (max %)", "crossings", "body edges through cloth",
             "body edges where the body meets itself (not judged)",
-            "strain p99 last (%)", "seam gap (mm)", "fit gap (cm)"]
+            "strain p99 last (%)", "seam gap (mm)", "fit gap (cm)", "peak memory (MB)"]
     out = ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
 
     def num(v, fmt):
@@ -294,7 +297,8 @@ def table(rows: list[dict]) -> str:
                                       num(cross, "d"), num(r.get("body_edges_max"), "d"),
                                       num(r.get("body_edges_overlap_max"), "d"),
                                       num(r.get("strain_p99_pct"), ".1f"),
-                                      num(r.get("seam_gap_mm"), ".1f"), num(r.get("fit_gap_cm"), ".1f")]) + " |")
+                                      num(r.get("seam_gap_mm"), ".1f"), num(r.get("fit_gap_cm"), ".1f"),
+                                      num(r.get("peak_memory_mb"), ".0f")]) + " |")
     passed = sum(not r["verdict"] for r in rows)
     out += ["", f"{passed} of {len(rows)} pairs pass"]
     return "\n".join(out)

@@ -20,14 +20,14 @@ COLUMNS = ("job", "status", "failure", "message", "frames", "frames_done", "part
            "in_body_max", "in_colliders_max", "strain_mean_pct", "strain_p99_pct", "strain_p99_worst_pct",
            "crossings_self_max", "crossings_between_max", "body_edges_max", "body_edges_overlap_max", "seam_gap_mm", "fit_gap_cm", "floor_cm",
            "slide_cm", "coverage_min_pct", "excess_p95_cm", "warnings",
-           "wall_s", "frames_per_s", "sim_frames_per_s", "warm_up_s", "worker", "recording", "exports")
+           "wall_s", "frames_per_s", "sim_frames_per_s", "warm_up_s", "peak_memory_mb", "worker", "recording", "exports")
 # columns that depend on the machine and its load, not on the job: left out when comparing tables
-TIMING_COLUMNS = ("wall_s", "frames_per_s", "sim_frames_per_s", "warm_up_s", "worker")
+TIMING_COLUMNS = ("wall_s", "frames_per_s", "sim_frames_per_s", "warm_up_s", "peak_memory_mb", "worker")
 INT_COLUMNS = ("frames", "frames_done", "particles", "in_body_max", "in_colliders_max", "crossings_self_max",
                "crossings_between_max", "body_edges_max", "body_edges_overlap_max", "warnings")
 FLOAT_COLUMNS = ("strain_mean_pct", "strain_p99_pct", "strain_p99_worst_pct", "seam_gap_mm", "fit_gap_cm",
                  "floor_cm", "slide_cm", "coverage_min_pct", "excess_p95_cm", "wall_s", "frames_per_s", "sim_frames_per_s",
-                 "warm_up_s")
+                 "warm_up_s", "peak_memory_mb")
 
 
 class JobTimeout(BaseException):
@@ -198,6 +198,30 @@ def _json_default(o):
     return str(o)
 
 
+def reset_peak_memory() -> bool:
+    """Start the process's peak resident memory (VmHWM) afresh, so that the next peak_memory_mb is
+    one job's (a pool worker runs many). Linux only (/proc/self/clear_refs); False elsewhere."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def peak_memory_mb() -> float | None:
+    """The process's peak resident memory since the last reset_peak_memory (VmHWM, MB); None where
+    /proc is not there. The worker's imports and kernels are in it: a `run` carries them too."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return None
+
+
 def _worker_name() -> str:
     import socket
     return f"{socket.gethostname()}:{os.getpid()}"
@@ -234,6 +258,7 @@ def run_job(spec: dict, warm_up_s: float | None = None) -> dict:
     row = {"job": spec["id"], **spec["labels"]}
     state: dict = {}
     log = io.StringIO()
+    peak_known = reset_peak_memory()
     t0 = time.perf_counter()
     err: BaseException | None = None
     scene = None
@@ -309,6 +334,7 @@ def run_job(spec: dict, warm_up_s: float | None = None) -> dict:
     done = row.get("frames_done") or 0
     row["frames_per_s"] = done / row["wall_s"] if done else None
     row["warm_up_s"] = warm_up_s
+    row["peak_memory_mb"] = peak_memory_mb() if peak_known else None
     row["worker"] = _worker_name()
     row["warnings"] = len(caught)
     for w in caught:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import yaml
 
-from pipeline.corpus import (IN_BODY_MAX, SEAM_GAP_MAX, SLIDE_MAX, START_SHARE, CorpusCharacter, cases_of, character_specs, run_corpus, table,
+from pipeline.corpus import (IN_BODY_MAX, MEMORY_MAX_MB, SEAM_GAP_MAX, SLIDE_MAX, START_SHARE, CorpusCharacter, cases_of, character_specs, run_corpus, table,
                              verdict, write_sweep)
 
 
@@ -60,6 +60,8 @@ def test_verdict_names_each_target_missed():
     # a top that slid off the body onto the floor
     assert verdict({**ok, "floor_cm": 0.2, "slide_cm": 87.4}) == [
         "slid 87 cm off where it was dressed (waistband / collar from its skin)"]
+    assert verdict({**ok, "peak_memory_mb": MEMORY_MAX_MB}) == []
+    assert verdict({**ok, "peak_memory_mb": 8400.0}) == [f"peak memory 8400 MB (limit {MEMORY_MAX_MB:.0f} MB)"]
     failed = verdict({"status": "failed", "failure": "sewing", "message": "sewing did not close seam a / b"})
     assert failed == ["sewing: sewing did not close seam a / b"]
 
@@ -78,6 +80,8 @@ def test_a_small_corpus_runs_end_to_end(tmp_path):
                       echo=lambda *a: None)
     assert len(rows) >= 2 and all(r["character"] == "builtin" for r in rows)
     assert all(r["status"] == "ok" for r in rows)
+    # each job's own peak memory (the worker's high-water mark is reset per job): a real figure, in range
+    assert all(100 < r["peak_memory_mb"] < MEMORY_MAX_MB for r in rows)
     assert any(r["frames"] > 2 for r in rows)   # a blend-in from the rest pose before the clip's frames
     text = table(rows)
     assert text.count("| builtin |") == len(rows) and f"of {len(rows)} pairs pass" in text
