@@ -408,7 +408,7 @@ def log_floor(rec: rr.RecordingStream, height: float, points: np.ndarray) -> Non
                  np.float32)
     rec.log("floor/mesh", rr.Mesh3D(vertex_positions=v, vertex_normals=np.tile(np.float32([0, 1, 0]), (4, 1)),
                                     triangle_indices=np.array([[0, 2, 1], [0, 3, 2]], np.uint32),
-                                    albedo_factor=(*style.OBSTACLE[:3], 255)), static=True)
+                                    albedo_factor=style.FLOOR), static=True)
 
 
 def log_obstacles(rec: rr.RecordingStream, obstacles, times: np.ndarray, *, kdop_depth: int = 3) -> None:

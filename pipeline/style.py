@@ -19,6 +19,8 @@ FABRICS = (
 PIN_RIGID = (30, 30, 30, 255)         # attached particles: near black
 PIN_YIELDING = (255, 170, 0, 255)     # attached but pushed by another bone's collider: amber
 OBSTACLE = (150, 150, 158, 255)       # obstacles: light grey
+FLOOR = (44, 46, 52, 255)             # the simulation's floor: a shade over the viewer's background, so the
+                                      # body and cloth on it stand out (a light floor outshone them)
 PIN_RADIUS = 0.007
 
 
