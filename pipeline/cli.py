@@ -236,6 +236,8 @@ def cmd_measure(args) -> int:
     _check_out_file(args.out, "--out")
     where.stage(f"measure {args.character}")
     character, _ = load_asset(args.character)
+    from stages.garments.anchors import require_human
+    require_human(character, f"measure {args.character}", subject="a GarmentCode body file is measured")
     default = assets_dir() / DEFAULT_BODY       # the keys a mesh cannot give are scaled from it
     if not default.is_file():
         raise InputError(str(default), "GarmentCode's default body (mean_all.yaml) is not there; set GARMENT_ASSETS "

@@ -53,6 +53,7 @@ class CorpusCharacter:
     clips: list = field(default_factory=list)
     wears: list = field(default_factory=list)
     refused: dict = field(default_factory=dict)     # kind -> one line
+    refused_patterns: str = ""                      # why no GarmentCode pattern fits it ('': they do)
 
 
 def assets_dir() -> Path:
@@ -76,13 +77,17 @@ def survey(label: str, spec: dict, kinds) -> CorpusCharacter:
     from pipeline.run import load_character
     from pipeline.scene import parse_scene_text
     from stages.errors import InputError
-    from stages.garments.anchors import require_anchors
+    from stages.garments.anchors import require_anchors, require_human
     from stages.rig.humanoid import humanoid_joints
     out = CorpusCharacter(label, dict(spec))
     scene = parse_scene_text(yaml.safe_dump({"character": {**spec, "clip": "rest"}}), source=f"corpus:{label}")
     character = load_character(scene)
     out.clips = [(c.name, float(c.duration)) for c in character.clips]
     joints = humanoid_joints(character)
+    try:
+        require_human(character, "GarmentCode patterns", joints)
+    except InputError as err:
+        out.refused_patterns = f"GarmentCode patterns cannot be dressed on {character.name!r}: {' '.join(err.problem.split())}"
     for kind in kinds:
         try:
             require_anchors(kind, character, f"garment {kind!r}", joints)
@@ -117,7 +122,10 @@ def pattern_name(path: Path) -> str:
 
 
 def pattern_cases(c: CorpusCharacter, patterns: list[Path]) -> list[dict]:
-    """One scene per GarmentCode pattern on the character, its clips dealt round-robin."""
+    """One scene per GarmentCode pattern on the character, its clips dealt round-robin (none on a
+    character that is not a human: c.refused_patterns)."""
+    if c.refused_patterns:
+        return []
     clips = c.clips or [("rest", 0.0)]
     return [_case(c, *clips[i % len(clips)], [{"type": "garmentcode", "name": _slug(pattern_name(p)),
                                                "path": str(p.resolve())}], f"gc-{pattern_name(p)}")
@@ -259,11 +267,14 @@ def run_corpus(folder: Path, *, frames: int = 30, characters: list[str] | None =
                             "verdict": [" ".join(str(err).split())]})
             continue
         echo(f"{label}: {len(c.clips)} clip(s), wears {', '.join(c.wears) or 'no built-in kind'}"
-             f"{f' and {len(gc_files)} GarmentCode pattern(s)' if gc_files else ''}")
+             f"{f' and {len(gc_files)} GarmentCode pattern(s)' if gc_files and not c.refused_patterns else ''}")
         cases += [dict(k, _character=label) for k in cases_of(c, full=full, kinds=asked, outfit=outfit)
                   + pattern_cases(c, gc_files)]
         refused += [{"character": label, "pair": kind, "status": "refused", "verdict": [why]}
                     for kind, why in c.refused.items() if kind in asked]
+        if gc_files and c.refused_patterns:
+            refused.append({"character": label, "pair": f"{len(gc_files)} GarmentCode patterns", "status": "refused",
+                            "verdict": [c.refused_patterns]})
     cases = unique_labels(cases)
     by_label = {k["label"]: k.pop("_character") for k in cases}
     rows = []

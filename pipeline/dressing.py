@@ -173,8 +173,8 @@ def build_pattern_garment(scene: Scene, index: int, character, motion, colliders
     where = _garment_where(scene, index, character)
     pattern = scene_pattern(scene, index, character, motion, colliders, under=under)
     sw = g["sewing"]
-    sew = SewParams(tolerance=sw["tolerance"], max_iterations=sw["max_iterations"],
-                    gravity_scale=sw["gravity_scale"], iterations=sw["iterations"])
+    sew = SewParams(tolerance=sw["tolerance"], target=sw["target"],
+                    max_iterations=sw["max_iterations"], gravity_scale=sw["gravity_scale"], iterations=sw["iterations"])
     try:
         garment, log, build = make_garment(pattern, character, motion, colliders, maps, sew_params=sew,
                                            progress=progress, under=under,
@@ -215,11 +215,11 @@ def build_garmentcode_garment(scene: Scene, index: int, character, motion, colli
         body = body_of(g["path"], assets_dir() / DEFAULT_BODY)
     except InputError as err:
         raise SceneError(f"{scene.path or '<scene>'}: garments[{index}].path: {err}") from None
-    from stages.garments.quadruped import front_legs
-    if front_legs(character):
-        raise SceneError(f"{where}: a GarmentCode pattern is made for a human body, and {character.name!r} stands on "
-                         f"four legs (its front legs reach the floor); a pattern cape is dressed as a blanket over "
-                         f"its back (type: pattern, kind: cape), and mesh garments fit any shape")
+    from stages.garments.anchors import require_human
+    try:
+        require_human(character, where)
+    except InputError as err:
+        raise SceneError(str(err)) from None
     if place_only:
         try:
             place_gc_garment(gc, body, character, motion, colliders, edge_length=g["edge_length"], name=g["name"])
@@ -227,8 +227,8 @@ def build_garmentcode_garment(scene: Scene, index: int, character, motion, colli
             raise SceneError(f"{where}: cannot place the pattern: {err}") from None
         return None
     sw = g["sewing"]
-    sew = SewParams(tolerance=sw["tolerance"], max_iterations=sw["max_iterations"],
-                    gravity_scale=sw["gravity_scale"], iterations=sw["iterations"])
+    sew = SewParams(tolerance=sw["tolerance"], target=sw["target"],
+                    max_iterations=sw["max_iterations"], gravity_scale=sw["gravity_scale"], iterations=sw["iterations"])
     try:
         garment, log, build, warn = make_gc_garment(gc, body, character, motion, colliders, maps,
                                                     edge_length=g["edge_length"], name=g["name"], density=g["density"],

@@ -147,6 +147,8 @@ GARMENT.variants["pattern"] = {
                      fields=PATTERN_OPTIONS, sparse=True),
     "sewing": Field("section", {}, "sewing under micro-gravity", fields={
         "tolerance": Field("float", 0.004, "largest seam gap accepted, m", lo=0.0, lo_open=True),
+        "target": Field("float", 0.002, "within the tolerance, the sewing goes on while the largest gap still falls, "
+                        "down to this, m (at most the tolerance)", lo=0.0, lo_open=True),
         "max_iterations": Field("int", 40, "sewing simulation rounds at most (the sewing runs at least 2)", lo=2, hi=10000),
         "gravity_scale": Field("float", 0.005, "share of gravity while sewing", lo=0.0, hi=1.0),
         "iterations": Field("int", 16, "spring correction rounds while sewing", lo=1, hi=1000),

@@ -392,10 +392,18 @@ def validate_jobs(sw: Sweep, echo=None) -> None:
 
 def _check_anchors(scene, character) -> None:
     from stages.errors import InputError
-    from stages.garments.anchors import ANCHORS, require_anchors
+    from stages.garments.anchors import ANCHORS, require_anchors, require_human
     from stages.rig.humanoid import humanoid_joints
     joints = None
     for i, g in enumerate(scene["garments"]):
+        if g["type"] == "garmentcode":
+            joints = joints or humanoid_joints(character)
+            try:
+                require_human(character, f"garment {g['name']!r}", joints)
+            except InputError as err:
+                raise SceneError(f"{scene.path}: garments[{i}] ({g['name']!r}, GarmentCode) cannot be dressed on "
+                                 f"{character.name!r}: {err.problem}") from None
+            continue
         if g["type"] != "pattern" or not ANCHORS.get(g["kind"]):
             continue
         joints = joints or humanoid_joints(character)

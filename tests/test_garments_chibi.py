@@ -70,6 +70,33 @@ def test_skirts_need_legs_of_any_joint_count(chibi, assets_dir):
     assert "hips" in msg and "leg_l" in msg and "type: mesh" in msg and "\n" not in msg
 
 
+def test_garmentcode_patterns_and_measure_need_a_human(chibi, assets_dir, tmp_path):
+    """A GarmentCode pattern on the bending cylinder is one line before any stage runs (it ran 7
+    minutes in 5 GB, placed from a 6 m 'waist'); so is `measure`; the chibi (one-joint limbs) is a human."""
+    import subprocess
+    import sys
+
+    from stages.errors import InputError
+    from stages.garments.anchors import require_human
+    from stages.rig.gltf import load_gltf
+    require_human(chibi, "garment 'gc'")
+    with pytest.raises(InputError) as err:
+        require_human(load_gltf(assets_dir / "RiggedSimple.glb"), "garment 'gc'")
+    msg = str(err.value)
+    assert msg.startswith("garment 'gc': a GarmentCode pattern is made for a human body") and "neck" in msg
+    assert "type: mesh" in msg and "\n" not in msg
+    pattern = next((assets_dir / "garmentcode").rglob("*skirt*_specification.json"))
+    scene = tmp_path / "s.yaml"
+    scene.write_text(f"character: {{source: gltf, path: {assets_dir / 'RiggedSimple.glb'}}}\nframes: {{count: 3}}\n"
+                     f"garments:\n  - {{type: garmentcode, path: {pattern}}}\n")
+    for cmd in (["run", str(scene), "-o", str(tmp_path / "s.rrd")], ["measure", str(assets_dir / "RiggedSimple.glb")]):
+        r = subprocess.run([sys.executable, "-m", "pipeline", *cmd], capture_output=True, text=True, timeout=300)
+        assert r.returncode == 2, r.stderr
+        errors = [line for line in r.stderr.splitlines() if line.startswith("error")]
+        assert len(errors) == 1 and ("made for a human body" in errors[0] or "measured for a human body" in errors[0]) and "Traceback" not in r.stderr
+    assert not (tmp_path / "s.rrd").exists()
+
+
 
 def test_a_waistband_hugs_the_trunk_under_arms_held_out_at_its_height(chibi, tmp_path):
     # the chibi's arms stand out from its waist in the bind pose: a waistband stopped by them was

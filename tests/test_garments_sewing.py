@@ -101,14 +101,15 @@ def test_a_collar_sewn_off_the_body_is_sewn_again_held(scene):
     """Sewing with a free collar can leave it off the body (the tall-slim and BVH T-shirts: its
     corners stand 3-4 cm off the hollow between neck and shoulders); then the garment is sewn again
     with the collar held where it was hugged, kept when its seams close and the collar sits closer.
-    Here a band cut 1.1 x its hugged loop (loose) leaves the collar 2.4 cm out sewn free."""
+    Here a band cut 1.35 x its hugged loop (loose) leaves the collar 2.4 cm out sewn free (at 1.1 the
+    sewing, going on to its 2 mm target, settles it at 2.25 cm free, closer than held)."""
     import dataclasses
     import re
 
     from stages.geometry.skin_distance import SkinDistance
     from stages.garments.fit import FIT_GAP_MAX, signed_skin_distance
     c, m, cols, maps, skin0 = scene
-    pattern = dataclasses.replace(library_pattern("tshirt", garment_measurements(c, cols, m)), fit_band=1.1)
+    pattern = dataclasses.replace(library_pattern("tshirt", garment_measurements(c, cols, m)), fit_band=1.35)
     g, log, build = make_garment(pattern, c, m, cols, maps)
     held = [n for n in log.notes if n.startswith("fit edges held")]
     assert len(held) == 1, log.notes

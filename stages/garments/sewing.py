@@ -43,7 +43,9 @@ TANGLE_ZONE_EDGES = 2.0
 class SewParams:
     """Sewing settings.
 
-    tolerance: m, largest seam gap accepted. max_iterations: simulate calls at most.
+    tolerance: m, largest seam gap accepted. target: m, the gap the sewing goes on closing to once
+    within the tolerance (at most the tolerance), while it still falls (a seam 4 mm open is joined with a visible pucker;
+    the last millimetres take a few more iterations). max_iterations: simulate calls at most.
     frames_per_iteration: frames per call. dt, substeps, iterations: simulation step settings
     (iterations = spring correction rounds). gravity_scale: share of g applied (micro-gravity).
     damping, friction: as in SimParams (damping per 1/30 s: 0.36 removes 0.2 per step of 1/60 s). seam_rest: m, rest length of the seam springs (> 0).
@@ -59,6 +61,7 @@ class SewParams:
     """
 
     tolerance: float = 0.004
+    target: float = 0.002
     max_iterations: int = 40
     frames_per_iteration: int = 10
     dt: float = 1.0 / 30.0
@@ -73,7 +76,7 @@ class SewParams:
     self_collision: bool = False
 
     def __post_init__(self):
-        if not (self.tolerance > 0 and self.seam_rest > 0 and self.max_iterations >= 1 and
+        if not (self.tolerance > 0 and self.target > 0 and self.seam_rest > 0 and self.max_iterations >= 1 and
                 0 <= self.min_iterations <= self.max_iterations and
                 self.frames_per_iteration >= 2 and self.log_every >= 1 and 0 <= self.gravity_scale <= 1):
             raise ContractError(f"SewParams: invalid settings {self}")
@@ -231,8 +234,14 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
     pen = 0
     it = 0
     stalled_at = 0
-    while (gmax[-1] > params.tolerance or si + 1 < len(stages) or it < params.min_iterations) \
-            and it < params.max_iterations:
+    target = min(params.target, params.tolerance)
+    finished = False    # within the tolerance, the gap stalled above the target with the bend springs at their softest
+
+    def stalled():
+        return it - stalled_at >= STALL_WINDOW and gmax[-1] > (1.0 - STALL_GAIN) * gmax[-1 - STALL_WINDOW]
+
+    while (gmax[-1] > params.tolerance or (gmax[-1] > target and not finished) or si + 1 < len(stages)
+           or it < params.min_iterations) and it < params.max_iterations:
         it += 1
         try:
             r = simulate(character, hold, colliders, maps, [g], sp, threads=1)
@@ -251,8 +260,11 @@ def sew(name: str, positions: np.ndarray, triangles: np.ndarray, triangle_rest: 
             active = stage_of <= stages[si]
             g = garment_for(x, active)
             notes.append(f"stage {int(stages[si])} from iteration {it}")
-        if (si + 1 == len(stages) and gmax[-1] > params.tolerance and sp.bend_stiffness > MIN_SEW_BEND
-                and it - stalled_at >= STALL_WINDOW and gmax[-1] > (1.0 - STALL_GAIN) * gmax[-1 - STALL_WINDOW]):
+        if si + 1 == len(stages) and target < gmax[-1] <= params.tolerance and sp.bend_stiffness <= MIN_SEW_BEND \
+                and stalled():
+            finished = True     # closed to the tolerance and no longer closing: more rounds would not help
+        if (si + 1 == len(stages) and gmax[-1] > target and sp.bend_stiffness > MIN_SEW_BEND
+                and stalled()):
             # the last millimetres stall where stiff panels must curl into a tube's closing corner
             # (CesiumMan's shorts: an inseam's hem end at 4.7 mm from iteration 4 on, 40 or 120
             # iterations alike): the bend springs soften, halving each time it stalls again
