@@ -200,7 +200,16 @@ def _json_default(o):
 
 def reset_peak_memory() -> bool:
     """Start the process's peak resident memory (VmHWM) afresh, so that the next peak_memory_mb is
-    one job's (a pool worker runs many). Linux only (/proc/self/clear_refs); False elsewhere."""
+    one job's (a pool worker runs many). What earlier jobs freed is handed back to the system first
+    (glibc's malloc_trim): kept, it counted in the next job's peak (1.75 GB against 0.83 GB for the
+    same run alone). Linux only (/proc/self/clear_refs); False elsewhere."""
+    import ctypes
+    import gc
+    gc.collect()
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):   # not glibc: the peak may include what earlier jobs freed
+        pass
     try:
         with open("/proc/self/clear_refs", "w") as f:
             f.write("5")
