@@ -328,6 +328,8 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=Non
     if audited:
         log_scalar_series(rec, "sim/penetrations/body", result.penetrations_body, result.times,
                           name="inside the body mesh", color=(150, 60, 200))
+        log_scalar_series(rec, "sim/penetrations/body_overlap", result.penetrations_body_overlap, result.times,
+                          name="inside the body where it meets itself (counted apart)", color=(190, 150, 220))
     # the step time (wall clock) is logged by run_scene under timings/, outside sim/
     log_scalar_series(rec, "sim/contacts/colliders", result.corrected, result.times,
                       name="particles moved by a collider", color=(90, 90, 90))
@@ -370,6 +372,8 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=Non
         "inside body (max / mean per frame)": (f"{int(body.max())} / {float(body.mean()):.2f} "
                                                f"({100 * int(body.max()) / max(n, 1):.2f} % of particles, worst frame {worst})")
                                               if audited else "not audited (simulation.body_audit: false)",
+        "inside the body where it meets itself, counted apart (max per frame)":
+            f"{int(result.penetrations_body_overlap.max(initial=0))}" if audited else "not audited",
         "steps/s (simulation only)": f"{steps_s:.0f}",
     }
     if result.notes:

@@ -236,6 +236,44 @@ def recorded(tmp_path_factory):
     return out, summary
 
 
+def _two_balls():
+    """One body mesh of two unit balls sunk 0.5 m into each other (centres 0 and 1.5 on x)."""
+    import trimesh
+    a = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    v = np.concatenate([a.vertices, a.vertices + [1.5, 0.0, 0.0]])
+    t = np.concatenate([a.faces, a.faces + len(a.vertices)]).astype(np.int32)
+    return v, t
+
+
+def test_particles_inside_where_the_body_meets_itself_are_told_apart():
+    """A particle inside one ball whose nearest surface is the other ball's, sunk inside the first,
+    is held where the body meets itself; one inside a ball by its own free surface is not (against
+    the brute force: nearest surface point over every triangle, exact winding numbers)."""
+    import trimesh
+
+    from stages.geometry.winding import WindingTree, winding_numbers_brute
+    from stages.sim.body_audit import SELF_GAP, body_orientation, inside_where_body_meets_itself
+    v, t = _two_balls()
+    tree = WindingTree(v, t)
+    p = np.array([[0.45, 0.0, 0.0],     # inside A, under B's surface (x = 0.5), which is inside A
+                  [0.7, 0.1, 0.0],      # inside both: nearest B's surface, inside A
+                  [-0.9, 0.0, 0.0],     # inside A, its own free surface nearest
+                  [1.5, 0.95, 0.0]])    # inside B, its own free surface nearest
+    assert tree.inside(v, p).all()
+    got = inside_where_body_meets_itself(tree, p, body_orientation(v, t))
+    assert got.tolist() == [True, True, False, False]
+    rng = np.random.default_rng(3)
+    q = rng.uniform([-1.0, -1.0, -1.0], [2.5, 1.0, 1.0], size=(400, 3))
+    q = q[tree.inside(v, q)]
+    got = inside_where_body_meets_itself(tree, q, 1.0)
+    mesh = trimesh.Trimesh(v, t, process=False)
+    near, _, tri = trimesh.proximity.closest_point(mesh, q)
+    w = np.zeros(len(q))
+    winding_numbers_brute(near + SELF_GAP * mesh.face_normals[tri], v, t, w)
+    ref = w > 0.5
+    assert 0 < ref.sum() < len(q) and (got == ref).mean() > 0.98    # ties between the two balls' surfaces aside
+
+
 def test_the_series_and_markers_are_logged_and_summarised(recorded):
     from tests.rrd_read import entity_paths, rows
     out, summary = recorded

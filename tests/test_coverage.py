@@ -46,6 +46,23 @@ def test_tree_distance_equals_every_triangle_and_trimesh(seed, angle):
     assert np.allclose(tree, ref, rtol=0, atol=5e-5)
 
 
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2 ** 31 - 1), angle=st.floats(0.0, 90.0))
+def test_tree_nearest_triangle_is_at_the_brute_force_distance(seed, angle):
+    """SkinDistance.nearest_triangle: the triangle it names is as near as the nearest of all (ties
+    may name another triangle at the same distance)."""
+    from stages.geometry.skin_distance import point_triangle_distance2
+    c = bent_tube()
+    v = skin(c, bend_motion(c, [angle]))[0]
+    p = np.random.default_rng(seed).uniform(v.min(0) - 0.1, v.max(0) + 0.1, size=(200, 3))
+    body = SkinDistance(c)
+    body.refit(v)
+    tri = body.nearest_triangle(p)
+    t = c.triangles
+    got = np.sqrt([point_triangle_distance2(*q, v, *t[k]) for q, k in zip(p, tri)])
+    assert np.allclose(got, _brute_distance(p, v, t), rtol=0, atol=1e-12)
+
+
 def _reference_ball_centres(colliders, character, pose):
     """(B, 3) skinned ball centres, one weighted bone transform at a time (plain Python)."""
     b = colliders.balls

@@ -4,7 +4,7 @@ node's triangles, so max(0, |p - c| - r) is a lower bound of any of its triangle
 and bound). The collider fit (hulls), its coverage and the garments' fit ask it.
 
 - `distance_to_mesh_tree`: the tree's exact distance; `distance_to_mesh_brute`: every triangle tried
-  (the reference of the tree in tests).
+  (the reference of the tree in tests); `nearest_triangle_tree`: which triangle is nearest.
 """
 from __future__ import annotations
 
@@ -77,45 +77,64 @@ def distance_to_mesh_brute(points, vertices, triangles, out):
         out[i] = math.sqrt(best)
 
 
+@njit(cache=True, forceinline=True)
+def _nearest_in_tree(px, py, pz, vertices, triangles, order, node_start, node_end, children, data, stack):
+    """(squared distance, triangle) of the triangle nearest p over the refitted winding-number tree:
+    nodes whose ball is farther than the best so far are skipped, the nearer child is opened first."""
+    stack[0] = 0
+    top = 1
+    best = np.inf
+    arg = -1
+    while top > 0:
+        top -= 1
+        n = stack[top]
+        dx = data[n, 0] - px
+        dy = data[n, 1] - py
+        dz = data[n, 2] - pz
+        low = math.sqrt(dx * dx + dy * dy + dz * dz) - data[n, 6]
+        if low > 0.0 and low * low >= best:
+            continue
+        if children[n, 0] < 0:
+            for k in range(node_start[n], node_end[n]):
+                t = order[k]
+                d2 = point_triangle_distance2(px, py, pz, vertices, triangles[t, 0], triangles[t, 1],
+                                              triangles[t, 2])
+                if d2 < best:
+                    best = d2
+                    arg = t
+        else:
+            l = children[n, 0]
+            r = children[n, 1]
+            dl = (data[l, 0] - px) ** 2 + (data[l, 1] - py) ** 2 + (data[l, 2] - pz) ** 2
+            dr = (data[r, 0] - px) ** 2 + (data[r, 1] - py) ** 2 + (data[r, 2] - pz) ** 2
+            if dl < dr:  # push the far child first so the near one pops first
+                l, r = r, l
+            stack[top] = l
+            stack[top + 1] = r
+            top += 2
+    return best, arg
+
+
 @serial_and_parallel(cache=True)
 def distance_to_mesh_tree(points, vertices, triangles, order, node_start, node_end, children, data, out):
     """out[i] = distance from points[i] to the nearest triangle (exact), over the refitted
-    winding-number tree: nodes whose ball is farther than the best so far are skipped, the nearer
-    child is opened first."""
+    winding-number tree (_nearest_in_tree)."""
     for i in prange(points.shape[0]):
-        px = points[i, 0]
-        py = points[i, 1]
-        pz = points[i, 2]
         stack = np.empty(128, np.int64)
-        stack[0] = 0
-        top = 1
-        best = np.inf
-        while top > 0:
-            top -= 1
-            n = stack[top]
-            dx = data[n, 0] - px
-            dy = data[n, 1] - py
-            dz = data[n, 2] - pz
-            low = math.sqrt(dx * dx + dy * dy + dz * dz) - data[n, 6]
-            if low > 0.0 and low * low >= best:
-                continue
-            if children[n, 0] < 0:
-                for k in range(node_start[n], node_end[n]):
-                    t = order[k]
-                    d2 = point_triangle_distance2(px, py, pz, vertices, triangles[t, 0], triangles[t, 1],
-                                                  triangles[t, 2])
-                    best = min(best, d2)
-            else:
-                l = children[n, 0]
-                r = children[n, 1]
-                dl = (data[l, 0] - px) ** 2 + (data[l, 1] - py) ** 2 + (data[l, 2] - pz) ** 2
-                dr = (data[r, 0] - px) ** 2 + (data[r, 1] - py) ** 2 + (data[r, 2] - pz) ** 2
-                if dl < dr:  # push the far child first so the near one pops first
-                    l, r = r, l
-                stack[top] = l
-                stack[top + 1] = r
-                top += 2
-        out[i] = math.sqrt(best)
+        d2, _ = _nearest_in_tree(points[i, 0], points[i, 1], points[i, 2], vertices, triangles, order, node_start,
+                                 node_end, children, data, stack)
+        out[i] = math.sqrt(d2)
+
+
+@serial_and_parallel(cache=True)
+def nearest_triangle_tree(points, vertices, triangles, order, node_start, node_end, children, data, out):
+    """out[i] = the triangle nearest points[i] (exact; ties: the first found), over the refitted
+    winding-number tree (_nearest_in_tree)."""
+    for i in prange(points.shape[0]):
+        stack = np.empty(128, np.int64)
+        _, t = _nearest_in_tree(points[i, 0], points[i, 1], points[i, 2], vertices, triangles, order, node_start,
+                                node_end, children, data, stack)
+        out[i] = t
 
 
 class SkinDistance:
@@ -140,3 +159,16 @@ class SkinDistance:
         threaded(distance_to_mesh_tree)(np.ascontiguousarray(points, np.float64), w.vertices, w.tris, order, start,
                                         end, kids, w.data, out)
         return out
+
+    def nearest_triangle(self, points: np.ndarray) -> np.ndarray:
+        """(N,) int64: the skin triangle nearest each point (at the last refit)."""
+        return nearest_triangle(self.winding, points)
+
+
+def nearest_triangle(tree: WindingTree, points: np.ndarray) -> np.ndarray:
+    """(N,) int64: the triangle of `tree`'s mesh (as last refitted) nearest each point."""
+    order, start, end, kids = tree.tree
+    out = np.zeros(points.shape[0], np.int64)
+    threaded(nearest_triangle_tree)(np.ascontiguousarray(points, np.float64), tree.vertices, tree.tris, order, start,
+                                    end, kids, tree.data, out)
+    return out

@@ -289,6 +289,49 @@ def in_self_overlap(body: np.ndarray, body_tris: np.ndarray, points: np.ndarray,
     return sign * w > 0.5
 
 
+def body_orientation(vertices: np.ndarray, triangles: np.ndarray) -> float:
+    """+1 for a body wound outwards (its signed volume positive), -1 for one wound inwards."""
+    x = np.asarray(vertices, np.float64)
+    a, b, c = (x[triangles[:, k]] for k in range(3))
+    return 1.0 if np.einsum("ij,ij->", a, np.cross(b, c)) >= 0.0 else -1.0
+
+
+def inside_where_body_meets_itself(tree, points: np.ndarray, sign: float = 1.0) -> np.ndarray:
+    """(N,) bool: of cloth `points` inside the body, those held where the body meets itself: the body
+    surface nearest the point is itself inside the body (the point SELF_GAP outside it, along its
+    triangle's outward normal, has a winding number over 1/2): another part of the body is sunk into
+    this one there (a forearm into the hip, a chibi's arm into its side), and cloth lying on either
+    surface is inside the other. Counted apart from the particles inside the body, as the body edges
+    of in_self_overlap are. tree: the body's WindingTree refitted to the frame; sign: body_orientation."""
+    import trimesh
+    from stages.geometry.skin_distance import nearest_triangle
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    if not len(p):
+        return np.zeros(0, bool)
+    corners = tree.vertices[tree.tris[nearest_triangle(tree, p)]]
+    surface = trimesh.triangles.closest_point(corners, p)
+    normal = _unit(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]))
+    return sign * tree.winding_refitted(surface + (sign * SELF_GAP) * normal) > 0.5
+
+
+class InsideBody:
+    """The simulation's count of cloth particles inside the skinned body (generalised winding number
+    >= 1/2), and of them those held where the body meets itself (inside_where_body_meets_itself)."""
+
+    def __init__(self, character):
+        from stages.geometry.winding import WindingTree
+        self.tree = WindingTree(character.vertices, character.triangles)
+        self.sign = body_orientation(character.vertices, character.triangles)
+
+    def classify(self, skinned: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(inside, held) (N,) bool of `points` against the body's `skinned` vertices (V, 3)."""
+        inside = self.tree.inside(skinned, points)
+        held = np.zeros_like(inside)
+        if inside.any():
+            held[inside] = inside_where_body_meets_itself(self.tree, points[inside], self.sign)
+        return inside, held
+
+
 def blend_in_note(first_frame: int) -> str:
     """Which frames a figure covers, for the summary and the warnings."""
     return f"from frame {first_frame}, after the blend-in" if first_frame > 1 else "after frame 0"

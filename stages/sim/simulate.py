@@ -37,7 +37,6 @@ import numpy as np
 from stages.checks import ContractError
 from stages.jit import for_threads
 from stages.garments.types import BEND, STRETCH, Garment
-from stages.geometry.winding import WindingTree
 from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER
 from stages.maps.types import KIND_CYLINDER, MapArrays
 from stages.sim import body_collide, collider_grid, forces, integrate, simd, step
@@ -442,12 +441,14 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
 
     audit = None
     if params.body_audit and character.triangles.shape[0] > 0:
-        audit = WindingTree(character.vertices, character.triangles)
         from stages.rig.skinning import skin
+        from stages.sim.body_audit import InsideBody
+        audit = InsideBody(character)
 
     rel = np.zeros((nf, n, 3), np.float32)       # relative frame; root translation added at the end
     pen_col = np.zeros((nf, len(garments)), np.int32)
     pen_body = np.full((nf, len(garments)), -1, np.int32)
+    pen_overlap = np.zeros((nf, len(garments)), np.int32)     # of the particles inside: where the body meets itself
     counts = np.zeros((nf, step.N_COUNTS))        # see step.record_frame
     step_cycles = np.zeros(nf, np.int64)
     n_obst = np.zeros(nf, np.int32)                                # obstacle contacts per frame
@@ -468,15 +469,16 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
         t0 = time.perf_counter()
         verts = skin(character, body_motion, frames=list(range(f0, f1)))
         for k, f in enumerate(range(f0, f1)):
-            ins = audit.inside(verts[k], rel[f])
-            pen_body[f] = [int(a.sum()) for a in sysm.split(ins)]
+            ins, held = audit.classify(verts[k], rel[f])
+            pen_body[f] = [int(a.sum()) for a in sysm.split(ins & ~held)]
+            pen_overlap[f] = [int(a.sum()) for a in sysm.split(held)]
         timings["audit"] += time.perf_counter() - t0
 
     def result(f_end):
         pos = [rel[:f_end, o0:o1] + root[:f_end, None, :].astype(np.float32)
                for o0, o1 in zip(sysm.offsets[:-1], sysm.offsets[1:])]
         step_ms = step_cycles[:f_end] / cycles_per_second() * 1e3 / ss
-        res = _result(garments, pos, pen_col, pen_body, counts[:, 0].astype(np.int32),
+        res = _result(garments, pos, pen_col, pen_body, pen_overlap, counts[:, 0].astype(np.int32),
                       np.sqrt(counts[:, 1]), step_ms, motion.times, timings, timers, max(f_end - 1, 0) * ss,
                       params, notes, f_end)
         return dataclasses.replace(res, pinched=counts[:f_end, 2].astype(np.int32),
@@ -577,8 +579,8 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     return result(nf)
 
 
-def _result(garments, pos, pen_col, pen_body, corrected, max_speed, step_ms, times, timings, timers, steps,
-            params, notes, nf) -> SimResult:
+def _result(garments, pos, pen_col, pen_body, pen_overlap, corrected, max_speed, step_ms, times, timings, timers,
+            steps, params, notes, nf) -> SimResult:
     cps = cycles_per_second()
     tm = dict(timings)
     tm["integrate"] = float(timers[step.T_INTEGRATE] / cps)
@@ -587,10 +589,11 @@ def _result(garments, pos, pen_col, pen_body, corrected, max_speed, step_ms, tim
     tm["cloth"] = float(timers[step.T_CLOTH] / cps)
     audit_on = bool((pen_body[:nf] >= 0).all())
     tracks = tuple(GarmentTrack(g.name, g.triangles, pos[i][:nf], np.ascontiguousarray(pen_col[:nf, i]),
-                                np.ascontiguousarray(pen_body[:nf, i]))
+                                np.ascontiguousarray(pen_body[:nf, i]), np.ascontiguousarray(pen_overlap[:nf, i]))
                    for i, g in enumerate(garments))
     body = pen_body[:nf].sum(axis=1).astype(np.int32) if audit_on else np.full(nf, -1, np.int32)
     return SimResult(garments=tracks, times=np.asarray(times[:nf], np.float64),
                      penetrations_colliders=pen_col[:nf].sum(axis=1).astype(np.int32), penetrations_body=body,
+                     penetrations_body_overlap=pen_overlap[:nf].sum(axis=1).astype(np.int32),
                      corrected=corrected[:nf].copy(), max_speed=max_speed[:nf].copy(), step_ms=step_ms[:nf].copy(),
                      timings=tm, steps=int(steps), params=params, notes=tuple(notes))

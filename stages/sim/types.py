@@ -298,8 +298,10 @@ class GarmentTrack:
     name: garment name. triangles: (T, 3) int32 (static).
     positions: (F, N, 3) float32, metres, WORLD frame (root translation re-applied).
     penetrations_colliders: (F,) int32, this garment's particles inside any collider after the
-        frame's last step. penetrations_body: (F,) int32, particles inside the skinned mesh (-1 when
-        the audit is off).
+        frame's last step. penetrations_body: (F,) int32, particles inside the skinned mesh but where
+        it meets itself (-1 when the audit is off). penetrations_body_overlap: (F,) int32, particles
+        inside it where it meets itself (stages.sim.body_audit.inside_where_body_meets_itself: another
+        part of the body sunk into the one under the cloth, where no cloth can lie outside both).
     """
 
     name: str
@@ -307,6 +309,7 @@ class GarmentTrack:
     positions: np.ndarray
     penetrations_colliders: np.ndarray
     penetrations_body: np.ndarray
+    penetrations_body_overlap: np.ndarray | None = None
 
     def __post_init__(self):
         o = f"GarmentTrack[{self.name!r}]"
@@ -314,6 +317,9 @@ class GarmentTrack:
         p = check_array(o, "positions", self.positions, (None, None, 3), np.float32)
         check_array(o, "penetrations_colliders", self.penetrations_colliders, (p.shape[0],), np.int32)
         check_array(o, "penetrations_body", self.penetrations_body, (p.shape[0],), np.int32)
+        if self.penetrations_body_overlap is None:
+            object.__setattr__(self, "penetrations_body_overlap", np.zeros(p.shape[0], np.int32))
+        check_array(o, "penetrations_body_overlap", self.penetrations_body_overlap, (p.shape[0],), np.int32)
 
 
 @dataclass(frozen=True)
@@ -325,7 +331,9 @@ class SimResult:
     penetrations_colliders: (F,) int32, particles (all garments) inside any collider after the
         frame's last step (target 0).
     penetrations_body: (F,) int32, particles inside the true skinned character mesh at the frame
-        (generalised winding number >= 0.5); -1 when the audit is off.
+        (generalised winding number >= 0.5) but where it meets itself; -1 when the audit is off.
+    penetrations_body_overlap: (F,) int32, particles inside it where it meets itself (see
+        GarmentTrack), counted apart.
     corrected: (F,) int32, particles the collision response moved at least once during the frame.
     speed_limited: (F,) int32, particles whose speed SimParams.speed_limit capped during the frame.
     pinched: (F,) int32, particles left in the middle of two joints' colliders pressing on them at
@@ -363,6 +371,7 @@ class SimResult:
     cloth_contact: dict = field(default_factory=dict)
     pinched: np.ndarray | None = None
     speed_limited: np.ndarray | None = None
+    penetrations_body_overlap: np.ndarray | None = None
 
     def __post_init__(self):
         o = "SimResult"
@@ -374,12 +383,14 @@ class SimResult:
             object.__setattr__(self, "pinched", np.zeros(f, np.int32))
         if self.speed_limited is None:
             object.__setattr__(self, "speed_limited", np.zeros(f, np.int32))
+        if self.penetrations_body_overlap is None:
+            object.__setattr__(self, "penetrations_body_overlap", np.zeros(f, np.int32))
         if not self.contact_points:
             object.__setattr__(self, "contact_points", tuple(np.zeros((0, 3), np.float32) for _ in range(f)))
         if len(self.contact_points) != f:
             raise ContractError(f"{o}.contact_points: {len(self.contact_points)} frames, expected {f}")
         for name in ("penetrations_colliders", "penetrations_body", "corrected", "contacts_obstacles", "pinched",
-                     "speed_limited"):
+                     "speed_limited", "penetrations_body_overlap"):
             check_array(o, name, getattr(self, name), (f,), np.int32)
         check_array(o, "max_speed", self.max_speed, (f,), np.float64)
         check_array(o, "step_ms", self.step_ms, (f,), np.float64)
