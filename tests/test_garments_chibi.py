@@ -235,3 +235,22 @@ def test_a_chain_s_points_and_axis_are_its_joints(tmp_path):
             ax = body_axis(c, f"{kind}_{side}", pose)
             d = pose[ch[1], :3, 3] - pose[ch[0], :3, 3]
             assert np.array_equal(ax.origin, pose[ch[0], :3, 3]) and np.array_equal(ax.a, -d / np.linalg.norm(d))
+
+
+def test_every_garmentcode_pattern_of_the_assets_is_placed_on_the_chibis(chibi, assets_dir, tmp_path):
+    """Each pattern of the assets graded, meshed and placed on a chibi (what `validate` does) without
+    an error: the female chibi's jumpsuit waistband, graded lower than one wrap bin, left its panel
+    no level to centre on, and the run crashed (numpy.interp on an empty array)."""
+    from stages.garments.garmentcode import read_pattern
+    from stages.garments.garmentcode_place import DEFAULT_BODY, body_of, place_gc_garment
+    scene = tmp_path / "s.yaml"
+    scene.write_text(f"character: {{source: gltf, path: {chibi.source}}}\nframes: {{count: 2}}\n")
+    _, character, motion, colliders = scene_parts(scene)
+    files = sorted((assets_dir / "garmentcode").rglob("*_specification.json"))
+    assert len(files) >= 16
+    for f in files:
+        if f.name.startswith("standing_lapel_"):   # GarmentCode itself cannot stitch it (test_garmentcode)
+            continue
+        _, _, flat, placed, _ = place_gc_garment(read_pattern(f), body_of(f, assets_dir / DEFAULT_BODY), character,
+                                                 motion, colliders, name=f.stem)
+        assert np.isfinite(placed).all() and placed.shape == (flat.uv.shape[0], 3), f.name

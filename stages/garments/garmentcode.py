@@ -380,10 +380,32 @@ def map_panel_points(p: GCPanel, f) -> GCPanel:
                 d = np.linalg.norm(c + rr * np.array([math.cos(th), math.sin(th)]) - mid)
                 if best is None or d < best[0]:
                     best = (d, large)
-            edges.append(dc_replace(e, radius=r, large_arc=best[1]))
+            arc = dc_replace(e, radius=r, large_arc=best[1])
+            edges.append(_closer_curve(arc, dc_replace(p, vertices=verts), g(edge_points(p, e, ARC_SAMPLES))))
         else:
             edges.append(dc_replace(e, control=tuple(tuple(c) for c in g(e.control)) if e.control else ()))
     return dc_replace(p, vertices=verts, edges=tuple(edges), translation=t1)
+
+
+ARC_SAMPLES = np.linspace(0.0, 1.0, 17)
+ARC_TOLERANCE = 0.01   # of the chord: a mapped arc farther than this from its circle is a cubic instead
+
+
+def _closer_curve(arc: GCEdge, panel: GCPanel, mapped: np.ndarray) -> GCEdge:
+    """The mapped circle arc `arc`, or, where the map is far from a similarity (a pattern graded
+    x1.42 across and x0.39 up onto a chibi: an armhole's circle through its mapped ends and midpoint
+    bulged across the panel's other edges), the cubic Bezier through its ends fitted to `mapped`
+    ((S, 2) the arc's points at ARC_SAMPLES, mapped): a Bezier maps exactly under an affine map."""
+    circle = edge_points(panel, arc, ARC_SAMPLES)
+    chord = float(np.linalg.norm(mapped[-1] - mapped[0]))
+    if np.abs(circle - mapped).max() <= ARC_TOLERANCE * max(chord, 1e-9):
+        return arc
+    t = ARC_SAMPLES[:, None]
+    a, b = mapped[0], mapped[-1]
+    basis = np.hstack([3 * (1 - t) ** 2 * t, 3 * (1 - t) * t ** 2])
+    rhs = mapped - (1 - t) ** 3 * a - t ** 3 * b
+    c, *_ = np.linalg.lstsq(basis, rhs, rcond=None)
+    return dc_replace(arc, kind="cubic", control=(tuple(c[0]), tuple(c[1])), radius=0.0, large_arc=False, right=False)
 
 
 def _circumradius(a, b, c) -> float:

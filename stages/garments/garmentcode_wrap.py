@@ -263,7 +263,10 @@ def _ring(points: list, normals: list, up: list, girth, anchor: float | None, jo
         for i in members:
             n, t, s_i = lateral[i]
             have, shift = shifts[i]
-            lateral[i] = (n, t, s_i + np.interp(points[i][:, 1], mid[have], (shift - centre)[have]))
+            if have.any():
+                lateral[i] = (n, t, s_i + np.interp(points[i][:, 1], mid[have], (shift - centre)[have]))
+            else:   # no level of its own (a waistband lower than a bin, on a chibi): centred as the group there
+                lateral[i] = (n, t, s_i - np.interp(points[i][:, 1], mid, centre))
     if straight:
         held = width > 0     # levels beyond the panels' ends (the ring's first and last bins) as their neighbours
         if held.any():
