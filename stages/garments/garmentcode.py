@@ -405,7 +405,9 @@ def _closer_curve(arc: GCEdge, panel: GCPanel, mapped: np.ndarray) -> GCEdge:
     basis = np.hstack([3 * (1 - t) ** 2 * t, 3 * (1 - t) * t ** 2])
     rhs = mapped - (1 - t) ** 3 * a - t ** 3 * b
     c, *_ = np.linalg.lstsq(basis, rhs, rcond=None)
-    return dc_replace(arc, kind="cubic", control=(tuple(c[0]), tuple(c[1])), radius=0.0, large_arc=False, right=False)
+    cubic = dc_replace(arc, kind="cubic", control=(tuple(c[0]), tuple(c[1])), radius=0.0, large_arc=False, right=False)
+    off = np.abs(edge_points(panel, cubic, ARC_SAMPLES) - mapped).max()
+    return cubic if off < np.abs(circle - mapped).max() else arc    # one cubic is no fit for a long arc
 
 
 def _circumradius(a, b, c) -> float:
