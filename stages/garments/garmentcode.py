@@ -345,21 +345,21 @@ def _signed_area(p: np.ndarray) -> float:
     return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
 
 
-def map_panel(p: GCPanel, A: np.ndarray, pivot=None) -> GCPanel:
+def map_panel(p: GCPanel, A: np.ndarray, pivot=None, exact_arcs: bool = False) -> GCPanel:
     """The panel under the map x -> pivot + A (x - pivot) of the body frame (A: (3, 3)): its outline
     by R^T A R in its own plane (exact when A keeps the plane; a tilted panel keeps its in-plane
-    part), its translation mapped. Circle arcs become the circles through their mapped ends and
-    midpoint."""
+    part), its translation mapped. Circle arcs as in map_panel_points."""
     pivot = np.zeros(3) if pivot is None else np.asarray(pivot, np.float64)
     A = np.asarray(A, np.float64)
-    return map_panel_points(p, lambda x: pivot + (x - pivot) @ A.T)
+    return map_panel_points(p, lambda x: pivot + (x - pivot) @ A.T, exact_arcs)
 
 
-def map_panel_points(p: GCPanel, f) -> GCPanel:
+def map_panel_points(p: GCPanel, f, exact_arcs: bool = False) -> GCPanel:
     """The panel under a map f ((N, 3) -> (N, 3) body-frame points): its translation t to f(t), each
     outline point and curve control point x to the in-plane part of f(x) - f(t) (the part along the
     panel's normal dropped: exact when f keeps the plane). Circle arcs become the circles through
-    their mapped ends and midpoint."""
+    their mapped ends and midpoint; with exact_arcs, those far from the mapped arc the cubics fitted
+    to it (_closer_curve: what a panel whose circles cross its other edges is graded with again)."""
     R = p.rotation
     t1 = f(np.asarray(p.translation, np.float64)[None])[0]
 
@@ -381,7 +381,8 @@ def map_panel_points(p: GCPanel, f) -> GCPanel:
                 if best is None or d < best[0]:
                     best = (d, large)
             arc = dc_replace(e, radius=r, large_arc=best[1])
-            edges.append(_closer_curve(arc, dc_replace(p, vertices=verts), g(edge_points(p, e, ARC_SAMPLES))))
+            edges.append(_closer_curve(arc, dc_replace(p, vertices=verts), g(edge_points(p, e, ARC_SAMPLES)))
+                         if exact_arcs else arc)
         else:
             edges.append(dc_replace(e, control=tuple(tuple(c) for c in g(e.control)) if e.control else ()))
     return dc_replace(p, vertices=verts, edges=tuple(edges), translation=t1)

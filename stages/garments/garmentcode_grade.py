@@ -29,17 +29,18 @@ class Grade:
         return np.interp(y, self.levels, self.across)
 
 
-def grade(gc: GCPattern, g: Grade) -> GCPattern:
+def grade(gc: GCPattern, g: Grade, exact_arcs: bool = False) -> GCPattern:
     """The pattern graded to another body: the garment as placed on its body scaled across by g.at
     (its height) and up by g.up (garmentcode.map_panel_points: each panel's outline in its own plane,
     exact for upright panels; tilted ones keep their in-plane part; curves through their mapped control
-    points; circle arcs through their mapped ends and midpoint); arm panels by diag(g.arm, g.up, g.arm)."""
+    points; circle arcs through their mapped ends and midpoint, or with exact_arcs as map_panel_points);
+    arm panels by diag(g.arm, g.up, g.arm)."""
     def body_map_of(x):
         k = g.at(x[:, 1])
         return np.c_[x[:, 0] * k, x[:, 1] * g.up, x[:, 2] * k]
     S = np.diag([g.arm, g.up, g.arm])
-    return dc_replace(gc, panels=tuple(map_panel(p, S) if panel_part(p) == "arm" else map_panel_points(p, body_map_of)
-                                       for p in gc.panels))
+    return dc_replace(gc, panels=tuple(map_panel(p, S, exact_arcs=exact_arcs) if panel_part(p) == "arm"
+                                       else map_panel_points(p, body_map_of, exact_arcs) for p in gc.panels))
 
 
 def graded_body(body, g: Grade):

@@ -419,10 +419,18 @@ def place_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, 
     meas = garment_measurements(character, colliders, motion)
     worn = worn_from_waistband(meas) if garment_anchor(gc, body) < 0.5 * (body.waist_y + body.bust_y) else meas
     g = grading(gc, body, worn)
-    graded, gbody = grade(gc, g), graded_body(body, g)
-    if "arm_radius" in meas:   # sleeves round the character's arms (and their colliders)
-        graded, _ = fit_sleeves(graded, gbody, 2 * math.pi * meas["arm_radius"])
-    pattern, signs = to_pattern(graded, edge_length, name or gc.name, density)
+    gbody = graded_body(body, g)
+
+    def graded_pattern(exact_arcs):
+        graded = grade(gc, g, exact_arcs)
+        if "arm_radius" in meas:   # sleeves round the character's arms (and their colliders)
+            graded, _ = fit_sleeves(graded, gbody, 2 * math.pi * meas["arm_radius"], exact_arcs)
+        return graded, *to_pattern(graded, edge_length, name or gc.name, density)
+    try:
+        graded, pattern, signs = graded_pattern(False)
+    except InputError:   # graded far from a similarity (x1.42 across, x0.39 up on a chibi), an arm-
+        # hole's circle through its mapped ends and midpoint crossed the panel's other edges
+        graded, pattern, signs = graded_pattern(True)
     flat = triangulate_pattern(pattern)
     check_stitch_chains(graded, pattern, flat)
     skinned0, origins, _ = bind_geometry(character, motion)

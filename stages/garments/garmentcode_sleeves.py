@@ -69,7 +69,7 @@ def upper_arm_girth(gc: GCPattern, body, side: float, step: float = 0.005) -> fl
     return float(np.percentile(width[upper], 25))   # not the least: a slanted end cuts its levels short
 
 
-def fit_sleeves(gc: GCPattern, body, need: float) -> tuple[GCPattern, dict]:
+def fit_sleeves(gc: GCPattern, body, need: float, exact_arcs: bool = False) -> tuple[GCPattern, dict]:
     """(pattern, {side: widening factor}) with each side's arm panels widened across the arm about
     its line until the sleeve's upper-arm girth (upper_arm_girth) is at least `need` + SLEEVE_EASE
     (m: the character's arm round its collider with the cloth's clearance); sides already as
@@ -84,6 +84,6 @@ def fit_sleeves(gc: GCPattern, body, need: float) -> tuple[GCPattern, dict]:
         A = np.eye(3) + (k - 1.0) * np.outer(F[0], F[0])
         for i, p in enumerate(gc.panels):
             if panel_part(p) == "arm" and arm_side(p) == side:
-                panels[i] = map_panel(p, A, c)
+                panels[i] = map_panel(p, A, c, exact_arcs)
         widened[side] = k
     return dc_replace(gc, panels=tuple(panels)), widened
