@@ -4,7 +4,7 @@ node's triangles, so max(0, |p - c| - r) is a lower bound of any of its triangle
 and bound). The collider fit (hulls), its coverage and the garments' fit ask it.
 
 - `distance_to_mesh_tree`: the tree's exact distance; `distance_to_mesh_brute`: every triangle tried
-  (the reference of the tree in tests); `nearest_triangle_tree`: which triangle is nearest.
+  (the reference of the tree in tests); the tree's also says which triangle is nearest.
 """
 from __future__ import annotations
 
@@ -116,25 +116,15 @@ def _nearest_in_tree(px, py, pz, vertices, triangles, order, node_start, node_en
 
 
 @serial_and_parallel(cache=True)
-def distance_to_mesh_tree(points, vertices, triangles, order, node_start, node_end, children, data, out):
-    """out[i] = distance from points[i] to the nearest triangle (exact), over the refitted
-    winding-number tree (_nearest_in_tree)."""
+def distance_to_mesh_tree(points, vertices, triangles, order, node_start, node_end, children, data, out, nearest):
+    """out[i] = distance from points[i] to the nearest triangle (exact), nearest[i] = that triangle
+    (ties: the first found), over the refitted winding-number tree (_nearest_in_tree)."""
     for i in prange(points.shape[0]):
         stack = np.empty(128, np.int64)
-        d2, _ = _nearest_in_tree(points[i, 0], points[i, 1], points[i, 2], vertices, triangles, order, node_start,
+        d2, t = _nearest_in_tree(points[i, 0], points[i, 1], points[i, 2], vertices, triangles, order, node_start,
                                  node_end, children, data, stack)
         out[i] = math.sqrt(d2)
-
-
-@serial_and_parallel(cache=True)
-def nearest_triangle_tree(points, vertices, triangles, order, node_start, node_end, children, data, out):
-    """out[i] = the triangle nearest points[i] (exact; ties: the first found), over the refitted
-    winding-number tree (_nearest_in_tree)."""
-    for i in prange(points.shape[0]):
-        stack = np.empty(128, np.int64)
-        _, t = _nearest_in_tree(points[i, 0], points[i, 1], points[i, 2], vertices, triangles, order, node_start,
-                                node_end, children, data, stack)
-        out[i] = t
+        nearest[i] = t
 
 
 class SkinDistance:
@@ -153,22 +143,19 @@ class SkinDistance:
         return self.winding.winding_refitted(points) >= 0.5
 
     def distance(self, points: np.ndarray) -> np.ndarray:
-        w = self.winding
-        order, start, end, kids = w.tree
-        out = np.zeros(points.shape[0])
-        threaded(distance_to_mesh_tree)(np.ascontiguousarray(points, np.float64), w.vertices, w.tris, order, start,
-                                        end, kids, w.data, out)
-        return out
+        return nearest_on_mesh(self.winding, points)[0]
 
     def nearest_triangle(self, points: np.ndarray) -> np.ndarray:
         """(N,) int64: the skin triangle nearest each point (at the last refit)."""
-        return nearest_triangle(self.winding, points)
+        return nearest_on_mesh(self.winding, points)[1]
 
 
-def nearest_triangle(tree: WindingTree, points: np.ndarray) -> np.ndarray:
-    """(N,) int64: the triangle of `tree`'s mesh (as last refitted) nearest each point."""
+def nearest_on_mesh(tree: WindingTree, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """((N,) float64 distance, (N,) int64 triangle) from each point to the nearest triangle of
+    `tree`'s mesh, as last refitted."""
     order, start, end, kids = tree.tree
-    out = np.zeros(points.shape[0], np.int64)
-    threaded(nearest_triangle_tree)(np.ascontiguousarray(points, np.float64), tree.vertices, tree.tris, order, start,
-                                    end, kids, tree.data, out)
-    return out
+    out = np.zeros(points.shape[0])
+    nearest = np.zeros(points.shape[0], np.int64)
+    threaded(distance_to_mesh_tree)(np.ascontiguousarray(points, np.float64), tree.vertices, tree.tris, order, start,
+                                    end, kids, tree.data, out, nearest)
+    return out, nearest

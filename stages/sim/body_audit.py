@@ -304,11 +304,11 @@ def inside_where_body_meets_itself(tree, points: np.ndarray, sign: float = 1.0) 
     surface is inside the other. Counted apart from the particles inside the body, as the body edges
     of in_self_overlap are. tree: the body's WindingTree refitted to the frame; sign: body_orientation."""
     import trimesh
-    from stages.geometry.skin_distance import nearest_triangle
+    from stages.geometry.skin_distance import nearest_on_mesh
     p = np.asarray(points, np.float64).reshape(-1, 3)
     if not len(p):
         return np.zeros(0, bool)
-    corners = tree.vertices[tree.tris[nearest_triangle(tree, p)]]
+    corners = tree.vertices[tree.tris[nearest_on_mesh(tree, p)[1]]]
     surface = trimesh.triangles.closest_point(corners, p)
     normal = _unit(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]))
     return sign * tree.winding_refitted(surface + (sign * SELF_GAP) * normal) > 0.5
