@@ -283,23 +283,41 @@ def body_map(body: GCBody, meas: dict, character, origins: np.ndarray, anchor: f
                    legs if len(legs) == 2 else {})
 
 
-def mismatch(body: GCBody, meas: dict) -> dict:
-    """{measure: (character, pattern body), m}: height and the girths, for the warning."""
-    return {"height": (meas["height"], body.height), "bust": (meas["chest"], body.bust),
-            "waist": (meas["waist"], body.waist), "hips": (meas["hips"], body.hips)}
+def mismatch(body: GCBody, meas: dict, top: bool = False) -> dict:
+    """{measure: (character, pattern body), m}: height and the girths, for the warning; for a top
+    (`top`: hung from the shoulders) also the shoulders' width between the upper-arm joints."""
+    out = {"height": (meas["height"], body.height), "bust": (meas["chest"], body.bust),
+           "waist": (meas["waist"], body.waist), "hips": (meas["hips"], body.hips)}
+    if top and "shoulder_half" in meas:
+        out["shoulders"] = (2 * meas["shoulder_half"], 2 * body.shoulder_half)
+    return out
+
+
+SLIP_WIDTH = 1.3   # a top graded this many times wider at the shoulders than the character slides off them
 
 
 def mismatch_warning(body: GCBody, meas: dict, name: str, g: Grade | None = None,
-                     tolerance: float = 0.05) -> str | None:
-    """One line when a measure differs by more than `tolerance` (share), else None."""
-    far = {m: (c, b) for m, (c, b) in mismatch(body, meas).items() if abs(c / b - 1.0) > tolerance}
+                     tolerance: float = 0.05, top: bool = False) -> str | None:
+    """One line when a measure differs by more than `tolerance` (share), else None. For a top whose
+    graded shoulders (grading keeps the cut above the bust) come out SLIP_WIDTH times the
+    character's or wider, the line says it will slide off them and how to get one cut to measure:
+    CesiumMan's upper-arm joints are 18 cm apart, the sampled patterns' bodies 36-38 cm, and every
+    such top slid down to the chest in the walk."""
+    far = {m: (c, b) for m, (c, b) in mismatch(body, meas, top).items() if abs(c / b - 1.0) > tolerance}
     if not far:
         return None
     g = g or Grade.uniform(1.0, 1.0)
     parts = ", ".join(f"{m} {c * 100:.0f} cm vs {b * 100:.0f} cm ({(c / b - 1) * 100:+.0f} %)" for m, (c, b) in far.items())
     across = f"x{g.across[0]:.3f} across" + (f" (x{g.across[-1]:.3f} above the bust)" if abs(g.across[-1] - g.across[0]) > 5e-4 else "")
-    return (f"garment {name!r}: the pattern was made for the body in {body.source}; this character differs: {parts} "
+    line = (f"garment {name!r}: the pattern was made for the body in {body.source}; this character differs: {parts} "
             f"(character vs pattern body); dressed graded {across} and x{g.up:.3f} up")
+    if "shoulders" in far:
+        graded, own = 2 * body.shoulder_half * g.arm, far["shoulders"][0]
+        if graded >= SLIP_WIDTH * own:
+            line += (f"; its shoulders come out {graded * 100:.0f} cm wide on the character's {own * 100:.0f} cm, so it "
+                     "will slide off them: `python -m pipeline measure` writes this character's body file for "
+                     "GarmentCode to cut the pattern to measure")
+    return line
 
 
 def garment_anchor(gc: GCPattern, body: GCBody) -> float:
@@ -459,7 +477,8 @@ def place_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, 
     bad = inside_body(character, skinned0, placed)
     if bad.any():
         placed[bad] = push_out(placed[bad], character, skinned0, CLEARANCE, along_normal=True)
-    return graded, pattern, flat, placed, mismatch_warning(body, meas, name or gc.name, g)
+    top = garment_anchor(gc, body) > 0.5 * (body.bust_y + body.shoulder_y)    # hung from the shoulders
+    return graded, pattern, flat, placed, mismatch_warning(body, meas, name or gc.name, g, top=top)
 
 
 def tangled_left(x: np.ndarray, triangles: np.ndarray, pairs: np.ndarray) -> int:
