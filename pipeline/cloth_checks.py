@@ -1,4 +1,5 @@
-"""What the simulated cloth says about itself: the speed limit's work (`speed_limit_note`), what holds
+"""What the simulated cloth says about itself: the speed limit's work (`speed_limit_note`), cloth let
+go of the limbs that tore it (`release_note`), what holds
 its most strained edges (`strain_source_notes`), and whether it blew up (`check_blown_up`).
 
 Cloth that blew up without going fast: the simulation stops a particle faster than its speed
@@ -132,6 +133,18 @@ def _covered(track, colliders, character, motion) -> set:
     x0, poses0 = _at_frame(track, 0, colliders, character, motion)
     d, owner = collider_distances(colliders, poses0, x0)
     return {int(j) for j in np.unique(owner) if (d[owner == j].min(axis=0) < COVER_REACH).mean() >= COVER_SHARE}
+
+
+def release_note(result) -> str | None:
+    """A warning naming the frames where cloth a limb tore was let go of it (SimParams.limb_release), or None."""
+    got = np.asarray(result.released if result.released is not None else [], np.int64)
+    hit = np.flatnonzero(got > 0)
+    if hit.size == 0:
+        return None
+    f = int(hit[np.argmax(got[hit])])
+    return (f"simulation: cloth a limb stretched over {result.params.limb_release * 100:.0f} % was let go of it "
+            f"(simulation.limb_release) in {hit.size} frame(s) from frame {int(hit[0])}, most at frame {f} "
+            f"({int(got[f])} particles): the limb passes through the cloth there until it is out of it")
 
 
 def speed_limit_note(result) -> str | None:

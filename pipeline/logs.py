@@ -324,6 +324,9 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=Non
     if result.params.pinch != "escape":
         log_scalar_series(rec, "sim/penetrations/pinched", result.pinched, result.times,
                           name="held between two joints' colliders", color=(240, 170, 40))
+    if result.params.limb_release and result.released is not None:
+        log_scalar_series(rec, "sim/penetrations/released", result.released, result.times,
+                          name="let go of a limb that tore the cloth", color=(60, 170, 220))
     audited = bool(result.params.body_audit)
     if audited:
         log_scalar_series(rec, "sim/penetrations/body", result.penetrations_body, result.times,
@@ -369,6 +372,9 @@ def log_sim(rec: rr.RecordingStream, motion: Motion, garments, result, audit=Non
         "pinched between two joints' colliders, held in their overlap (max / mean per frame, frame 0 excluded)":
             f"{int(result.pinched[1:].max(initial=0))} / {float(result.pinched[1:].mean()) if len(body) > 1 else 0:.2f}"
             if p.pinch != "escape" else "off (simulation.pinch: escape)",
+        "let go of a limb that tore them (particles, sum over the frames / frames)":
+            f"{int(result.released.sum())} / {int((result.released > 0).sum())}"
+            if p.limb_release and result.released is not None else "off (simulation.limb_release: 0)",
         "inside body (max / mean per frame)": (f"{int(body.max())} / {float(body.mean()):.2f} "
                                                f"({100 * int(body.max()) / max(n, 1):.2f} % of particles, worst frame {worst})")
                                               if audited else "not audited (simulation.body_audit: false)",

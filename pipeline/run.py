@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cloth_checks import check_blown_up, speed_limit_note, strain_source_notes, torn_by
+from pipeline.cloth_checks import check_blown_up, release_note, speed_limit_note, strain_source_notes, torn_by
 from pipeline.dressing import (build_scene_garments, build_scene_obstacles, dressing_layers, garment_fit_report,
                                garment_fits, ignored_joints)
 from pipeline.preflight import check_memory, check_references, preflight
@@ -23,7 +23,7 @@ from pipeline.summary import RunSummary, StageTimer
 
 # simulation keys whose scene default (null) means "the preset's value" (stages.sim.types.PRESETS)
 PRESET_KEYS = ("substeps", "iterations", "damping", "tethers", "stretch_stiffness", "bend_stiffness",
-               "cloth_collision", "pinch", "entry_side", "face_contact", "strain_limit", "cloth_contact_every", "settle_frames")
+               "cloth_collision", "pinch", "entry_side", "face_contact", "strain_limit", "limb_release", "cloth_contact_every", "settle_frames")
 
 
 def sim_params(scene: Scene):
@@ -380,10 +380,10 @@ def _run_stages(scene, out, times, meshes, formats, export_dir, summary, announc
                 if cause:
                     blown.args = (f"{blown.args[0]}; {cause}",)
                 logs.log_text(rec, "meta/diverged", str(blown))
-            note = speed_limit_note(result)
-            if note:
-                import warnings
-                warnings.warn(note, stacklevel=1)
+            for note in (speed_limit_note(result), release_note(result)):
+                if note:
+                    import warnings
+                    warnings.warn(note, stacklevel=1)
             audit, held = None, ()
             if sp["cloth_audit"]:
                 if warm.running():   # its kernels compile in the second process while the run simulates

@@ -350,6 +350,11 @@ SCENE_SPEC = {
                               "collisions a cloth edge longer than (1 + strain_limit) times its rest length is "
                               "shortened back to it: cloth hooked on a limb is let through it instead of staying "
                               "stretched round it (less strain, more cloth inside the body)", lo=0.0, hi=10.0),
+        "limb_release": Field("float", None, "share over the rest length (preset: 2, off in paper): after every frame "
+                              "the cloth edges stretched more than this where they touch an arm's or leg's collider "
+                              "stop being pushed by that limb until they are outside it again: cloth a limb tears "
+                              "lets go of it (the limb passes through it there) instead of staying torn; 0: off",
+                              lo=0.0, hi=100.0),
         "cloth_thickness": Field("float", 0.003, "distance kept between cloth layers, m", lo=0.0, lo_open=True, hi=0.1),
         "cloth_contact": Field("str", "swept", "swept | offset: how cloth collision keeps cloth from passing through "
                                "cloth. swept: continuous collision tests of every call's motion; offset: one proximity "

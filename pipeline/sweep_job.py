@@ -17,13 +17,14 @@ FAILURES = ("sewing", "timeout", "diverged", "bad-input", "crash")
 
 # the metrics row, in table order; the override columns (one per swept key) follow `job`
 COLUMNS = ("job", "status", "failure", "message", "frames", "frames_done", "particles",
-           "in_body_max", "in_body_overlap_max", "in_colliders_max", "strain_mean_pct", "strain_p99_pct", "strain_p99_worst_pct",
+           "in_body_max", "in_body_overlap_max", "in_colliders_max", "released_frames", "strain_mean_pct", "strain_p99_pct", "strain_p99_worst_pct",
            "crossings_self_max", "crossings_between_max", "body_edges_max", "body_edges_overlap_max", "seam_gap_mm", "fit_gap_cm", "floor_cm",
            "slide_cm", "coverage_min_pct", "excess_p95_cm", "warnings",
            "wall_s", "frames_per_s", "sim_frames_per_s", "warm_up_s", "peak_memory_mb", "worker", "recording", "exports")
 # columns that depend on the machine and its load, not on the job: left out when comparing tables
 TIMING_COLUMNS = ("wall_s", "frames_per_s", "sim_frames_per_s", "warm_up_s", "peak_memory_mb", "worker")
-INT_COLUMNS = ("frames", "frames_done", "particles", "in_body_max", "in_body_overlap_max", "in_colliders_max", "crossings_self_max",
+INT_COLUMNS = ("frames", "frames_done", "particles", "in_body_max", "in_body_overlap_max", "in_colliders_max",
+               "released_frames", "crossings_self_max",
                "crossings_between_max", "body_edges_max", "body_edges_overlap_max", "warnings")
 FLOAT_COLUMNS = ("strain_mean_pct", "strain_p99_pct", "strain_p99_worst_pct", "seam_gap_mm", "fit_gap_cm",
                  "floor_cm", "slide_cm", "coverage_min_pct", "excess_p95_cm", "wall_s", "frames_per_s", "sim_frames_per_s",
@@ -91,6 +92,8 @@ def _metrics(state: dict, err: BaseException | None) -> dict:
         r["in_body_max"] = int(body[1:].max(initial=0)) if (body >= 0).all() else None
         r["in_body_overlap_max"] = int(np.asarray(result.penetrations_body_overlap)[1:].max(initial=0))
         r["in_colliders_max"] = int(np.asarray(result.penetrations_colliders)[1:].max(initial=0))
+        if result.released is not None:
+            r["released_frames"] = int((np.asarray(result.released) > 0).sum())
     audit = state.get("audit")
     if audit is not None and audit.garments:
         r["strain_mean_pct"] = float(max(g.strain_mean[-1] for g in audit.garments) * 100)

@@ -308,3 +308,21 @@ def grid_cell(grid_box, grid_dims, px, py, pz):
     if not (0.0 <= u0 < grid_dims[0] and 0.0 <= u1 < grid_dims[1] and 0.0 <= u2 < grid_dims[2]):
         return -1
     return (int(u0) * grid_dims[1] + int(u1)) * grid_dims[2] + int(u2)
+
+
+def collider_family(owner: np.ndarray, parents=None) -> np.ndarray:
+    """(C, 3) int32 per collider: its joint, that joint's parent (-1: none), its depth in the skeleton
+    (root 0; deeper: a limb further out). The 'limb' pinch rule lets a collider act over another it
+    overlaps only when it is deeper and their joints are not parent and child (body_collide.collide).
+    parents None: every collider at depth 0 (no collider outranks another)."""
+    out = np.zeros((owner.size, 3), np.int32)
+    out[:, 0] = owner
+    out[:, 1] = -1
+    if parents is not None and owner.size:
+        parents = np.asarray(parents, np.int64)
+        depth = np.zeros(parents.size, np.int32)
+        for j in range(1, parents.size):       # parents[j] < j: topological order
+            depth[j] = depth[parents[j]] + 1 if parents[j] >= 0 else 0
+        out[:, 1] = parents[owner]
+        out[:, 2] = depth[owner]
+    return out

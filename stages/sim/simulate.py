@@ -12,6 +12,7 @@ One step, in the paper's order (stages.sim.step.run_steps):
 5. collisions in each collider's bone-local frame (spheres: paper eq. 5-6; hulls: the map stage's
    inside test and response), Coulomb friction, counts of corrected / still-inside particles;
 6. the root translation re-applied for the output (positions are stored in world).
+After every frame, cloth a limb tore lets go of it (SimParams.limb_release, stages.sim.release).
 
 Inertia scale s in [0, 1]. World positions are y = x + T(t) (x: relative frame, T: root translation).
 A plain world-space Verlet step y' = y + (1 - k)(y - y_prev) + a h^2 rewritten in the relative frame is
@@ -29,7 +30,6 @@ the colliders, so they do not depend on s.
 from __future__ import annotations
 
 import dataclasses
-
 import time
 
 import numpy as np
@@ -40,9 +40,11 @@ from stages.garments.types import BEND, STRETCH, Garment
 from stages.maps.kernels import METHOD_BRUTE, METHOD_NEAREST_PLANE, METHOD_PAPER
 from stages.maps.types import KIND_CYLINDER, MapArrays
 from stages.sim import body_collide, collider_grid, forces, integrate, simd, step
+from stages.sim.collider_grid import collider_family
 from stages.sim.cloth_contact.phase import ClothPhase
 from stages.sim.floor import floor_heights
 from stages.sim.poses import chunk_poses
+from stages.sim.release import limb_release
 from stages.sim.settle import settle
 from stages.sim.springs import pack_springs, partition_springs
 from stages.sim.strain_limit import strain_limits
@@ -306,24 +308,6 @@ class _Colliders:
                 self.face_edges, self.src_range, self.cws, self.family)
 
 
-def collider_family(owner: np.ndarray, parents=None) -> np.ndarray:
-    """(C, 3) int32 per collider: its joint, that joint's parent (-1: none), its depth in the skeleton
-    (root 0; deeper: a limb further out). The 'limb' pinch rule lets a collider act over another it
-    overlaps only when it is deeper and their joints are not parent and child (body_collide.collide).
-    parents None: every collider at depth 0 (no collider outranks another)."""
-    out = np.zeros((owner.size, 3), np.int32)
-    out[:, 0] = owner
-    out[:, 1] = -1
-    if parents is not None and owner.size:
-        parents = np.asarray(parents, np.int64)
-        depth = np.zeros(parents.size, np.int32)
-        for j in range(1, parents.size):       # parents[j] < j: topological order
-            depth[j] = depth[parents[j]] + 1 if parents[j] >= 0 else 0
-        out[:, 1] = parents[owner]
-        out[:, 2] = depth[owner]
-    return out
-
-
 def particles_inside_colliders(points, colliders, maps, pose, method: int = METHOD_PAPER) -> np.ndarray:
     """(N,) bool: which points (relative frame) are inside a collider of `colliders` posed by
     `pose` (J, 4, 4) joint transforms (e.g. motion.joint_world[f]); maps None: built with defaults."""
@@ -445,6 +429,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
         from stages.sim.body_audit import InsideBody
         audit = InsideBody(character)
 
+    release = limb_release(sysm, col.owner, colliders, character, garments, params)
     rel = np.zeros((nf, n, 3), np.float32)       # relative frame; root translation added at the end
     pen_col = np.zeros((nf, len(garments)), np.int32)
     pen_body = np.full((nf, len(garments)), -1, np.int32)
@@ -482,7 +467,9 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
                       np.sqrt(counts[:, 1]), step_ms, motion.times, timings, timers, max(f_end - 1, 0) * ss,
                       params, notes, f_end)
         return dataclasses.replace(res, pinched=counts[:f_end, 2].astype(np.int32),
-                                   speed_limited=counts[:f_end, 3].astype(np.int32), contacts_obstacles=n_obst[:f_end].copy(), contact_points=tuple(obst_points[:f_end]),
+                                   speed_limited=counts[:f_end, 3].astype(np.int32),
+                                   released=release.counts(f_end) if release is not None else np.zeros(f_end, np.int32),
+                                   contacts_obstacles=n_obst[:f_end].copy(), contact_points=tuple(obst_points[:f_end]),
                                    cloth_contact=cphase.summary() if cphase is not None else {})
 
     def diverged(f):
@@ -532,7 +519,7 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
     d_last = None
     f0 = 1
     while f0 < nf:
-        f1 = min(nf, f0 + (1 if ocol is not None else FRAME_CHUNK))
+        f1 = min(nf, f0 + (1 if ocol is not None or release is not None else FRAME_CHUNK))
         cc = cphase.rest if cphase is not None else None
         t0 = time.perf_counter()
         fwd, inv, inv0, d_prev, d_next, tr, d_last = chunk_poses(motion, f0, f1, ss, s, d_last)
@@ -569,6 +556,8 @@ def _simulate(character, motion, colliders, maps, garments, params, obstacles, p
             step_cycles[f] = simd.read_cycles() - c0
             if not step.record_frame(sysm.x, flags, max2, sysm.goff, rel[f], pen_col[f], counts[f]):
                 raise diverged(f)
+        if release is not None:      # after the frame: its positions and the colliders' poses
+            release.after_frame(f0, sysm.x, sysm.contact, motion.joint_world[f0])
         audit_frames(f0, f1)
         if partial is not None:
             frames_done[0] = f1

@@ -26,7 +26,7 @@ Cloth-side argument tuples (built once by simulate.py, unpacked for free inside 
              tq, tq0, fq, cw, grid_start, grid_items, grid_runs, grid_box, grid_dims, face_edges, src_range, cws,
              family)
             cws (C, 5): the swept spheres of a frame's broad phase (collider_grid.swept_spheres)
-            family (C, 3): joint, its parent, its depth (simulate.collider_family; the 'limb' pinch rule)
+            family (C, 3): joint, its parent, its depth (collider_grid.collider_family; the 'limb' pinch rule)
     prm   = (h, damping, s, k_drag, k_lift, friction, use_aero, iterations, passes, method, aero_every, pinch,
              speed_h, entry, faces, limits)
             entry: SimParams.entry_side (body_collide.collide's `entry`); pinch: body_collide.PINCH_* code.

@@ -106,6 +106,10 @@ class SimParams:
         blend-in (cesium_skirt 127 -> 46 %, bvh_walk T-shirt 129 -> 52 %) but leaves 1.4-2.4 % of the
         particles inside the true body at the worst frame (0.1-0.3 % without) and does not lower the
         body edges through the cloth.
+    limb_release: share over the rest length, 0 = off: after every frame, the free ends of the mesh
+        edges stretched more than this that lie on an arm's or leg's collider stop being pushed by
+        that limb until they are outside it again (stages.sim.release; counted in
+        SimResult.released): cloth a limb tears lets go of it instead of being held torn.
     floor: m, world height of a floor under the cloth, None = none (the dataclass and both presets;
         the pipeline sets it for worn garments from the character, pipeline.scene_motion.motion_floor).
         After the collisions of every step a free particle under it is put back on it, its mid-surface
@@ -165,6 +169,7 @@ class SimParams:
     entry_side: bool = False
     face_contact: bool = False
     strain_limit: float = 0.0
+    limb_release: float = 0.0
     floor: float | None = None
     max_speed: float = 100.0
     speed_limit: float = 0.0
@@ -209,6 +214,7 @@ class SimParams:
         rng("max_speed", 0.0, 1e6, lo_open=True)
         rng("speed_limit", 0.0, 1e6)
         rng("strain_limit", 0.0, 10.0)
+        rng("limb_release", 0.0, 100.0)
         rng("cloth_thickness", 0.0, 0.1, lo_open=True)
         rng("cloth_layer_depth0", self.cloth_thickness, 1.0)
         if not (isinstance(self.settle_frames, (int, np.integer)) and not isinstance(self.settle_frames, (bool, np.bool_))
@@ -285,7 +291,7 @@ PINCH_RULES = ("escape", "midpoint", "limb")    # the index is collide's code (b
 CLOTH_CONTACT_METHODS = ("offset", "swept")
 SETTLE_DAMPING = 0.3     # share of the velocity lost per 1/30 s while a garment settles before frame 0
 PRESETS = {
-    "default": {"cloth_collision": True, "cloth_contact_every": 5, "settle_frames": 10},
+    "default": {"cloth_collision": True, "cloth_contact_every": 5, "settle_frames": 10, "limb_release": 2.0},
     "paper": {"substeps": 1, "iterations": 3, "tethers": False, "cloth_collision": False, "pinch": "escape",
               "bend_stiffness": 1.0},
 }
@@ -336,6 +342,7 @@ class SimResult:
         GarmentTrack), counted apart.
     corrected: (F,) int32, particles the collision response moved at least once during the frame.
     speed_limited: (F,) int32, particles whose speed SimParams.speed_limit capped during the frame.
+    released: (F,) int32, particles SimParams.limb_release let go of a limb at the frame.
     pinched: (F,) int32, particles left in the middle of two joints' colliders pressing on them at
         the frame's last step (SimParams.pinch 'midpoint'; not in penetrations_colliders).
     max_speed: (F,) float64, m/s, the fastest particle at the end of the frame (relative frame).
@@ -372,6 +379,7 @@ class SimResult:
     pinched: np.ndarray | None = None
     speed_limited: np.ndarray | None = None
     penetrations_body_overlap: np.ndarray | None = None
+    released: np.ndarray | None = None
 
     def __post_init__(self):
         o = "SimResult"
