@@ -6,6 +6,7 @@ end summary and the recording's `meta/summary`.
 """
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,18 @@ from pipeline.summary import RunSummary, StageTimer
 # simulation keys whose scene default (null) means "the preset's value" (stages.sim.types.PRESETS)
 PRESET_KEYS = ("substeps", "iterations", "damping", "tethers", "stretch_stiffness", "bend_stiffness",
                "cloth_collision", "pinch", "entry_side", "face_contact", "strain_limit", "limb_release", "cloth_contact_every", "settle_frames")
+
+
+TORN_RELEASE = 2.0   # simulation.limb_release of the second run of a scene whose cloth a limb tore
+
+
+def torn_release(scene: Scene, params) -> bool:
+    """Whether a run whose cloth tore (pipeline.cloth_checks.check_blown_up) is simulated again with
+    cloth let go of the limbs that tear it (SimParams.limb_release = TORN_RELEASE): when the scene leaves
+    `limb_release` to the default preset. Off in the paper preset, and when the scene sets it (0 keeps
+    the first run and its stop)."""
+    sp = scene["simulation"]
+    return sp["limb_release"] is None and sp["preset"] != "paper" and not params.limb_release
 
 
 def sim_params(scene: Scene):
@@ -361,19 +374,29 @@ def _run_stages(scene, out, times, meshes, formats, export_dir, summary, announc
                 warnings.warn(note, stacklevel=1)
             check_memory(scene, len(times), character.vertices.shape[0], sum(g.n_particles for g in garments))
             say("simulation", *(("cloth collision",) if params.cloth_collision else ()))
-            bar = Progress(len(times), "simulation", enabled=progress)
-            with StageTimer(summary, "simulation") as r:
+
+            def simulated(params, label):
+                bar = Progress(len(times), label, enabled=progress)
                 try:
-                    result = simulate(character, motion, colliders, maps, garments, params, obstacles=obstacles,
-                                      layers=garment_layers(scene), ignore_colliders=ignored_colliders(scene, character),
-                                      partial=state.setdefault("sim", {}),
-                                      progress=lambda done, total: bar.update(done), threads=sp["threads"])
+                    return simulate(character, motion, colliders, maps, garments, params, obstacles=obstacles,
+                                    layers=garment_layers(scene), ignore_colliders=ignored_colliders(scene, character),
+                                    partial=state.setdefault("sim", {}),
+                                    progress=lambda done, total: bar.update(done), threads=sp["threads"])
                 finally:
                     bar.close()
-                state["result"] = result
+            with StageTimer(summary, "simulation") as r:
+                result = state["result"] = simulated(params, "simulation")
+                # strain and distance: a fast particle is caught in the step
+                blown = check_blown_up(result, skinned + motion.root_translation[:, None, :], height, garments)
+                if blown is not None and torn_release(scene, params):   # torn by a limb: again, letting go
+                    import warnings
+                    warnings.warn(f"{blown.args[0].replace('simulation diverged', 'cloth torn', 1)}: simulated again, "
+                                  f"cloth a limb stretches over {TORN_RELEASE * 100:.0f} % let go of it "
+                                  "(simulation.limb_release)", stacklevel=1)
+                    params = dataclasses.replace(params, limb_release=TORN_RELEASE)
+                    result = state["result"] = simulated(params, "simulation (again, letting go of torn cloth)")
+                    blown = check_blown_up(result, skinned + motion.root_translation[:, None, :], height, garments)
                 r.sizes.update(steps=result.steps)
-            # strain and distance: a fast particle is caught in the step
-            blown = check_blown_up(result, skinned + motion.root_translation[:, None, :], height, garments)
             if blown is not None:   # logged to the end (what tore it is in the recording), then raised
                 cause = torn_by(blown, garments, result, colliders, character, motion,
                                 ignored=ignored_colliders(scene, character))

@@ -350,7 +350,8 @@ SCENE_SPEC = {
                               "collisions a cloth edge longer than (1 + strain_limit) times its rest length is "
                               "shortened back to it: cloth hooked on a limb is let through it instead of staying "
                               "stretched round it (less strain, more cloth inside the body)", lo=0.0, hi=10.0),
-        "limb_release": Field("float", None, "share over the rest length (preset: 2, off in paper): after every frame "
+        "limb_release": Field("float", None, "share over the rest length (preset: off; left unset, a run whose cloth a "
+                              "limb tears past 500 % is simulated again with 2, except in the paper preset): after every frame "
                               "the cloth edges stretched more than this where they touch an arm's or leg's collider "
                               "stop being pushed by that limb until they are outside it again: cloth a limb tears "
                               "lets go of it (the limb passes through it there) instead of staying torn; 0: off",

@@ -32,7 +32,7 @@ def test_every_stage_is_logged(default_run):
     paths = entity_paths(out)
     for p in ["/rig/mesh", "/rig/skeleton", "/rig/joints", "/rig/regions", "/colliders/report", "/maps/report",
               "/sim/skirt/mesh", "/sim/penetrations/colliders", "/sim/penetrations/body", "/sim/penetrations/pinched",
-              "/sim/penetrations/released", "/timings/step_ms",
+              "/timings/step_ms",
               "/timings/stages", "/meta/scene", "/meta/provenance", "/meta/summary", "/sim/params", "/sim/skirt/strain",
               "/sim/intersections/skirt", "/sim/penetrations/body_edges/skirt", "/sim/skirt/body_cuts"]:
         assert p in paths, p
@@ -56,8 +56,7 @@ def test_every_stage_is_logged(default_run):
 
 def test_per_frame_series_have_one_value_per_frame(default_run):
     _, out, summary = default_run
-    for entity in ("sim/penetrations/colliders", "sim/penetrations/body", "sim/penetrations/pinched",
-                   "sim/penetrations/released", "timings/step_ms"):
+    for entity in ("sim/penetrations/colliders", "sim/penetrations/body", "sim/penetrations/pinched", "timings/step_ms"):
         got = rows(out, entity, "Scalars:scalars")
         assert [f for f, _ in got] == list(range(summary.frames)), entity
     pen = np.array([v[0] for _, v in rows(out, "sim/penetrations/colliders", "Scalars:scalars")])

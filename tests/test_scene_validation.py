@@ -33,9 +33,8 @@ def test_simulation_preset_and_overrides():
     from pipeline.run import sim_params
     from stages.sim.types import SimParams
     default = sim_params(parse_scene_text("{}", source="s.yaml"))
-    # the default preset: the dataclass defaults with cloth collision on, a call every 5 sub-steps, settling,
-    # cloth a limb tears let go of it
-    assert default == SimParams(cloth_collision=True, cloth_contact_every=5, settle_frames=10, limb_release=2.0)
+    # the default preset: the dataclass defaults with cloth collision on, a call every 5 sub-steps, settling
+    assert default == SimParams(cloth_collision=True, cloth_contact_every=5, settle_frames=10)
     assert SimParams.preset("paper").limb_release == 0.0
     assert (default.substeps, default.iterations, default.tethers) == (20, 2, True)
     assert not paper_off_collision() and sim_params(parse_scene_text(

@@ -90,3 +90,17 @@ def test_a_limb_the_garment_ignores_is_never_released_nor_restored():
     x[:, 0] -= 5 * CLEAR
     r.after_frame(2, x, contact, np.tile(np.eye(4), (2, 1, 1)))
     assert contact[1, 1] == -1 and (contact[4:, 1] == IGNORED).all()
+
+
+def test_a_torn_run_is_run_again_only_when_the_scene_leaves_it_to_the_default_preset():
+    from pipeline.run import TORN_RELEASE, sim_params, torn_release
+    from pipeline.scene import parse_scene_text
+
+    def scene(text):
+        s = parse_scene_text(text, source="s.yaml")
+        return s, sim_params(s)
+    assert torn_release(*scene("{}")) and TORN_RELEASE == 2.0
+    assert sim_params(parse_scene_text("{}", source="s.yaml")).limb_release == 0.0      # off until it tears
+    assert not torn_release(*scene("simulation: {preset: paper}"))
+    assert not torn_release(*scene("simulation: {limb_release: 0}"))       # the scene keeps the stop
+    assert not torn_release(*scene("simulation: {limb_release: 1.5}"))     # already on

@@ -291,7 +291,7 @@ PINCH_RULES = ("escape", "midpoint", "limb")    # the index is collide's code (b
 CLOTH_CONTACT_METHODS = ("offset", "swept")
 SETTLE_DAMPING = 0.3     # share of the velocity lost per 1/30 s while a garment settles before frame 0
 PRESETS = {
-    "default": {"cloth_collision": True, "cloth_contact_every": 5, "settle_frames": 10, "limb_release": 2.0},
+    "default": {"cloth_collision": True, "cloth_contact_every": 5, "settle_frames": 10},
     "paper": {"substeps": 1, "iterations": 3, "tethers": False, "cloth_collision": False, "pinch": "escape",
               "bend_stiffness": 1.0},
 }
