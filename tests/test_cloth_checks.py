@@ -52,8 +52,8 @@ def test_run_keeps_the_recording_of_cloth_that_blew_up_and_names_it(tmp_path, mo
     from pipeline.cli import main
     from tests.rrd_read import entity_paths, rows
     monkeypatch.setattr(checks, "MAX_STRAIN", -1.0)        # every frame "blows up": the check is what is tested
-    scene = tmp_path / "torn.yaml"
-    scene.write_text("character: {clip: rest}\nframes: {count: 3}\noutput: out.rrd\n"
+    scene = tmp_path / "torn.yaml"      # limb_release: 0 keeps the stop (no second run)
+    scene.write_text("character: {clip: rest}\nframes: {count: 3}\noutput: out.rrd\nsimulation: {limb_release: 0}\n"
                      "garments: [{type: rectangle, resolution: [6, 6], width: 0.4, height: 0.4, center: [0, 2, 0]}]\n")
     monkeypatch.chdir(tmp_path)
     assert main(["run", str(scene), "-q"]) == 2
@@ -65,6 +65,25 @@ def test_run_keeps_the_recording_of_cloth_that_blew_up_and_names_it(tmp_path, mo
     assert "/meta/diverged" in paths and "/meta/summary" in paths      # logged to the end
     assert any(p.startswith("/sim/") for p in paths)
     assert len(rows(kept, "sim/rectangle/mesh", "Mesh3D:vertex_positions")) == 3   # every frame simulated
+
+
+def test_a_torn_run_is_simulated_again_letting_go_and_says_so(tmp_path, monkeypatch, capsys):
+    # limb_release left unset: a run whose cloth tore is simulated again with it, with a warning; torn
+    # again (here every frame "blows up"), it stops as before
+    import pipeline.cloth_checks as checks
+    from pipeline.cli import main
+    from tests.rrd_read import rows
+    monkeypatch.setattr(checks, "MAX_STRAIN", -1.0)
+    scene = tmp_path / "torn.yaml"
+    scene.write_text("character: {clip: rest}\nframes: {count: 3}\noutput: out.rrd\n"
+                     "garments: [{type: rectangle, resolution: [6, 6], width: 0.4, height: 0.4, center: [0, 2, 0]}]\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", str(scene), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "cloth torn at frame 0" in err and "simulated again" in err and "limb_release" in err
+    assert "simulation diverged at frame 0" in err.strip().splitlines()[-1]
+    # the second run's recording, with the release counted per frame
+    assert len(rows(tmp_path / "out.diverged.rrd", "sim/penetrations/released", "Scalars:scalars")) == 3
 
 
 def test_run_keeps_no_file_for_bad_input(tmp_path, monkeypatch, capsys):
