@@ -3,10 +3,10 @@
 A hand or forearm the animation swings into a garment catches the cloth and drags it against the
 pinned waist or shoulders, or against the body (docs/decisions.md, "Limbs, strain and the body"):
 edges stretch to several times their length. After every frame the edges stretched over `threshold`
-(SimParams.limb_release, far past what cloth stretches) are found; their free ends within `reach`
+(SimParams.limb_release, far past what cloth stretches) are found; their free ends within REACH
 of a collider of an arm or leg stop being pushed by that limb's colliders (the collision kernel's
 contact entry becomes IGNORED), so the limb passes through the cloth there and the springs pull it
-back. An entry is restored once the particle is `clear` outside every collider of that limb: the
+back. An entry is restored once the particle is CLEAR outside every collider of that limb: the
 cloth is caught again only from outside. The entries of the limbs a garment ignores are left alone.
 """
 from __future__ import annotations
@@ -41,7 +41,7 @@ class LimbRelease:
                 cols = self.owner == j
                 if cols.any() and not (contact[offsets[k]:offsets[k + 1]][:, cols] == IGNORED).any():
                     self.releasable[k, j] = True
-        self.released = {}                      # (particle, joint) -> frame released
+        self.released = set()                   # (particle, joint) pairs let go of
         self.per_frame = {}                     # frame -> particles released at it
 
     @property
@@ -70,7 +70,7 @@ class LimbRelease:
             for i in ends[near]:
                 key = (int(i), int(j))
                 if key not in self.released:
-                    self.released[key] = frame
+                    self.released.add(key)
                     contact[i, cols] = IGNORED
                     self.per_frame[frame] = self.per_frame.get(frame, 0) + 1
 
@@ -80,7 +80,7 @@ class LimbRelease:
         for k, (i, j) in enumerate(keys):
             if d[cj == j, k].min() > CLEAR:
                 contact[i, self.owner == j] = -1
-                del self.released[(i, j)]
+                self.released.discard((i, j))
 
     def counts(self, n_frames: int) -> np.ndarray:
         """(n_frames,) int32: particles released at each frame."""
