@@ -11,7 +11,7 @@ from hypothesis import given, settings, strategies as st
 from stages.garments.garmentcode import read_pattern
 from stages.garments.garmentcode_grade import Grade, grade, graded_body, grading
 from stages.garments.garmentcode_place import read_body
-from stages.garments.garmentcode_shoulders import SURFACE_RADIUS, shoulder_lift, shoulder_pairs
+from stages.garments.garmentcode_shoulders import SURFACE_RADIUS, UNDER_LIMB, shoulder_lift, shoulder_pairs
 from tests.test_garmentcode import ASSETS, ASSETS_BODY, needs_assets
 
 
@@ -43,10 +43,11 @@ def test_a_seam_from_the_front_over_to_the_back_is_found_and_one_down_the_side_i
 
 
 @settings(max_examples=40, deadline=None)
-@given(top=st.floats(1.1, 1.5), ridge=st.floats(1.2, 1.4), clearance=st.floats(0.0, 0.02))
-def test_lifted_by_the_lift_every_seam_closes_above_the_shoulders(top, ridge, clearance):
-    # the shoulders: a ridge along x at height `ridge` (z = 0), lower towards the front and back
-    placed, flat = _two_panels(top)
+@given(below=st.floats(-0.2, UNDER_LIMB - 1e-3), ridge=st.floats(1.2, 1.4), clearance=st.floats(0.0, 0.02))
+def test_lifted_by_the_lift_every_seam_closes_above_the_shoulders(below, ridge, clearance):
+    # the shoulders: a ridge along x at height `ridge` (z = 0), lower towards the front and back; the
+    # seam `below` under it (negative: above it)
+    placed, flat = _two_panels(ridge - below)
     gx, gz = np.meshgrid(np.linspace(0.0, 0.2, 41), np.linspace(-0.1, 0.1, 21))
     surface = np.c_[gx.ravel(), ridge - 2.0 * gz.ravel() ** 2, gz.ravel()]
     pairs = flat.seam_pairs
@@ -58,6 +59,23 @@ def test_lifted_by_the_lift_every_seam_closes_above_the_shoulders(top, ridge, cl
     if lift > 0:   # no higher than it needs
         assert np.min(mid[:, 1] - np.array(under) - clearance) == pytest.approx(0.0, abs=1e-9)
     assert shoulder_lift(placed, pairs, surface + [0.0, 0.0, 5.0], clearance) == 0.0   # nothing under the seam
+
+
+def test_a_seam_under_an_arm_asks_for_no_lift():
+    # a stitch from the shoulder down the side: its pairs at the armpit, under the arm, would lift the
+    # top over the arm (onto the head); only those on the shoulders count
+    placed, flat = _two_panels(1.3)
+    gx, gz = np.meshgrid(np.linspace(0.0, 0.2, 41), np.linspace(-0.1, 0.1, 21))
+    shoulders = np.c_[gx.ravel(), 1.32 - 2.0 * gz.ravel() ** 2, gz.ravel()]
+    arm = np.c_[gx.ravel() + 0.3, np.full(gx.size, 1.3), gz.ravel()]
+    armpit = placed.copy()
+    armpit[:, 0] += 0.3                                         # the same seam under the arm's surface
+    armpit[:, 1] -= UNDER_LIMB + 0.05
+    both = np.concatenate([placed, armpit])
+    pairs = np.concatenate([flat.seam_pairs, flat.seam_pairs + len(placed)])
+    surface = np.concatenate([shoulders, arm])
+    assert shoulder_lift(both, pairs, surface, 0.01) == pytest.approx(shoulder_lift(placed, flat.seam_pairs, shoulders, 0.01))
+    assert shoulder_lift(both, pairs, surface, 0.01) == pytest.approx(0.03)
 
 
 @needs_assets

@@ -25,6 +25,7 @@ from stages.garments.garmentcode import GCPattern, edge_points, panel_part
 from stages.garments.garmentcode_band import band_floor, band_vertices, lift_band, worn_from_waistband
 from stages.garments.garmentcode_grade import Grade, grade, graded_body, grading
 from stages.garments.garmentcode_heights import cut_above, limited_heights
+from stages.garments.garmentcode_legs import apart
 from stages.garments.garmentcode_shoulders import shoulder_lift, shoulder_pairs, shoulder_surface
 from stages.garments.garmentcode_sleeves import fit_sleeves
 from stages.garments.garmentcode_wrap import wrap_legs, wrap_ring, wrap_sleeves
@@ -585,6 +586,7 @@ def make_gc_garment(gc: GCPattern, body: GCBody, character, motion, colliders, m
                 f"seams {log.gap_max[-1] * 1000:.1f} mm open with self collision: closed from there without",)
                 + tight_log.notes)
     pos, mtri, remap = merged_mesh(sewn, tri, flat.seam_pairs)
+    pos = apart(gc, placed, flat, pos, remap, character, origins)    # wide trouser legs through each other
     pos, log = untangle_sewn(pos, mtri, log)
     atts = [attach_indices(np.unique(remap[i]), TRUNK_BONE) for i in waist]
     g = build_garment(name, pos, mtri, density=density, triangle_rest=tri_rest, attachments=atts,

@@ -15,6 +15,7 @@ import numpy as np
 
 SEAM_DEPTH = 0.05   # m: a stitch whose pairs start this far apart front to back (median) crosses the shoulders
 SURFACE_RADIUS = 0.03   # m: the shoulders' height under a seam point: the highest point this near it, from above
+UNDER_LIMB = 0.1    # m: a seam point this far or more under the surface above it is under an arm, not on a shoulder
 
 
 def shoulder_pairs(placed: np.ndarray, flat, arm_panel: np.ndarray, axis: np.ndarray, above: float,
@@ -48,7 +49,11 @@ def shoulder_lift(placed: np.ndarray, pairs: np.ndarray, surface: np.ndarray, cl
     """How far (m, >= 0) the garment must go up for each pair's midpoint (where its straight-line
     closing meets) to lie `clearance` above the highest point of `surface` ((N, 3): skin and collider
     points of the shoulders, the neck and head left out) within SURFACE_RADIUS of it, seen from above.
-    Points with nothing under them (a seam end beside the neck) ask for nothing."""
+    Points with nothing under them (a seam end beside the neck) ask for nothing, nor do points
+    UNDER_LIMB or more under that surface: they are under an arm, not on the shoulders (a sampled
+    hoodie's stitch runs from the shoulder down the side, and on the CMU walk its pairs at the armpit
+    asked for 29 cm, lifting the top off the shoulders onto the head; seams placed on the shoulders
+    start at most 5.6 cm under them)."""
     if len(pairs) == 0 or len(surface) == 0:
         return 0.0
     from scipy.spatial import cKDTree
@@ -56,7 +61,7 @@ def shoulder_lift(placed: np.ndarray, pairs: np.ndarray, surface: np.ndarray, cl
     tree = cKDTree(surface[:, [0, 2]])
     need = 0.0
     for q, near in zip(mid, tree.query_ball_point(mid[:, [0, 2]], SURFACE_RADIUS)):
-        if near:
+        if near and float(surface[near, 1].max()) - float(q[1]) < UNDER_LIMB:
             need = max(need, float(surface[near, 1].max()) + clearance - float(q[1]))
     return need
 
