@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from stages.garments.garmentcode_legs import LEG_GAP, crotch_height, keep_side, legs_apart
+from stages.garments.garmentcode_legs import LEG_GAP, below_sides, crotch_height, keep_side, legs_apart
 from stages.geometry.mesh import mesh_edges
 from stages.sim.audit import crossing_flags
 
@@ -95,3 +95,14 @@ def test_keep_side_puts_every_point_on_its_side_and_moves_only_those_that_were_n
     assert np.all(d1 >= LEG_GAP - 1e-9)
     assert np.array_equal(out[d0 >= LEG_GAP], x[d0 >= LEG_GAP])
     assert np.allclose(out[:, 1], x[:, 1])
+
+
+def test_a_cuff_sewn_under_a_leg_takes_its_side_and_a_panel_sewn_to_both_legs_none():
+    # panels (one vertex each is enough): 0 left leg, 1 right leg, 2 a ruffle under the left cuff 3,
+    # 4 a skirt front sewn to both legs, 5 a panel above the crotch sewn to the left leg
+    pv = np.array([0, 1, 2, 3, 4, 5])
+    placed = np.array([[0.1, 0.5, 0], [-0.1, 0.5, 0], [0.0, 0.05, 0], [0.05, 0.1, 0], [0.0, 0.3, 0], [0.0, 0.9, 0]])
+    side = np.array([1.0, -1.0, 0.0, 0.0, 0.0, 0.0])
+    pairs = np.array([[2, 3], [3, 0], [4, 0], [4, 1], [5, 0]])
+    out = below_sides(side, placed, pv, pairs, crotch=0.7)
+    assert out.tolist() == [1.0, -1.0, 1.0, 1.0, 0.0, 0.0]

@@ -16,8 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stages.garments.garmentcode import GCPattern
-from stages.garments.garmentcode_wrap import leg_sides
+from stages.garments.garmentcode import GCPattern, panel_part
 
 LEG_GAP = 0.005    # m: a leg's cloth keeps this far to its side of the plane between the legs
 
@@ -37,14 +36,41 @@ def leg_axes(character, origins: np.ndarray) -> dict:
 
 
 def vertex_sides(gc: GCPattern, placed: np.ndarray, panel_of_vertex: np.ndarray, root_x: float) -> np.ndarray:
-    """(N,) +1 / -1 for the placed vertices (N, 3) of a leg panel lying on one side of the character
-    (garmentcode_wrap.leg_sides, about the root's x), 0 elsewhere."""
-    shift = np.array([root_x, 0.0, 0.0])
-    sides = leg_sides(gc, [placed[panel_of_vertex == i] - shift for i in range(len(gc.panels))])
+    """(N,) +1 / -1 for the placed vertices (N, 3) of a panel that is not a sleeve and lies on one side
+    of the character (its vertices at most 2 cm past the root's x the other way, as
+    garmentcode_wrap.leg_sides): a trouser leg's front and back; 0 elsewhere."""
     out = np.zeros(len(placed))
-    for i, s in sides.items():
-        out[panel_of_vertex == i] = s
+    for i, p in enumerate(gc.panels):
+        x = placed[panel_of_vertex == i, 0] - root_x
+        if panel_part(p) == "arm" or not x.size:
+            continue
+        side = 1.0 if float(np.mean(x)) >= 0 else -1.0
+        if float((side * x).min()) > -0.02:
+            out[panel_of_vertex == i] = side
     return out
+
+
+def below_sides(side: np.ndarray, placed: np.ndarray, panel_of_vertex: np.ndarray, pairs: np.ndarray,
+                crotch: float) -> np.ndarray:
+    """`side` with the panels wholly below the crotch that have none given the side of the panels they
+    are stitched to, when those are all of one side (repeated down a chain): a leg's cuff and the
+    flared ruffle sewn under it, wider than the space between the legs (the sampled jumpsuit's crossed
+    the other leg's between the ankles). A panel sewn to both sides (a skirt's front) keeps none."""
+    side = side.copy()
+    n = int(panel_of_vertex.max()) + 1
+    of = np.array([side[panel_of_vertex == k][0] if (panel_of_vertex == k).any() else 0.0 for k in range(n)])
+    low = np.array([(panel_of_vertex == k).any() and placed[panel_of_vertex == k, 1].max() < crotch for k in range(n)])
+    pa, pb = panel_of_vertex[pairs[:, 0]], panel_of_vertex[pairs[:, 1]]
+    changed = True
+    while changed:
+        changed = False
+        for k in np.flatnonzero(low & (of == 0)):
+            near = {float(of[j]) for j in np.r_[pb[pa == k], pa[pb == k]] if j != k and of[j] != 0}
+            if len(near) == 1:
+                of[k] = near.pop()
+                side[panel_of_vertex == k] = of[k]
+                changed = True
+    return side
 
 
 def crotch_height(placed: np.ndarray, pairs: np.ndarray, side: np.ndarray) -> float | None:
@@ -96,7 +122,10 @@ def apart(gc: GCPattern, placed: np.ndarray, flat, pos: np.ndarray, remap: np.nd
         return pos
     side = vertex_sides(gc, placed, flat.panel_of_vertex, float(origins[character.root_joint][0]))
     crotch = crotch_height(placed, flat.seam_pairs, side)
-    return pos if crotch is None else legs_apart(pos, remap, side, axes, crotch)
+    if crotch is None:
+        return pos
+    side = below_sides(side, placed, flat.panel_of_vertex, flat.seam_pairs, crotch)
+    return legs_apart(pos, remap, side, axes, crotch)
 
 
 def keep_side(x: np.ndarray, own: np.ndarray, other: np.ndarray, gap: float = LEG_GAP) -> np.ndarray:
