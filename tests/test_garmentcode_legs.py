@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from stages.garments.garmentcode_legs import LEG_GAP, below_sides, crotch_height, keep_side, legs_apart
+from types import SimpleNamespace
+
+from stages.garments.garmentcode_legs import LEG_GAP, below_sides, crotch_height, keep_side, legs_apart, vertex_sides
 from stages.geometry.mesh import mesh_edges
 from stages.sim.audit import crossing_flags
 
@@ -106,3 +108,14 @@ def test_a_cuff_sewn_under_a_leg_takes_its_side_and_a_panel_sewn_to_both_legs_no
     pairs = np.array([[2, 3], [3, 0], [4, 0], [4, 1], [5, 0]])
     out = below_sides(side, placed, pv, pairs, crotch=0.7)
     assert out.tolist() == [1.0, -1.0, 1.0, 1.0, 0.0, 0.0]
+
+
+def test_a_leg_panel_over_the_middle_keeps_its_side_and_a_centred_panel_has_none():
+    # a wide trouser leg placed 3 cm over the middle (a sampled pair of pants), a cuff on one side, a
+    # waistband round the middle and a sleeve
+    panels = [SimpleNamespace(name="pant_f_l", label="leg"), SimpleNamespace(name="cuff_l", label="body"),
+              SimpleNamespace(name="wb_front", label="body"), SimpleNamespace(name="sleeve", label="arm")]
+    placed = np.array([[-0.03, 0.5, 0], [0.2, 0.5, 0], [0.05, 0.1, 0], [0.1, 0.1, 0], [-0.15, 1.0, 0], [0.15, 1.0, 0],
+                       [0.3, 1.3, 0], [0.4, 1.2, 0]])
+    pv = np.array([0, 0, 1, 1, 2, 2, 3, 3])
+    assert vertex_sides(SimpleNamespace(panels=panels), placed, pv, 0.0).tolist() == [1, 1, 1, 1, 0, 0, 0, 0]
