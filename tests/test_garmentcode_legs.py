@@ -113,9 +113,14 @@ def test_a_cuff_sewn_under_a_leg_takes_its_side_and_a_panel_sewn_to_both_legs_no
 def test_a_leg_panel_over_the_middle_keeps_its_side_and_a_centred_panel_has_none():
     # a wide trouser leg placed 3 cm over the middle (a sampled pair of pants), a cuff on one side, a
     # waistband round the middle and a sleeve
+    # waistband round the middle, a sleeve, and a skirt's front (GarmentCode labels it `leg` too)
     panels = [SimpleNamespace(name="pant_f_l", label="leg"), SimpleNamespace(name="cuff_l", label="body"),
-              SimpleNamespace(name="wb_front", label="body"), SimpleNamespace(name="sleeve", label="arm")]
-    placed = np.array([[-0.03, 0.5, 0], [0.2, 0.5, 0], [0.05, 0.1, 0], [0.1, 0.1, 0], [-0.15, 1.0, 0], [0.15, 1.0, 0],
-                       [0.3, 1.3, 0], [0.4, 1.2, 0]])
-    pv = np.array([0, 0, 1, 1, 2, 2, 3, 3])
-    assert vertex_sides(SimpleNamespace(panels=panels), placed, pv, 0.0).tolist() == [1, 1, 1, 1, 0, 0, 0, 0]
+              SimpleNamespace(name="wb_front", label="body"), SimpleNamespace(name="sleeve", label="arm"),
+              SimpleNamespace(name="skirt_front", label="leg")]
+    leg = np.c_[np.linspace(-0.03, 0.2, 10), np.full(10, 0.5), np.zeros(10)]
+    skirt = np.c_[np.linspace(-0.2, 0.21, 10), np.full(10, 0.5), np.zeros(10)]
+    placed = np.concatenate([leg, [[0.05, 0.1, 0], [0.1, 0.1, 0], [-0.15, 1.0, 0], [0.15, 1.0, 0],
+                                   [0.3, 1.3, 0], [0.4, 1.2, 0]], skirt])
+    pv = np.repeat([0, 1, 2, 3, 4], [10, 2, 2, 2, 10])
+    sides = vertex_sides(SimpleNamespace(panels=panels), placed, pv, 0.0)
+    assert sides.tolist() == [1] * 12 + [0] * 14

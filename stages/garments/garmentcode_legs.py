@@ -36,17 +36,18 @@ def leg_axes(character, origins: np.ndarray) -> dict:
 
 
 def vertex_sides(gc: GCPattern, placed: np.ndarray, panel_of_vertex: np.ndarray, root_x: float) -> np.ndarray:
-    """(N,) +1 / -1 for the placed vertices (N, 3) of a trouser leg's panel (labelled `leg`: the side
-    its middle is on; a sampled pair of wide pants was placed 3.2 cm over the middle) or of another
-    panel that is not a sleeve and lies on one side of the character (its vertices at most 2 cm past
-    the root's x the other way); 0 elsewhere."""
+    """(N,) +1 / -1 for the placed vertices (N, 3) of a panel that is not a sleeve and lies on one side
+    of the character: its vertices at most 2 cm past the root's x the other way, or, for a panel
+    labelled `leg`, 80 % of them on its side (a sampled pair of wide pants was placed 3.2 cm over the
+    middle; GarmentCode labels a skirt's front and back `leg` too, and they lie across it); 0
+    elsewhere."""
     out = np.zeros(len(placed))
     for i, p in enumerate(gc.panels):
         x = placed[panel_of_vertex == i, 0] - root_x
         if panel_part(p) == "arm" or not x.size:
             continue
         side = 1.0 if float(np.mean(x)) >= 0 else -1.0
-        if panel_part(p) == "leg" or float((side * x).min()) > -0.02:
+        if float((side * x).min()) > -0.02 or panel_part(p) == "leg" and float(np.mean(side * x > 0)) >= 0.8:
             out[panel_of_vertex == i] = side
     return out
 
