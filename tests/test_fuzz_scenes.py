@@ -259,3 +259,23 @@ def test_mangled_character_bvh_is_accepted_or_one_line(tmp_path, capsys, monkeyp
     monkeypatch.chdir(tmp_path)
     _run(tmp_path, capsys, monkeypatch, "character: {source: bvh, path: walk.bvh, clip: rest}\noutput: out.rrd\n",
          SHEET_OBJ, SHEET_OBJ)
+
+
+def test_an_inverse_bind_matrix_singular_only_in_its_bottom_row_is_one_line(tmp_path, capsys, monkeypatch, built_figure):
+    # found by the fuzzing above: a flipped byte zeroed a matrix's bottom row, its 3 x 3 part still
+    # invertible; the loader's inversion of the whole matrix then stopped the run as an internal error
+    import pygltflib
+    doc = pygltflib.GLTF2.load_from_bytes(figure_glb())
+    blob = bytearray(doc.binary_blob())
+    acc = doc.accessors[doc.skins[0].inverseBindMatrices]
+    view = doc.bufferViews[acc.bufferView]
+    start = (view.byteOffset or 0) + (acc.byteOffset or 0)
+    m = np.frombuffer(blob, np.float32, 16, start).copy()
+    m[[3, 7, 11, 15]] = 0.0                       # column-major: the bottom row
+    blob[start:start + 64] = m.tobytes()
+    doc.set_binary_blob(bytes(blob))
+    (tmp_path / "figure.glb").write_bytes(b"".join(doc.save_to_bytes()))
+    monkeypatch.chdir(tmp_path)
+    code = _run(tmp_path, capsys, monkeypatch, "character: {source: gltf, path: figure.glb, clip: rest}\noutput: out.rrd\n",
+                SHEET_OBJ, SHEET_OBJ)
+    assert code == 2

@@ -183,9 +183,11 @@ def _inverse_binds(path, doc, rd, used_skins, order, rest_world):
                 raise InputError(path, f"skin {s}: inverseBindMatrices has {raw.shape[0]} matrices of "
                                        f"{raw.shape[1]} values, expected {len(sk.joints)} MAT4")
             ibms = raw.reshape(-1, 4, 4).transpose(0, 2, 1)
-            dets = np.linalg.det(ibms[:, :3, :3])
-            if not np.all(np.abs(dets) > 1e-300):
-                raise InputError(path, f"skin {s}: inverse bind matrix {int(np.argmin(np.abs(dets)))} is singular")
+            # the whole matrix: a corrupted bottom row leaves the 3 x 3 part invertible but not it
+            dets = np.abs(np.linalg.det(ibms[:, :3, :3])) * np.abs(np.linalg.det(ibms))
+            if not np.all(np.isfinite(dets) & (dets > 1e-300)):
+                raise InputError(path, f"skin {s}: inverse bind matrix {int(np.argmin(np.nan_to_num(dets)))} is singular "
+                                       f"or not finite")
         shared = [(k, jn) for k, jn in enumerate(sk.joints) if jn in ibm_file]
         change = np.eye(4)
         if shared:
