@@ -6,9 +6,9 @@ the legs. Wrapped round each leg (garmentcode_wrap.wrap_legs) they overlap in th
 leaves the two inner sides through each other (js_mean_all on the built-in character: 209 edges of
 one leg through the other after sewing, from the ankles to the crotch, and the simulation keeps
 crossings it starts with to the last frame). Flattening them against the plane as placed does not
-last: untangling the placed panels and sewing them pulled them through each other again. With every vertex of one leg on one side of a
-plane and every vertex of the other on the other side, no edge of one can pass through a triangle of
-the other.
+last: untangling the placed panels and sewing them pulled them through each other again. With every
+vertex of one leg on one side of a plane and every vertex of the other on the other side, no edge of
+one can pass through a triangle of the other.
 
 Frames: the character's relative frame at frame 0 (metres, Y up).
 """
@@ -23,7 +23,8 @@ LEG_GAP = 0.005    # m: a leg's cloth keeps this far to its side of the plane be
 
 def leg_axes(character, origins: np.ndarray) -> dict:
     """{side: (2, 3) hip and ankle joint positions} of the character's two legs (side +1: the one at
-    larger x than the root, whatever the rig calls it); {} without two leg chains."""
+    larger x than the root, whatever the rig calls it); {} without two leg chains of three joints.
+    Also the legs of garmentcode_place.body_map."""
     from stages.rig.humanoid import limb_chain
     root = origins[character.root_joint]
     out = {}
@@ -111,7 +112,6 @@ def _axis_at(q: np.ndarray, y: np.ndarray) -> np.ndarray:
     a, b = q
     t = np.clip((y - a[1]) / (b[1] - a[1]), 0.0, 1.0) if abs(b[1] - a[1]) > 1e-6 else np.zeros_like(y)
     return a + t[:, None] * (b - a)
-
 
 
 def apart(gc: GCPattern, placed: np.ndarray, flat, pos: np.ndarray, remap: np.ndarray, character,

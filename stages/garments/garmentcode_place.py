@@ -25,7 +25,7 @@ from stages.garments.garmentcode import GCPattern, edge_points, panel_part
 from stages.garments.garmentcode_band import band_floor, band_vertices, lift_band, worn_from_waistband
 from stages.garments.garmentcode_grade import Grade, grade, graded_body, grading
 from stages.garments.garmentcode_heights import cut_above, limited_heights
-from stages.garments.garmentcode_legs import apart
+from stages.garments.garmentcode_legs import apart, leg_axes
 from stages.garments.garmentcode_shoulders import shoulder_lift, shoulder_pairs, shoulder_surface
 from stages.garments.garmentcode_sleeves import fit_sleeves
 from stages.garments.garmentcode_wrap import wrap_legs, wrap_ring, wrap_sleeves
@@ -271,17 +271,11 @@ def body_map(body: GCBody, meas: dict, character, origins: np.ndarray, anchor: f
         chain = limb_chain(character, "arm", s)
         shoulders[side] = (origins[chain[0]].copy() if chain else
                            np.array([root[0] + side * meas["shoulder_half"], meas["shoulder_y"], root[2]]))
-    legs = {}
-    for s in ("l", "r"):
-        chain = limb_chain(character, "leg", s)
-        if chain:   # the side from where the leg is, whatever the rig calls it
-            q = origins[[chain[0], chain[2]]].copy()
-            legs[1.0 if q[0, 0] >= root[0] else -1.0] = q
     turn = meas.get("arm_angle", body.arm_angle) - body.arm_angle
     return BodyMap(src, dst, np.array([body.hips_y, body.waist_y, body.bust_y]), ratio,
                    np.array([root[0], 0.0, root[2]]), float(turn),
                    np.array([body.shoulder_half + 0.02, body.shoulder_y - 0.04]), shoulders,
-                   legs if len(legs) == 2 else {})
+                   leg_axes(character, origins))
 
 
 def mismatch(body: GCBody, meas: dict, top: bool = False) -> dict:
